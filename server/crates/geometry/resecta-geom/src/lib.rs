@@ -1,0 +1,18 @@
+//! Geometry kernel of resecta: pure, synchronous, no I/O.
+//!
+//! Every coordinate is in millimetres in the patient frame RAS. Voxel grids carry their full
+//! index→RAS affine ([`Grid`]); meshes ([`TriMesh`]) are validated at construction.
+
+pub mod error;
+pub mod grid;
+pub mod math;
+pub mod mesh;
+pub mod pca;
+pub mod roles;
+
+pub use error::GeomError;
+pub use grid::{Grid, Volume, VoxelLimit};
+pub use math::{Mat3, Mat4, Real, Vec3};
+pub use mesh::{MeshReport, TriMesh};
+pub use pca::Pca;
+pub use roles::{Role, RoleMap};

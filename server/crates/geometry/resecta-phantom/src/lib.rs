@@ -1,0 +1,1 @@
+//! Synthetic liver phantoms with analytic truth.

@@ -1,0 +1,1 @@
+//! Medical image and mesh files, converted to RAS millimetres.
