@@ -43,6 +43,8 @@ pub enum GeomError {
     BackgroundLabel,
     #[error("role map: role {0} has no labels")]
     EmptyRole(String),
+    #[error("grid axes are not orthogonal (sheared); distances in mm would be wrong")]
+    NonOrthogonalGrid,
     #[error("need at least {needed} points, got {got}")]
     TooFewPoints { needed: usize, got: usize },
 }

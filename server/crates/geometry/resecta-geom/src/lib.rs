@@ -3,6 +3,7 @@
 //! Every coordinate is in millimetres in the patient frame RAS. Voxel grids carry their full
 //! index→RAS affine ([`Grid`]); meshes ([`TriMesh`]) are validated at construction.
 
+pub mod edt;
 pub mod error;
 pub mod grid;
 pub mod math;
@@ -10,6 +11,10 @@ pub mod mesh;
 pub mod pca;
 pub mod roles;
 
+pub use edt::{
+    NO_FEATURE, NearestFeature, distance_transform, distance_transform_where,
+    distance_transform_with_nearest, signed_distance_transform, signed_distance_transform_where,
+};
 pub use error::GeomError;
 pub use grid::{Grid, Volume, VoxelLimit};
 pub use math::{Mat3, Mat4, Real, Vec3};
