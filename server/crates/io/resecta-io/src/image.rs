@@ -65,6 +65,8 @@ macro_rules! each {
     };
 }
 
+// `f64::from` is the identity for the `F64` arm of `each!`.
+#[allow(clippy::useless_conversion)]
 impl VoxelData {
     /// Decodes packed values of type `ty` (`bytes.len()` must be a multiple of its size; a
     /// trailing partial value is ignored).

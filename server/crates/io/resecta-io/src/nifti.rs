@@ -194,7 +194,7 @@ fn dims_of(h: &NiftiHeader) -> Result<[usize; 3], ErrorKind> {
 fn pixdim_of(h: &NiftiHeader) -> Result<[f64; 3], ErrorKind> {
     let nd = usize::from(h.dim[0]).min(3);
     let mut p = [1.0; 3];
-    for k in 0..3 {
+    for (k, pk) in p.iter_mut().enumerate() {
         let v = f64::from(h.pixdim[k + 1]);
         if k < nd {
             if !v.is_finite() || v <= 0.0 {
@@ -204,9 +204,9 @@ fn pixdim_of(h: &NiftiHeader) -> Result<[f64; 3], ErrorKind> {
                     f64::from(h.pixdim[3]),
                 ])));
             }
-            p[k] = v;
+            *pk = v;
         } else if v.is_finite() && v > 0.0 {
-            p[k] = v;
+            *pk = v;
         }
     }
     Ok(p)
