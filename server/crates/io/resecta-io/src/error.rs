@@ -52,6 +52,14 @@ pub enum ErrorKind {
     DataSize { expected: u64, got: u64 },
     #[error("unsupported {what}: {value}")]
     Unsupported { what: &'static str, value: String },
+    #[error("missing required field {0}")]
+    MissingField(String),
+    #[error("refused data file path {0:?} (must stay inside the header's folder)")]
+    UnsafePath(String),
+    #[error("not a label map: {0}")]
+    NotLabels(String),
+    #[error("bad segmentation: {0}")]
+    Segmentation(String),
     #[error("bad mesh: {0}")]
     Mesh(String),
     #[error(transparent)]

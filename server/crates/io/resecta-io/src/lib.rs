@@ -1,5 +1,18 @@
 //! Medical image and mesh files, converted to RAS millimetres on read and back on write.
+//!
+//! Images: NIfTI-1 ([`nifti`]), NRRD and Slicer `.seg.nrrd` ([`nrrd`]), MetaImage
+//! ([`metaimage`]); [`read_image`]/[`write_image`] pick the format from the file name. Every
+//! reader takes a [`VoxelLimit`](resecta_geom::VoxelLimit), checks sizes before allocating and
+//! has a from-bytes variant.
 
 pub mod error;
+pub mod image;
+pub mod metaimage;
+pub mod nifti;
+pub mod nrrd;
+pub mod volume_io;
 
 pub use error::{ErrorKind, IoError};
+pub use image::{Image, ScalarType, VoxelData};
+pub use nrrd::{Segment, Segmentation};
+pub use volume_io::{ImageFormat, read_image, read_label_map, write_image, write_label_map};
