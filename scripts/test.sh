@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# Runs every check and test of resecta on a fresh machine (installs what it needs first).
+# Usage: bash scripts/test.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+root=$(pwd)
+step() { printf '\n== %s ==\n' "$*" >&2; }
+
+step "system packages"
+need_apt=()
+# (GPU-twin tests of later issues add mesa-vulkan-drivers/libvulkan1 here.)
+if ((${#need_apt[@]})); then
+  sudo_=""; [ "$(id -u)" = 0 ] || sudo_=sudo
+  $sudo_ apt-get update -qq && $sudo_ apt-get install -y -qq --no-install-recommends "${need_apt[@]}"
+fi
+command -v cargo-nextest >/dev/null || cargo install --locked cargo-nextest
+
+step "python venv"
+if [ ! -x .venv/bin/python ]; then python3 -m venv .venv; fi
+.venv/bin/python -m pip install -q --disable-pip-version-check -r tests/requirements.txt
+
+step "format, lints, layering"
+cargo fmt --all -- --check
+cargo clippy --workspace --all-targets --locked -- -D warnings
+.venv/bin/python scripts/check_layers.py
+
+step "rust tests (nextest)"
+cargo build --workspace --locked --bins
+cargo nextest run --workspace --locked --profile ci
+
+step "end-to-end tests (pytest against target/debug/resecta)"
+RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests
