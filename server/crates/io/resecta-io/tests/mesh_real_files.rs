@@ -2,6 +2,9 @@
 //! Expected counts and values were cross-checked with an independent Python reader (xml +
 //! base64 + zlib from the standard library).
 
+// Test helpers outside #[test] functions may unwrap too.
+#![allow(clippy::unwrap_used)]
+
 use std::path::PathBuf;
 
 use resecta_io::{ErrorKind, read_mesh};
@@ -33,7 +36,10 @@ fn atrium_vtp_counts_and_topology() {
         [v0.x, v0.y, v0.z],
         [218.14144897460938, 174.40997314453125, 66.55340576171875]
     );
-    assert!(m.scalars().is_empty(), "cell data must not become point scalars");
+    assert!(
+        m.scalars().is_empty(),
+        "cell data must not become point scalars"
+    );
     let r = m.report();
     // Prepared for CFD: the four pulmonary-vein inlets and the mitral outlet are cut open
     // (Python: 462 boundary edges, Euler characteristic V - E + F = -3, i.e. 5 holes).
@@ -98,6 +104,9 @@ fn centrelines_are_refused_as_surfaces() {
         assert!(matches!(err.kind, ErrorKind::Mesh(_)), "{err}");
         let msg = err.to_string();
         assert!(msg.contains(&format!("clvein{k}.vtp")), "{msg}");
-        assert!(msg.contains("1 line/vertex cell") && msg.contains("centreline"), "{msg}");
+        assert!(
+            msg.contains("1 line/vertex cell") && msg.contains("centreline"),
+            "{msg}"
+        );
     }
 }

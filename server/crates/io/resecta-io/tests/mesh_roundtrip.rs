@@ -5,6 +5,9 @@
 //! coordinates/normals, so values must equal the input rounded to `f32` (exactly); PLY scalars
 //! are `double` and must be exact.
 
+// Test helpers outside #[test] functions may unwrap too.
+#![allow(clippy::unwrap_used)]
+
 use resecta_geom::{TriMesh, Vec3};
 use resecta_io::{
     Encoding, MeshFormat, VtpLayout, WriteOptions, mesh_to_bytes, read_mesh, read_mesh_bytes,
@@ -71,8 +74,16 @@ fn roundtrip(m: &TriMesh, format: MeshFormat, opts: &WriteOptions) -> TriMesh {
 fn vtk_ascii_and_binary_are_exact() {
     let m = fixture();
     for enc in [Encoding::Ascii, Encoding::Binary] {
-        let opts = WriteOptions { encoding: enc, ..WriteOptions::default() };
-        assert_exact(&m, &roundtrip(&m, MeshFormat::Vtk, &opts), true, &format!("vtk {enc:?}"));
+        let opts = WriteOptions {
+            encoding: enc,
+            ..WriteOptions::default()
+        };
+        assert_exact(
+            &m,
+            &roundtrip(&m, MeshFormat::Vtk, &opts),
+            true,
+            &format!("vtk {enc:?}"),
+        );
     }
 }
 
@@ -81,7 +92,11 @@ fn vtp_every_layout_compression_and_header_is_exact() {
     let m = fixture();
     let a = roundtrip(&m, MeshFormat::Vtp, &WriteOptions::ascii());
     assert_exact(&m, &a, true, "vtp ascii");
-    for layout in [VtpLayout::Inline, VtpLayout::AppendedRaw, VtpLayout::AppendedBase64] {
+    for layout in [
+        VtpLayout::Inline,
+        VtpLayout::AppendedRaw,
+        VtpLayout::AppendedBase64,
+    ] {
         for compress in [false, true] {
             for header_u64 in [false, true] {
                 let opts = WriteOptions {
@@ -94,7 +109,10 @@ fn vtp_every_layout_compression_and_header_is_exact() {
                 let bytes = mesh_to_bytes(&m, MeshFormat::Vtp, &opts, "mem").unwrap();
                 let text = String::from_utf8_lossy(&bytes);
                 assert_eq!(text.contains("vtkZLibDataCompressor"), compress, "{what}");
-                assert!(text.contains(if header_u64 { "UInt64" } else { "UInt32" }), "{what}");
+                assert!(
+                    text.contains(if header_u64 { "UInt64" } else { "UInt32" }),
+                    "{what}"
+                );
                 let back = read_mesh_bytes(&bytes, MeshFormat::Vtp, "mem").unwrap();
                 assert_exact(&m, &back, true, &what);
             }
@@ -106,7 +124,13 @@ fn vtp_every_layout_compression_and_header_is_exact() {
 fn vtp_large_arrays_span_several_zlib_blocks() {
     // 3 × 8 bytes × 5000 points = 120 kB of points: four 32 KiB blocks, last one partial.
     let v: Vec<Vec3> = (0..5000)
-        .map(|i| Vec3::new(f64::from(i).sin() * 50.0, f64::from(i) * 0.01, f64::from(i).sqrt()))
+        .map(|i| {
+            Vec3::new(
+                f64::from(i).sin() * 50.0,
+                f64::from(i) * 0.01,
+                f64::from(i).sqrt(),
+            )
+        })
         .collect();
     let t: Vec<[u32; 3]> = (0..4998).map(|i| [i, i + 1, i + 2]).collect();
     let m = TriMesh::new(v, t).unwrap();
@@ -126,7 +150,10 @@ fn obj_is_exact_with_normals_but_no_scalars() {
 fn ply_all_encodings_round_to_f32_with_exact_scalars() {
     let m = fixture();
     for enc in [Encoding::Ascii, Encoding::Binary, Encoding::BinaryBigEndian] {
-        let opts = WriteOptions { encoding: enc, ..WriteOptions::default() };
+        let opts = WriteOptions {
+            encoding: enc,
+            ..WriteOptions::default()
+        };
         let back = roundtrip(&m, MeshFormat::Ply, &opts);
         assert_eq!(back.triangles(), m.triangles(), "{enc:?}");
         for (a, b) in m.vertices().iter().zip(back.vertices()) {
@@ -144,7 +171,10 @@ fn ply_all_encodings_round_to_f32_with_exact_scalars() {
 fn stl_binary_and_ascii_round_to_f32_and_merge_corners() {
     let m = fixture();
     for enc in [Encoding::Ascii, Encoding::Binary] {
-        let opts = WriteOptions { encoding: enc, ..WriteOptions::default() };
+        let opts = WriteOptions {
+            encoding: enc,
+            ..WriteOptions::default()
+        };
         let bytes = mesh_to_bytes(&m, MeshFormat::Stl, &opts, "mem").unwrap();
         if enc == Encoding::Binary {
             assert_eq!(bytes.len(), 84 + 50 * 12);
@@ -155,7 +185,11 @@ fn stl_binary_and_ascii_round_to_f32_and_merge_corners() {
         assert_eq!(back.triangles().len(), 12, "{enc:?}");
         assert!(back.report().watertight, "{enc:?}");
         for t in 0..12 {
-            assert_eq!(m.corners(t).map(f32s), back.corners(t).map(f32s), "{enc:?} t{t}");
+            assert_eq!(
+                m.corners(t).map(f32s),
+                back.corners(t).map(f32s),
+                "{enc:?} t{t}"
+            );
         }
         assert!(back.normals().is_none() && back.scalars().is_empty());
     }
@@ -168,12 +202,17 @@ fn files_on_disk_by_extension_and_empty_mesh() {
     // STL and PLY hold f32: their volume is that of the f32-rounded box (the 3 µm side loses
     // ~1e-3 relative precision next to a 46 mm offset).
     let m32 = TriMesh::new(
-        m.vertices().iter().map(|v| v.map(|c| f64::from(c as f32))).collect(),
+        m.vertices()
+            .iter()
+            .map(|v| v.map(|c| f64::from(c as f32)))
+            .collect(),
         m.triangles().to_vec(),
     )
     .unwrap();
     for f in MeshFormat::ALL {
-        let p = dir.path().join(format!("model.{}", f.extension().to_uppercase()));
+        let p = dir
+            .path()
+            .join(format!("model.{}", f.extension().to_uppercase()));
         write_mesh(&p, &m).unwrap();
         let back = read_mesh(&p).unwrap();
         assert_eq!(back.triangles().len(), 12, "{f:?}");
@@ -182,14 +221,26 @@ fn files_on_disk_by_extension_and_empty_mesh() {
             MeshFormat::Stl | MeshFormat::Ply => m32.signed_volume(),
             _ => m.signed_volume(),
         };
-        assert!((back.signed_volume() - expected).abs() <= 1e-12 * expected, "{f:?}");
+        assert!(
+            (back.signed_volume() - expected).abs() <= 1e-12 * expected,
+            "{f:?}"
+        );
     }
     let empty = TriMesh::new(vec![], vec![]).unwrap();
-    for f in [MeshFormat::Vtk, MeshFormat::Vtp, MeshFormat::Ply, MeshFormat::Obj, MeshFormat::Stl] {
+    for f in [
+        MeshFormat::Vtk,
+        MeshFormat::Vtp,
+        MeshFormat::Ply,
+        MeshFormat::Obj,
+        MeshFormat::Stl,
+    ] {
         let p = dir.path().join(format!("empty.{}", f.extension()));
         write_mesh_with(&p, &empty, &WriteOptions::default()).unwrap();
         let back = read_mesh(&p).unwrap();
-        assert!(back.vertices().is_empty() && back.triangles().is_empty(), "{f:?}");
+        assert!(
+            back.vertices().is_empty() && back.triangles().is_empty(),
+            "{f:?}"
+        );
     }
 }
 
@@ -198,13 +249,36 @@ fn writers_tag_ras_and_readers_flip_lps() {
     let m = fixture();
     let flip = |v: Vec3| Vec3::new(-v.x, -v.y, v.z);
     for (f, enc, ras, lps) in [
-        (MeshFormat::Vtk, Encoding::Ascii, "SPACE=RAS".as_bytes(), "SPACE=LPS".as_bytes()),
-        (MeshFormat::Vtp, Encoding::Ascii, b"82 65 83 0", b"76 80 83 0"),
-        (MeshFormat::Ply, Encoding::Binary, b"SPACE=RAS", b"SPACE=LPS"),
+        (
+            MeshFormat::Vtk,
+            Encoding::Ascii,
+            "SPACE=RAS".as_bytes(),
+            "SPACE=LPS".as_bytes(),
+        ),
+        (
+            MeshFormat::Vtp,
+            Encoding::Ascii,
+            b"82 65 83 0",
+            b"76 80 83 0",
+        ),
+        (
+            MeshFormat::Ply,
+            Encoding::Binary,
+            b"SPACE=RAS",
+            b"SPACE=LPS",
+        ),
         (MeshFormat::Obj, Encoding::Ascii, b"SPACE=RAS", b"SPACE=LPS"),
-        (MeshFormat::Stl, Encoding::Binary, b"SPACE=RAS", b"SPACE=LPS"),
+        (
+            MeshFormat::Stl,
+            Encoding::Binary,
+            b"SPACE=RAS",
+            b"SPACE=LPS",
+        ),
     ] {
-        let opts = WriteOptions { encoding: enc, ..WriteOptions::default() };
+        let opts = WriteOptions {
+            encoding: enc,
+            ..WriteOptions::default()
+        };
         let mut bytes = mesh_to_bytes(&m, f, &opts, "mem").unwrap();
         let at = bytes.windows(ras.len()).position(|w| w == ras).unwrap();
         bytes[at..at + ras.len()].copy_from_slice(lps);
@@ -215,7 +289,11 @@ fn writers_tag_ras_and_readers_flip_lps() {
             }
             assert_eq!(f32s(flip(*a)), f32s(*b), "{f:?}");
         }
-        assert_eq!(f32s(flip(m.corners(3)[1])), f32s(back.corners(3)[1]), "{f:?}");
+        assert_eq!(
+            f32s(flip(m.corners(3)[1])),
+            f32s(back.corners(3)[1]),
+            "{f:?}"
+        );
         if let Some(n) = back.normals() {
             assert_eq!(f32s(flip(m.normals().unwrap()[5])), f32s(n[5]), "{f:?}");
         }
@@ -243,15 +321,22 @@ fn vtk_legacy_51_offsets_strips_quads_and_attributes() {
     assert!(m.report().inconsistent_edges == 0);
     assert_eq!(m.scalars()["label one"], vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
     assert_eq!(m.scalars()["extra"], vec![0.5; 6]);
-    assert_eq!(m.scalars().len(), 2, "cell data and 2-component arrays are dropped");
+    assert_eq!(
+        m.scalars().len(),
+        2,
+        "cell data and 2-component arrays are dropped"
+    );
     assert_eq!(m.normals().unwrap()[4], Vec3::z());
     assert_eq!(m.vertices()[5], Vec3::new(2.0, 1.0, 0.0));
 }
 
 #[test]
 fn vtk_legacy_binary_float_points_classic_cells() {
-    let mut b = b"# vtk DataFile Version 3.0\nt\nBINARY\nDATASET POLYDATA\nPOINTS 4 float\n".to_vec();
-    for v in [0.0f32, 0.0, 0.0, 1.5, 0.0, 0.0, 1.5, 2.25, 0.0, 0.0, 2.25, 0.0] {
+    let mut b =
+        b"# vtk DataFile Version 3.0\nt\nBINARY\nDATASET POLYDATA\nPOINTS 4 float\n".to_vec();
+    for v in [
+        0.0f32, 0.0, 0.0, 1.5, 0.0, 0.0, 1.5, 2.25, 0.0, 0.0, 2.25, 0.0,
+    ] {
         b.extend_from_slice(&v.to_be_bytes());
     }
     b.extend_from_slice(b"\nPOLYGONS 1 5\n");

@@ -246,7 +246,10 @@ impl RawMesh {
         }
         let mut mesh = TriMesh::new(self.vertices, self.triangles)?;
         if let Some(normals) = self.normals {
-            if let Some(i) = normals.iter().position(|n| n.iter().any(|c| !c.is_finite())) {
+            if let Some(i) = normals
+                .iter()
+                .position(|n| n.iter().any(|c| !c.is_finite()))
+            {
                 return Err(ErrorKind::Mesh(format!("normal {i} is not finite")));
             }
             mesh = mesh.with_normals(normals)?;
@@ -397,7 +400,7 @@ impl Num {
     }
 
     fn check_len(self, bytes: &[u8]) -> Result<(), ErrorKind> {
-        if bytes.len() % self.size() == 0 {
+        if bytes.len().is_multiple_of(self.size()) {
             Ok(())
         } else {
             Err(ErrorKind::Mesh(format!(

@@ -72,7 +72,10 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                                 .ok()
                                 .filter(|&n| n < vn.len())
                                 .ok_or_else(|| {
-                                    ErrorKind::Mesh(format!("normal index {} is out of range", n + 1))
+                                    ErrorKind::Mesh(format!(
+                                        "normal index {} is out of range",
+                                        n + 1
+                                    ))
                                 })?;
                             corners.push((v, n));
                         }
@@ -80,10 +83,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                     }
                 }
                 if ids.len() < 3 {
-                    return Err(ErrorKind::Mesh(format!(
-                        "face with {} vertices",
-                        ids.len()
-                    )));
+                    return Err(ErrorKind::Mesh(format!("face with {} vertices", ids.len())));
                 }
                 raw.push_polygon(&ids)?;
             }

@@ -84,12 +84,16 @@ impl Body<'_> {
     /// A list property: its count, checked against the bytes left, then the items.
     fn list(&mut self, count_ty: Num, ty: Num, keep: bool) -> Result<Vec<i64>, ErrorKind> {
         let n = self.int(count_ty)?;
-        let n = usize::try_from(n)
-            .map_err(|_| ErrorKind::Mesh(format!("negative list length {n}")))?;
+        let n =
+            usize::try_from(n).map_err(|_| ErrorKind::Mesh(format!("negative list length {n}")))?;
         match self.storage {
             Storage::Binary { big } => {
                 let bytes = self.c.take(mul(n, ty.size())?)?;
-                if keep { ty.decode_i64(bytes, big) } else { Ok(Vec::new()) }
+                if keep {
+                    ty.decode_i64(bytes, big)
+                } else {
+                    Ok(Vec::new())
+                }
             }
             Storage::Ascii => {
                 if keep {
@@ -174,6 +178,10 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     let mut body = Body { c, storage };
     let mut have_vertices = false;
     for e in &elements {
+        let checked = e.name == "face" || (e.name == "vertex" && !have_vertices);
+        if e.props.is_empty() && !checked {
+            continue; // nothing to read, however large the count
+        }
         // Every element takes at least one byte per property (binary) or two (text).
         let min = match storage {
             Storage::Binary { .. } => e
@@ -199,9 +207,12 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                     .props
                     .iter()
                     .position(|p| {
-                        p.list.is_some() && matches!(p.name.as_str(), "vertex_indices" | "vertex_index")
+                        p.list.is_some()
+                            && matches!(p.name.as_str(), "vertex_indices" | "vertex_index")
                     })
-                    .ok_or_else(|| ErrorKind::Header("face element without vertex_indices".into()))?;
+                    .ok_or_else(|| {
+                        ErrorKind::Header("face element without vertex_indices".into())
+                    })?;
                 for _ in 0..e.count {
                     for (k, p) in e.props.iter().enumerate() {
                         match p.list {
@@ -303,7 +314,10 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
     )?;
     let normals = mesh.normals();
     if normals.is_some() {
-        write!(out, "property float nx\nproperty float ny\nproperty float nz\n")?;
+        write!(
+            out,
+            "property float nx\nproperty float ny\nproperty float nz\n"
+        )?;
     }
     for name in &names {
         writeln!(out, "property double {name}")?;
@@ -344,11 +358,12 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
         }
     }
     for tri in mesh.triangles() {
-        let ids = tri
-            .map(|i| i32::try_from(i).map_err(|_| ErrorKind::Unsupported {
+        let ids = tri.map(|i| {
+            i32::try_from(i).map_err(|_| ErrorKind::Unsupported {
                 what: "vertex index for PLY int",
                 value: i.to_string(),
-            }));
+            })
+        });
         if encoding == Encoding::Ascii {
             writeln!(out, "3 {} {} {}", tri[0], tri[1], tri[2])?;
             continue;
@@ -356,7 +371,11 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
         out.push(3);
         for id in ids {
             let id = id?;
-            out.extend_from_slice(&if big { id.to_be_bytes() } else { id.to_le_bytes() });
+            out.extend_from_slice(&if big {
+                id.to_be_bytes()
+            } else {
+                id.to_le_bytes()
+            });
         }
     }
     Ok(out)

@@ -45,9 +45,7 @@ impl Merger {
 }
 
 pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
-    let count = bytes
-        .get(80..84)
-        .map(|b| Num::U32.get_f64(b, false) as u64);
+    let count = bytes.get(80..84).map(|b| Num::U32.get_f64(b, false) as u64);
     let binary_len = count.map(|n| 84 + 50 * n);
     let trimmed = bytes.trim_ascii_start();
     let ascii = trimmed.len() >= 5 && trimmed[..5].eq_ignore_ascii_case(b"solid");
@@ -56,7 +54,9 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     } else if ascii {
         read_ascii(trimmed)
     } else {
-        Err(ErrorKind::BadMagic("STL (neither `solid` text nor a binary header)"))
+        Err(ErrorKind::BadMagic(
+            "STL (neither `solid` text nor a binary header)",
+        ))
     }
 }
 
@@ -64,13 +64,14 @@ fn read_binary(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     let mut c = Cursor::new(bytes);
     let header = c.take(80)?;
     let count = Num::U32.get_i64(c.take(4)?, false)? as usize;
-    let body = c.take(count * 50)?;
-    if c.remaining() != 0 {
+    let expected = 84 + 50 * count as u64;
+    if bytes.len() as u64 != expected {
         return Err(ErrorKind::DataSize {
-            expected: 84 + 50 * count as u64,
+            expected,
             got: bytes.len() as u64,
         });
     }
+    let body = c.take(count * 50)?;
     let mut m = Merger::default();
     m.raw.lps = says_lps(header);
     m.raw.triangles.reserve(count);
@@ -140,15 +141,17 @@ fn read_ascii(text: &[u8]) -> Result<RawMesh, ErrorKind> {
 
 fn facet_normal(mesh: &TriMesh, t: usize) -> Vec3 {
     let [a, b, c] = mesh.corners(t);
-    (b - a).cross(&(c - a)).try_normalize(0.0).unwrap_or_else(Vec3::zeros)
+    (b - a)
+        .cross(&(c - a))
+        .try_normalize(0.0)
+        .unwrap_or_else(Vec3::zeros)
 }
 
 /// Encodes a mesh as binary (default) or ASCII STL.
 pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, ErrorKind> {
     let t = mesh.triangles().len();
-    let f32s = |v: Vec3| -> Result<[f32; 3], ErrorKind> {
-        Ok([to_f32(v.x)?, to_f32(v.y)?, to_f32(v.z)?])
-    };
+    let f32s =
+        |v: Vec3| -> Result<[f32; 3], ErrorKind> { Ok([to_f32(v.x)?, to_f32(v.y)?, to_f32(v.z)?]) };
     if encoding == Encoding::Ascii {
         let mut out = Vec::with_capacity(40 + t * 250);
         writeln!(out, "solid resecta {SPACE_TAG}")?;

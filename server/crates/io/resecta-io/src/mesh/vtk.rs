@@ -12,8 +12,8 @@ use std::io::Write;
 use resecta_geom::{TriMesh, Vec3};
 
 use super::{
-    Cursor, Encoding, Num, RawMesh, SPACE_TAG, decode_name, encode_name, fmt_f64, mul,
-    parse_count, says_lps,
+    Cursor, Encoding, Num, RawMesh, SPACE_TAG, decode_name, encode_name, fmt_f64, mul, parse_count,
+    says_lps,
 };
 use crate::error::ErrorKind;
 
@@ -123,11 +123,7 @@ impl Reader<'_> {
             let con = self
                 .optional_line("CONNECTIVITY")
                 .ok_or_else(|| ErrorKind::Header(format!("{kw}: CONNECTIVITY line missing")))?;
-            let conn = self.ints(
-                num_type(con.get(1).map(String::as_str))?,
-                b,
-                "CONNECTIVITY",
-            )?;
+            let conn = self.ints(num_type(con.get(1).map(String::as_str))?, b, "CONNECTIVITY")?;
             if offsets.first().is_some_and(|&o| o != 0)
                 || offsets.last().is_some_and(|&o| o != b as i64)
             {
@@ -201,7 +197,11 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     r.binary = match enc.first().map(|w| w.to_ascii_uppercase()).as_deref() {
         Some("ASCII") => false,
         Some("BINARY") => true,
-        other => return Err(ErrorKind::Header(format!("expected ASCII or BINARY, got {other:?}"))),
+        other => {
+            return Err(ErrorKind::Header(format!(
+                "expected ASCII or BINARY, got {other:?}"
+            )));
+        }
     };
     let ds = r.words().unwrap_or_default().join(" ").to_ascii_uppercase();
     if ds != "DATASET POLYDATA" {
@@ -318,7 +318,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
             _ => {
                 return Err(ErrorKind::Header(format!(
                     "unknown keyword {:?}",
-                    &kw[..kw.len().min(40)]
+                    kw.chars().take(40).collect::<String>()
                 )));
             }
         }
@@ -353,7 +353,10 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
         }
     };
     writeln!(out, "POINTS {n} double")?;
-    floats(&mut out, &mut mesh.vertices().iter().flat_map(|v| v.iter().copied()));
+    floats(
+        &mut out,
+        &mut mesh.vertices().iter().flat_map(|v| v.iter().copied()),
+    );
 
     writeln!(out, "POLYGONS {t} {}", t * 4)?;
     for tri in mesh.triangles() {
@@ -379,7 +382,10 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
     }
     if let Some(normals) = mesh.normals() {
         writeln!(out, "NORMALS Normals double")?;
-        floats(&mut out, &mut normals.iter().flat_map(|v| v.iter().copied()));
+        floats(
+            &mut out,
+            &mut normals.iter().flat_map(|v| v.iter().copied()),
+        );
     }
     if !mesh.scalars().is_empty() {
         writeln!(out, "FIELD FieldData {}", mesh.scalars().len())?;

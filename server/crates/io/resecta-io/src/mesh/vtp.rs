@@ -134,7 +134,11 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     };
     let xml = std::str::from_utf8(&bytes[..xml_end])
         .map_err(|_| ErrorKind::BadMagic("VTK XML (not UTF-8 text)"))?;
-    if !xml.trim_start_matches('\u{feff}').trim_start().starts_with('<') {
+    if !xml
+        .trim_start_matches('\u{feff}')
+        .trim_start()
+        .starts_with('<')
+    {
         return Err(ErrorKind::BadMagic("VTK XML"));
     }
 
@@ -320,7 +324,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     doc.offsets.dedup();
 
     let mut raw = RawMesh {
-        other_cells: (nlines + nverts) as u64,
+        other_cells: nlines.saturating_add(nverts) as u64,
         ..RawMesh::default()
     };
     for a in arrays.iter().filter(|a| a.section == Section::FieldData) {
@@ -358,7 +362,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
         };
         let mut offsets = doc.ints(get("offsets")?, None)?;
         // VTK writes end offsets; accept a leading 0 as well.
-        if offsets.len() == ncells + 1 && offsets.first() == Some(&0) {
+        if offsets.len().checked_sub(1) == Some(ncells) && offsets.first() == Some(&0) {
             offsets.remove(0);
         }
         if offsets.len() != ncells {
@@ -513,7 +517,10 @@ impl Doc<'_> {
         let sizes: Vec<u64> = (0..nblocks as usize)
             .map(|i| self.uint(s, 3 + i))
             .collect::<Result<_, _>>()?;
-        let compressed: u64 = sizes.iter().try_fold(0u64, |a, &b| a.checked_add(b)).unwrap_or(u64::MAX);
+        let compressed: u64 = sizes
+            .iter()
+            .try_fold(0u64, |a, &b| a.checked_add(b))
+            .unwrap_or(u64::MAX);
         let data = header_len
             .checked_add(compressed)
             .and_then(|e| s.get(header_len as usize..usize::try_from(e).ok()?))
@@ -583,9 +590,8 @@ impl Doc<'_> {
     }
 
     fn floats(&self, a: &Array, count: usize) -> Result<Vec<f64>, ErrorKind> {
-        let ty = a.ty.ok_or_else(|| {
-            ErrorKind::Mesh(format!("array {:?} is a string array", a.name))
-        })?;
+        let ty =
+            a.ty.ok_or_else(|| ErrorKind::Mesh(format!("array {:?} is a string array", a.name)))?;
         if a.format == Format::Ascii {
             let mut c = Cursor::new(a.text.as_bytes());
             let v = c.floats(count, &a.name)?;
@@ -599,9 +605,8 @@ impl Doc<'_> {
 
     /// Integers; without `count`, as many as the data holds.
     fn ints(&self, a: &Array, count: Option<usize>) -> Result<Vec<i64>, ErrorKind> {
-        let ty = a.ty.ok_or_else(|| {
-            ErrorKind::Mesh(format!("array {:?} is a string array", a.name))
-        })?;
+        let ty =
+            a.ty.ok_or_else(|| ErrorKind::Mesh(format!("array {:?} is a string array", a.name)))?;
         if a.format == Format::Ascii {
             let mut c = Cursor::new(a.text.as_bytes());
             let n = count.unwrap_or_else(|| a.text.split_ascii_whitespace().count());
@@ -717,8 +722,10 @@ impl Writer<'_> {
                     self.appended.extend_from_slice(&header);
                     self.appended.extend_from_slice(&body);
                 } else {
-                    self.appended.extend_from_slice(B64.encode(&header).as_bytes());
-                    self.appended.extend_from_slice(B64.encode(&body).as_bytes());
+                    self.appended
+                        .extend_from_slice(B64.encode(&header).as_bytes());
+                    self.appended
+                        .extend_from_slice(B64.encode(&body).as_bytes());
                 }
             }
         }
@@ -727,7 +734,13 @@ impl Writer<'_> {
 
     fn f64s(&mut self, name: &str, ncomp: usize, values: &[f64]) -> Result<(), ErrorKind> {
         let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-        self.array("Float64", name, ncomp, values.iter().map(|&v| fmt_f64(v)), bytes)
+        self.array(
+            "Float64",
+            name,
+            ncomp,
+            values.iter().map(|&v| fmt_f64(v)),
+            bytes,
+        )
     }
 
     fn i64s(&mut self, name: &str, values: &[i64]) -> Result<(), ErrorKind> {
@@ -776,8 +789,15 @@ pub(crate) fn write(mesh: &TriMesh, opts: &WriteOptions) -> Result<Vec<u8>, Erro
     for (name, values) in mesh.scalars() {
         w.f64s(name, 1, values)?;
     }
-    let _ = writeln!(w.xml, "      </PointData>\n      <CellData>\n      </CellData>\n      <Points>");
-    let v: Vec<f64> = mesh.vertices().iter().flat_map(|p| p.iter().copied()).collect();
+    let _ = writeln!(
+        w.xml,
+        "      </PointData>\n      <CellData>\n      </CellData>\n      <Points>"
+    );
+    let v: Vec<f64> = mesh
+        .vertices()
+        .iter()
+        .flat_map(|p| p.iter().copied())
+        .collect();
     w.f64s("Points", 3, &v)?;
     let _ = writeln!(w.xml, "      </Points>\n      <Polys>");
     let conn: Vec<i64> = mesh
