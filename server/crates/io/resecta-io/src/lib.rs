@@ -4,9 +4,13 @@
 //! ([`metaimage`]); [`read_image`]/[`write_image`] pick the format from the file name. Every
 //! reader takes a [`VoxelLimit`](resecta_geom::VoxelLimit), checks sizes before allocating and
 //! has a from-bytes variant.
+//!
+//! Meshes: VTK legacy, VTP, STL, PLY, OBJ ([`mesh`]); [`read_mesh`]/[`write_mesh`] pick the
+//! format from the extension.
 
 pub mod error;
 pub mod image;
+pub mod mesh;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;
@@ -14,5 +18,9 @@ pub mod volume_io;
 
 pub use error::{ErrorKind, IoError};
 pub use image::{Image, ScalarType, VoxelData};
+pub use mesh::{
+    Encoding, MeshFormat, VtpLayout, WriteOptions, mesh_to_bytes, read_mesh, read_mesh_bytes,
+    write_mesh, write_mesh_with,
+};
 pub use nrrd::{Segment, Segmentation};
 pub use volume_io::{ImageFormat, read_image, read_label_map, write_image, write_label_map};
