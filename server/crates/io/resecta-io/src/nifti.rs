@@ -88,11 +88,7 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
     if !sizeof_hdr.contains(&(HEADER_SIZE as i32)) {
         return Err(ErrorKind::BadMagic("NIfTI-1 (sizeof_hdr is not 348)"));
     }
-    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| ErrorKind::Header(e.to_string()))?;
-    if h.sizeof_hdr != HEADER_SIZE as i32 {
-        return Err(ErrorKind::Header("inconsistent byte order".into()));
-    }
-    match &h.magic {
+    match &raw[344..348] {
         b"n+1\0" => {}
         b"ni1\0" => {
             return Err(ErrorKind::Unsupported {
@@ -101,6 +97,10 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
             });
         }
         _ => return Err(ErrorKind::BadMagic("NIfTI-1 (magic is not \"n+1\")")),
+    }
+    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| ErrorKind::Header(e.to_string()))?;
+    if h.sizeof_hdr != HEADER_SIZE as i32 {
+        return Err(ErrorKind::Header("inconsistent byte order".into()));
     }
 
     let dims = dims_of(&h)?;
