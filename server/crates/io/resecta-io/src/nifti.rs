@@ -126,7 +126,9 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
     let grid = Grid::from_affine(dims, &affine, limit)?;
 
     // Read exactly what the header promises, growing with the actual input only.
-    let need = vox_offset - HEADER_SIZE as u64 + nbytes;
+    let need = (vox_offset - HEADER_SIZE as u64)
+        .checked_add(nbytes)
+        .ok_or_else(|| ErrorKind::Header(format!("vox_offset {} is too large", h.vox_offset)))?;
     let mut rest = Vec::new();
     (&mut stream)
         .take(need)
@@ -134,7 +136,7 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
         .map_err(stream_err)?;
     if (rest.len() as u64) < need {
         return Err(ErrorKind::DataSize {
-            expected: vox_offset + nbytes,
+            expected: need.saturating_add(HEADER_SIZE as u64),
             got: (HEADER_SIZE + rest.len()) as u64,
         });
     }
