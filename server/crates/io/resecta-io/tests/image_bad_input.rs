@@ -1,4 +1,5 @@
 //! Every class of bad input gives a typed `IoError` naming the file, never a panic.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers
 
 mod image_common;
 
@@ -359,6 +360,7 @@ fn detached_data_paths_cannot_leave_the_header_folder() {
     .unwrap();
     let e = read_nrrd(&h, LIMIT).unwrap_err();
     assert!(matches!(e.kind, ErrorKind::Io(_)) && e.path == h, "{e}");
+    assert!(e.to_string().contains("nothere.raw"), "{e}");
 }
 
 #[test]

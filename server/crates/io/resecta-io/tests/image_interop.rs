@@ -1,5 +1,6 @@
 //! Files written by other tools (the fuzz seeds in `fuzz/seeds/`: NIfTI by nibabel 5, NRRD and
 //! MHA by SimpleITK 2 in LPS) read to the geometry and values those tools report.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers
 
 use std::path::PathBuf;
 

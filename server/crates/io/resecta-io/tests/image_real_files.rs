@@ -1,6 +1,7 @@
 //! Reading the real files of `shared/test-data` (skipped with a message when absent). Expected
 //! values were taken with nibabel 5 and SimpleITK 2 (ITK LPS converted to RAS by negating x, y)
 //! and hard-coded here; the affines agree with both to the last printed digit.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers
 
 mod image_common;
 

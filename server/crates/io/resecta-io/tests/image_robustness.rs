@@ -1,5 +1,6 @@
 //! Mutated and truncated valid files of every image format: the readers return `Ok` or a typed
 //! error, never panic (stable-Rust companion of the `fuzz/` targets; bounded, a few seconds).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers
 
 mod image_common;
 
