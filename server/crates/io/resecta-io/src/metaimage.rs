@@ -17,7 +17,8 @@ use resecta_geom::{GeomError, Grid, Mat3, Vec3, VoxelLimit};
 use crate::error::{ErrorKind, IoError};
 use crate::image::{Image, ScalarType, VoxelData};
 use crate::volume_io::{
-    Codec, checked_bytes, checked_voxels, data_file_path, inflate, read_file, write_file,
+    Codec, checked_bytes, checked_voxels, data_file_path, inflate, read_data_file, read_file,
+    write_file,
 };
 
 /// Reads a `.mha` or `.mhd` (with its data file).
@@ -293,7 +294,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
                 value: data_file,
             });
         };
-        file_bytes = std::fs::read(data_file_path(hp, &data_file)?)?;
+        file_bytes = read_data_file(&data_file_path(hp, &data_file)?)?;
         &file_bytes
     };
     let short = |got: u64| ErrorKind::DataSize {

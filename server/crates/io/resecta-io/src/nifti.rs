@@ -88,11 +88,7 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
     if !sizeof_hdr.contains(&(HEADER_SIZE as i32)) {
         return Err(ErrorKind::BadMagic("NIfTI-1 (sizeof_hdr is not 348)"));
     }
-    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| ErrorKind::Header(e.to_string()))?;
-    if h.sizeof_hdr != HEADER_SIZE as i32 {
-        return Err(ErrorKind::Header("inconsistent byte order".into()));
-    }
-    match &h.magic {
+    match &raw[344..348] {
         b"n+1\0" => {}
         b"ni1\0" => {
             return Err(ErrorKind::Unsupported {
@@ -101,6 +97,10 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
             });
         }
         _ => return Err(ErrorKind::BadMagic("NIfTI-1 (magic is not \"n+1\")")),
+    }
+    let h = NiftiHeader::from_reader(&raw[..]).map_err(|e| ErrorKind::Header(e.to_string()))?;
+    if h.sizeof_hdr != HEADER_SIZE as i32 {
+        return Err(ErrorKind::Header("inconsistent byte order".into()));
     }
 
     let dims = dims_of(&h)?;
@@ -126,7 +126,9 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
     let grid = Grid::from_affine(dims, &affine, limit)?;
 
     // Read exactly what the header promises, growing with the actual input only.
-    let need = vox_offset - HEADER_SIZE as u64 + nbytes;
+    let need = (vox_offset - HEADER_SIZE as u64)
+        .checked_add(nbytes)
+        .ok_or_else(|| ErrorKind::Header(format!("vox_offset {} is too large", h.vox_offset)))?;
     let mut rest = Vec::new();
     (&mut stream)
         .take(need)
@@ -134,7 +136,7 @@ fn read(bytes: &[u8], limit: VoxelLimit) -> Result<Image, ErrorKind> {
         .map_err(stream_err)?;
     if (rest.len() as u64) < need {
         return Err(ErrorKind::DataSize {
-            expected: vox_offset + nbytes,
+            expected: need.saturating_add(HEADER_SIZE as u64),
             got: (HEADER_SIZE + rest.len()) as u64,
         });
     }

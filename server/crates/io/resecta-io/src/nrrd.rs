@@ -23,7 +23,8 @@ use resecta_geom::{Grid, Mat3, Vec3, Volume, VoxelLimit};
 use crate::error::{ErrorKind, IoError};
 use crate::image::{Image, ScalarType, VoxelData};
 use crate::volume_io::{
-    Codec, checked_bytes, checked_voxels, data_file_path, inflate, read_file, write_file,
+    Codec, checked_bytes, checked_voxels, data_file_path, inflate, read_data_file, read_file,
+    write_file,
 };
 
 /// Reads a `.nrrd` or `.nhdr` (with its data file) as one image; 4D files need a first axis of
@@ -774,7 +775,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
                 });
             };
             let p = data_file_path(hp, name)?;
-            file_bytes = std::fs::read(&p)?;
+            file_bytes = read_data_file(&p)?;
             &file_bytes
         }
     };

@@ -109,6 +109,17 @@ pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     std::fs::write(path, bytes).map_err(|e| IoError::new(path, e))
 }
 
+/// Reads a detached data file; the error (reported against the header) names it.
+pub(crate) fn read_data_file(path: &Path) -> Result<Vec<u8>, ErrorKind> {
+    std::fs::read(path).map_err(|e| {
+        let name = path.file_name().unwrap_or_default().to_string_lossy();
+        ErrorKind::Io(std::io::Error::new(
+            e.kind(),
+            format!("data file {name}: {e}"),
+        ))
+    })
+}
+
 /// Which compressed stream to inflate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Codec {

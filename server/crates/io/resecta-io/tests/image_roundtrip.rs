@@ -1,5 +1,6 @@
 //! Write→read round trips of every image format on oblique anisotropic grids: exact data and
 //! affines to 1e-9 mm (NIfTI stores the affine in f32: exact for the dyadic grid, 1e-5 mm else).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)] // test helpers
 
 mod image_common;
 
