@@ -1,1 +1,47 @@
-fn main() {}
+//! `resecta`: the command line face of the engine.
+//!
+//! Every computing subcommand takes `--json` and then prints exactly one JSON object on stdout;
+//! progress and logs go to stderr. Exit codes: 0 success, 2 bad input, 1 other failure.
+
+mod demo;
+mod error;
+mod info;
+mod output;
+mod phantom;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(name = "resecta", version, about = "Liver resection planning engine")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Describe an image, segmentation or mesh file: geometry, labels with volumes, topology.
+    Info(info::Args),
+    /// Generate a synthetic liver phantom with its analytic truth.
+    Phantom(phantom::Args),
+    /// Run the demo on the embedded default phantom: write files, read them back, check them.
+    Demo(demo::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Info(a) => info::run(&a),
+        Command::Phantom(a) => phantom::run(&a),
+        Command::Demo(a) => demo::run(&a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("resecta: error: {e}");
+            ExitCode::from(e.exit_code())
+        }
+    }
+}

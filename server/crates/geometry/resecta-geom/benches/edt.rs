@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! EDT of a 512×512×300 CT-like mask (ellipsoid liver with spherical holes) at 0.8×0.8×2.5 mm,
 //! on 1 and 2 rayon threads. Throughput is reported in voxels per second.
 

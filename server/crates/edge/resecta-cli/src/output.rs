@@ -1,0 +1,31 @@
+//! Output conventions: one JSON object on stdout with `--json`, progress on stderr when a person
+//! watches.
+
+use std::io::{IsTerminal, Write};
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use serde::Serialize;
+
+use crate::error::CliError;
+
+/// Prints `value` as one JSON object on stdout.
+pub fn print_json<T: Serialize>(value: &T) -> Result<(), CliError> {
+    let s =
+        serde_json::to_string_pretty(value).map_err(|e| CliError::Failed(format!("JSON: {e}")))?;
+    let mut out = std::io::stdout().lock();
+    writeln!(out, "{s}").map_err(|e| CliError::Failed(format!("stdout: {e}")))
+}
+
+/// A spinner with a step message on a terminal; hidden when stderr is piped or with `--json`.
+pub fn progress(json: bool) -> ProgressBar {
+    if json || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new_spinner();
+    if let Ok(style) = ProgressStyle::with_template("{spinner} {elapsed:>4} {msg}") {
+        pb.set_style(style);
+    }
+    pb.enable_steady_tick(Duration::from_millis(100));
+    pb
+}

@@ -1,0 +1,108 @@
+"""`resecta info` against nibabel/numpy on real files, and its bad-input contract."""
+import gzip
+import zlib
+from pathlib import Path
+
+import nibabel as nib
+import numpy as np
+import pytest
+
+NIFTI_FILES = [
+    "liver/totalsegmentator-example/example_ct.nii.gz",
+    "liver/totalsegmentator-example/example_ct_sm.nii.gz",
+    "liver/totalsegmentator-example/v1_liver.nii.gz",
+    "liver/totalsegmentator-example/example_seg_v2_on_ct_sm.nii.gz",
+    "liver/msd-task08-hepaticvessel/hepaticvessel_002_label.nii.gz",
+    "liver/msd-task08-hepaticvessel/hepaticvessel_008_liver_pred.nii.gz",
+]
+
+
+@pytest.mark.parametrize("rel", NIFTI_FILES)
+def test_nifti_geometry_and_labels_match_nibabel(resecta, test_data, rel):
+    path = test_data / rel
+    info = resecta("info", path, "--json").json()
+    img = nib.load(str(path))
+    assert info["kind"] == "image" and info["format"] == "nifti"
+    assert info["dims"] == list(img.shape[:3])
+    # nibabel's affine is voxel→RAS mm, as ours.
+    np.testing.assert_allclose(np.array(info["affine"]), img.affine, atol=1e-4)
+    data = np.asarray(img.dataobj)
+    if info["labels"] is not None:
+        values, counts = np.unique(data, return_counts=True)
+        expected = {int(v): int(c) for v, c in zip(values, counts) if v != 0}
+        got = {l["value"]: l["voxels"] for l in info["labels"]}
+        assert got == expected
+        vox_ml = abs(np.linalg.det(img.affine[:3, :3])) / 1000.0
+        for l in info["labels"]:
+            assert l["ml"] == pytest.approx(l["voxels"] * vox_ml, rel=1e-9)
+    else:
+        assert info["value_range"] == pytest.approx([float(data.min()), float(data.max())])
+
+
+def test_metaimage_matches_raw_decode(resecta, test_data):
+    mhd = test_data / "heart/lasc2013-b002/gt_std.mhd"
+    header = dict(line.split(" = ", 1) for line in mhd.read_text().splitlines() if " = " in line)
+    info = resecta("info", mhd, "--json").json()
+    assert info["dims"] == [320, 320, 140]
+    np.testing.assert_allclose(info["spacing"], [float(s) for s in header["ElementSpacing"].split()], rtol=1e-6)
+    ox, oy, oz = (float(s) for s in header["Offset"].split())
+    # MetaImage is LPS: RAS flips x and y.
+    np.testing.assert_allclose(info["origin"], [-ox, -oy, oz], atol=1e-6)
+    raw = zlib.decompress((mhd.parent / header["ElementDataFile"].strip()).read_bytes())
+    values, counts = np.unique(np.frombuffer(raw, dtype=np.uint8), return_counts=True)
+    expected = {int(v): int(c) for v, c in zip(values, counts) if v != 0}
+    assert {l["value"]: l["voxels"] for l in info["labels"]} == expected
+
+
+def test_vtp_mesh_info(resecta, test_data):
+    info = resecta("info", test_data / "heart/vampy-lasc2013-b003/atrium.vtp", "--json").json()
+    assert info["kind"] == "mesh"
+    assert info["vertices"] == 10516 and info["triangles"] == 20576
+
+
+def test_human_output_names_dims(resecta, test_data):
+    out = resecta("info", test_data / NIFTI_FILES[0]).stdout
+    assert "dims" in out and "spacing" in out
+
+
+def bad(resecta, path: Path):
+    r = resecta("info", path, "--json", check=False)
+    assert r.code == 2, (r.code, r.stderr)
+    assert r.stdout == ""
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(path) in lines[0], r.stderr
+    assert "panicked" not in r.stderr
+    return lines[0]
+
+
+def test_bad_inputs_exit_2_naming_the_file(resecta, tmp_path):
+    bad(resecta, tmp_path / "missing.nii.gz")
+    unknown = tmp_path / "x.txt"
+    unknown.write_text("hello")
+    assert "unknown file type" in bad(resecta, unknown)
+
+    good = tmp_path / "ok.nii.gz"
+    arr = np.zeros((10, 10, 10), np.uint8)
+    nib.save(nib.Nifti1Image(arr, np.diag([2.0, 2.0, 2.0, 1.0])), str(good))
+    blob = good.read_bytes()
+    trunc = tmp_path / "trunc.nii.gz"
+    trunc.write_bytes(blob[: len(blob) // 2])
+    bad(resecta, trunc)
+
+    corrupt = tmp_path / "corrupt.nii.gz"
+    corrupt.write_bytes(gzip.compress(b"\x00" * 400))
+    bad(resecta, corrupt)
+
+    nrrd = tmp_path / "huge.nrrd"
+    nrrd.write_bytes(b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 100000 100000 100000\n"
+                     b"encoding: raw\nspacing: 1 1 1\n\n\x00")
+    assert "voxel" in bad(resecta, nrrd)
+
+    nan = tmp_path / "nan.nrrd"
+    nan.write_bytes(b"NRRD0004\ntype: uchar\ndimension: 3\nsizes: 2 2 2\nencoding: raw\n"
+                    b"space: RAS\nspace directions: (nan,0,0) (0,1,0) (0,0,1)\n\n" + b"\x00" * 8)
+    bad(resecta, nan)
+
+    obj = tmp_path / "bad.obj"
+    obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
+    bad(resecta, obj)
