@@ -3,16 +3,21 @@
 //! Every coordinate is in millimetres in the patient frame RAS. Voxel grids carry their full
 //! index→RAS affine ([`Grid`]); meshes ([`TriMesh`]) are validated at construction.
 
+pub mod bvh;
 pub mod error;
 pub mod grid;
 pub mod math;
 pub mod mesh;
 pub mod pca;
+pub mod primitives;
 pub mod roles;
+pub mod slice;
 
+pub use bvh::{Aabb, ClosestPoint, Feature, MeshBvh, MeshSdf, Ray, RayHit, SignedDistance};
 pub use error::GeomError;
 pub use grid::{Grid, Volume, VoxelLimit};
 pub use math::{Mat3, Mat4, Real, Vec3};
 pub use mesh::{MeshReport, TriMesh};
 pub use pca::Pca;
 pub use roles::{Role, RoleMap};
+pub use slice::{Plane, Polyline, slice};
