@@ -88,10 +88,6 @@ impl Polyline {
 /// mesh, or a zero or non-finite normal, gives nothing.
 pub fn slice(mesh: &TriMesh, plane: &Plane) -> Vec<Polyline> {
     let vertices = mesh.vertices();
-    let positive: Vec<bool> = vertices
-        .iter()
-        .map(|v| plane.signed_distance(v) >= 0.0)
-        .collect();
     let side: Vec<Real> = vertices.iter().map(|v| plane.signed_distance(v)).collect();
     // Crossing edge (lower, higher vertex) → node.
     let mut node_of: HashMap<(u32, u32), u32> = HashMap::new();
@@ -113,7 +109,7 @@ pub fn slice(mesh: &TriMesh, plane: &Plane) -> Vec<Polyline> {
         })
     };
     for tri in mesh.triangles() {
-        let s = tri.map(|v| positive[v as usize]);
+        let s = tri.map(|v| side[v as usize] >= 0.0);
         if s[0] == s[1] && s[1] == s[2] {
             continue;
         }

@@ -242,13 +242,14 @@ impl MeshBvh {
         }
         let mut best_d2 = max_distance * max_distance;
         let mut best: Option<(usize, TrianglePoint)> = None;
-        let mut stack: Vec<u32> = Vec::with_capacity(64);
-        stack.push(0);
-        while let Some(i) = stack.pop() {
-            let node = &self.nodes[i as usize];
-            if node.bounds.distance_squared(p) > best_d2 {
+        // (node, squared distance to its box)
+        let mut stack: Vec<(u32, Real)> = Vec::with_capacity(64);
+        stack.push((0, self.nodes[0].bounds.distance_squared(p)));
+        while let Some((i, box_d2)) = stack.pop() {
+            if box_d2 > best_d2 {
                 continue;
             }
+            let node = &self.nodes[i as usize];
             let first = node.first as usize;
             if node.count > 0 {
                 for (k, tri) in self.tris[first..first + node.count as usize]
@@ -271,10 +272,10 @@ impl MeshBvh {
                     (first + 1, first, dr, dl)
                 };
                 if df <= best_d2 {
-                    stack.push(far as u32);
+                    stack.push((far as u32, df));
                 }
                 if dn <= best_d2 {
-                    stack.push(near as u32);
+                    stack.push((near as u32, dn));
                 }
             }
         }

@@ -48,15 +48,6 @@ impl MeshSdf {
         if mesh.is_empty() {
             return Err(GeomError::EmptyMesh);
         }
-        let report = mesh.report();
-        if report.boundary_edges + report.non_manifold_edges + report.inconsistent_edges > 0 {
-            return Err(GeomError::NotClosed {
-                boundary_edges: report.boundary_edges,
-                non_manifold_edges: report.non_manifold_edges,
-                inconsistent_edges: report.inconsistent_edges,
-            });
-        }
-        let bvh = MeshBvh::new(mesh)?;
         let orientation = if mesh.signed_volume() < 0.0 {
             -1.0
         } else {
@@ -73,21 +64,46 @@ impl MeshSdf {
                     * orientation
             })
             .collect();
-        let mut sums: HashMap<(u32, u32), Vec3> = HashMap::with_capacity(triangles.len() * 3 / 2);
+        // Undirected edge → (sum of unit face normals, uses, uses in the direction lower→higher).
+        let mut sums: HashMap<(u32, u32), (Vec3, u32, u32)> =
+            HashMap::with_capacity(triangles.len() * 3 / 2);
         for (tri, n) in triangles.iter().zip(&unit) {
             for k in 0..3 {
                 let (p, q) = (tri[k], tri[(k + 1) % 3]);
-                *sums.entry((p.min(q), p.max(q))).or_insert_with(Vec3::zeros) += n;
+                if p != q {
+                    let e = sums
+                        .entry((p.min(q), p.max(q)))
+                        .or_insert((Vec3::zeros(), 0, 0));
+                    e.0 += n;
+                    e.1 += 1;
+                    e.2 += u32::from(p < q);
+                }
             }
         }
+        let (mut boundary_edges, mut non_manifold_edges, mut inconsistent_edges) = (0, 0, 0);
+        for &(_, uses, forward) in sums.values() {
+            match uses {
+                1 => boundary_edges += 1,
+                2 if forward != 1 => inconsistent_edges += 1,
+                2 => {}
+                _ => non_manifold_edges += 1,
+            }
+        }
+        if boundary_edges + non_manifold_edges + inconsistent_edges > 0 {
+            return Err(GeomError::NotClosed {
+                boundary_edges,
+                non_manifold_edges,
+                inconsistent_edges,
+            });
+        }
+        let bvh = MeshBvh::new(mesh)?;
         let edge: Vec<[Vec3; 3]> = triangles
             .iter()
             .map(|tri| {
                 std::array::from_fn(|k| {
                     let (p, q) = (tri[k], tri[(k + 1) % 3]);
                     sums.get(&(p.min(q), p.max(q)))
-                        .copied()
-                        .unwrap_or_else(Vec3::zeros)
+                        .map_or_else(Vec3::zeros, |e| e.0)
                 })
             })
             .collect();
