@@ -47,6 +47,24 @@ pub enum GeomError {
     NonOrthogonalGrid,
     #[error("need at least {needed} points, got {got}")]
     TooFewPoints { needed: usize, got: usize },
+    #[error("{name} {reason}")]
+    InvalidParameter {
+        name: &'static str,
+        reason: &'static str,
+    },
+    #[error("mesh has more than {limit} triangles")]
+    TooManyTriangles { limit: usize },
+    #[error(
+        "mesh is not closed: {boundary_edges} boundary, {non_manifold_edges} non-manifold and \
+         {inconsistent_edges} inconsistently oriented edges"
+    )]
+    NotClosed {
+        boundary_edges: usize,
+        non_manifold_edges: usize,
+        inconsistent_edges: usize,
+    },
+    #[error("mesh has no triangles")]
+    EmptyMesh,
 }
 
 use crate::math::Real;

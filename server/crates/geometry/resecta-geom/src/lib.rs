@@ -3,14 +3,18 @@
 //! Every coordinate is in millimetres in the patient frame RAS. Voxel grids carry their full
 //! index→RAS affine ([`Grid`]); meshes ([`TriMesh`]) are validated at construction.
 
+pub mod bvh;
 pub mod edt;
 pub mod error;
 pub mod grid;
 pub mod math;
 pub mod mesh;
 pub mod pca;
+pub mod primitives;
 pub mod roles;
+pub mod slice;
 
+pub use bvh::{Aabb, ClosestPoint, Feature, MeshBvh, MeshSdf, Ray, RayHit, SignedDistance};
 pub use edt::{
     NO_FEATURE, NearestFeature, distance_transform, distance_transform_where,
     distance_transform_with_nearest, signed_distance_transform, signed_distance_transform_where,
@@ -21,3 +25,4 @@ pub use math::{Mat3, Mat4, Real, Vec3};
 pub use mesh::{MeshReport, TriMesh};
 pub use pca::Pca;
 pub use roles::{Role, RoleMap};
+pub use slice::{Plane, Polyline, slice};
