@@ -100,7 +100,7 @@ pub struct VesselSpec {
 }
 
 fn default_tolerance() -> Real {
-    0.02
+    0.05
 }
 
 /// A synthetic liver: a union of ellipsoids, spherical tumours inside it, tube vessels.
