@@ -324,7 +324,9 @@ fn ellipse_nearest(e: [Real; 2], y: [Real; 2]) -> [Real; 2] {
     }
 }
 
-/// Root `s` of `Σ (rᵢzᵢ/(s + rᵢ))² = 1` by bisection to machine precision (unused `z` are 0).
+/// Root `s` of `F(s) = Σ (rᵢzᵢ/(s + rᵢ))² − 1` (unused `z` are 0): `F` is convex and decreasing,
+/// so Newton from the lower bracket end rises monotonically to the root; bisection finishes
+/// should rounding stall it.
 fn root(r: [Real; 3], z: [Real; 3], g: Real) -> Real {
     let n = [r[0] * z[0], r[1] * z[1], r[2] * z[2]];
     let nz = if z[2] == 0.0 { z[1] } else { z[2] };
@@ -334,19 +336,50 @@ fn root(r: [Real; 3], z: [Real; 3], g: Real) -> Real {
     } else {
         (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() - 1.0
     };
+    let f = |s: Real| {
+        let mut v = -1.0;
+        let mut dv = 0.0;
+        for i in 0..3 {
+            let t = n[i] / (s + r[i]);
+            v += t * t;
+            dv -= 2.0 * t * t / (s + r[i]);
+        }
+        (v, dv)
+    };
     let mut s = s0;
-    for _ in 0..2200 {
-        s = 0.5 * (s0 + s1);
-        if s == s0 || s == s1 {
+    for _ in 0..64 {
+        let (v, dv) = f(s);
+        if v <= 0.0 || dv >= 0.0 {
             break;
         }
-        let v = (0..3).map(|i| (n[i] / (s + r[i])).powi(2)).sum::<Real>() - 1.0;
-        if v > 0.0 {
-            s0 = s;
-        } else if v < 0.0 {
-            s1 = s;
-        } else {
+        let next = s - v / dv;
+        if !(next > s && next < s1) {
             break;
+        }
+        let step = next - s;
+        s = next;
+        s0 = s;
+        if step <= 1e-14 * s.abs().max(1.0) {
+            break;
+        }
+    }
+    // Tighten the upper end next to the Newton limit, then bisect to machine precision.
+    let near = s0 + 1e-12 * s0.abs().max(1.0);
+    if near < s1 && f(near).0 <= 0.0 {
+        s1 = near;
+    }
+    for _ in 0..2200 {
+        let m = 0.5 * (s0 + s1);
+        if m == s0 || m == s1 {
+            return m;
+        }
+        let (v, _) = f(m);
+        if v > 0.0 {
+            s0 = m;
+        } else if v < 0.0 {
+            s1 = m;
+        } else {
+            return m;
         }
     }
     s

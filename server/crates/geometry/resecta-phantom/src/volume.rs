@@ -3,7 +3,7 @@
 //! An octree over the world bounding cube of all solids classifies each cell against each solid
 //! with a conservative signed distance at the cell centre (in if `φ ≤ −R`, out if `φ ≥ R`, `R` the
 //! half-diagonal). Cells whose region membership is decided count whole. Undecided cells are split
-//! until one solid alone decides them and the leaf test below is tight enough, or to a 0.05 mm
+//! until one solid alone decides them and the leaf test below is tight enough, or to a 0.1 mm
 //! floor. At a leaf decided by one convex solid `K` with nearest boundary point `s`, normal `n`
 //! and rolling radius `ρ` (a ball of radius `ρ` tangent inside at any boundary point lies in `K`;
 //! Blaschke), `K ∩ cell` lies between the half-spaces `n·(x − s) ≤ −W²/(2ρ)` and
@@ -19,7 +19,7 @@ use serde::{Deserialize, Serialize};
 use crate::spec::{PRIORITY, Part};
 
 /// Smallest cell side of the subdivision, mm.
-const MIN_CELL_MM: Real = 0.05;
+const MIN_CELL_MM: Real = 0.1;
 /// Regions: 0 = liver (union of ellipsoids), 1 + i = label of `PRIORITY[i]`.
 pub(crate) const REGIONS: usize = 1 + PRIORITY.len();
 
