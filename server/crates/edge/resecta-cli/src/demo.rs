@@ -6,7 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use resecta_geom::edt::distance_transform;
-use resecta_geom::{Role, Vec3};
+use resecta_geom::primitives::{cylinder, ellipsoid, icosphere};
+use resecta_geom::{Mat3, MeshBvh, Role, TriMesh, Vec3};
 use resecta_io::{Image, Segmentation};
 use resecta_phantom::implicit::segment_distance;
 use resecta_phantom::{Phantom, PhantomSpec, ShapeTruth, generate};
@@ -53,6 +54,19 @@ struct Clearance {
     analytic_mm: f64,
     /// Smallest distance between voxel centres of the two labels (exact EDT).
     voxel_edt_mm: f64,
+    /// Smallest distance from the tumour model's vertices to the vessel model (BVH).
+    model_mm: f64,
+}
+
+#[derive(Debug, Serialize)]
+struct Model {
+    file: PathBuf,
+    triangles: usize,
+    watertight: bool,
+    /// Enclosed volume of a single-solid model (not of tubes, whose parts overlap).
+    volume_ml: Option<f64>,
+    /// The analytic volume of the shape.
+    analytic_ml: Option<f64>,
 }
 
 #[derive(Debug, Serialize)]
@@ -65,6 +79,7 @@ struct Report {
     round_trips: Vec<RoundTrip>,
     volumes: Vec<VolumeCheck>,
     clearances: Vec<Clearance>,
+    models: Vec<Model>,
     all_round_trips_exact: bool,
 }
 
@@ -79,8 +94,11 @@ pub fn run(args: &Args) -> Result<(), CliError> {
     write_phantom(&args.out, "labels.nii.gz", &phantom)?;
     let round_trips = round_trips(&args.out, &phantom)?;
 
+    pb.set_message("surface models");
+    let meshes = shape_meshes(&phantom)?;
+    let models = write_models(&args.out.join("models"), &meshes)?;
     pb.set_message("distance transforms");
-    let clearances = clearances(&phantom)?;
+    let clearances = clearances(&phantom, &meshes)?;
     pb.finish_and_clear();
 
     let grid = phantom.labels.grid();
@@ -96,6 +114,7 @@ pub fn run(args: &Args) -> Result<(), CliError> {
         round_trips,
         volumes: volumes(&phantom),
         clearances,
+        models,
     };
     if args.json {
         return print_json(&report);
@@ -158,8 +177,99 @@ fn volumes(phantom: &Phantom) -> Vec<VolumeCheck> {
         .collect()
 }
 
-/// Tumour-to-vessel clearance: exact from the shapes, and from an EDT of each tumour's voxels.
-fn clearances(phantom: &Phantom) -> Result<Vec<Clearance>, CliError> {
+/// Subdivision level of model spheres and ellipsoids (20 480 triangles each).
+const MODEL_SUBDIVISIONS: u32 = 5;
+
+/// Analytic surface models of every shape, by shape name, with their exact volumes.
+fn shape_meshes(phantom: &Phantom) -> Result<Vec<(String, TriMesh, Option<f64>)>, CliError> {
+    let geom = |e: resecta_geom::GeomError| CliError::Failed(e.to_string());
+    let mut out = Vec::new();
+    for shape in &phantom.truth.shapes {
+        let (name, mesh, exact) = match shape {
+            ShapeTruth::Ellipsoid {
+                name,
+                center,
+                radii,
+                rotation,
+                volume_mm3,
+            } => {
+                let r = Mat3::from_row_slice(rotation.as_flattened());
+                let m = ellipsoid(
+                    Vec3::from(*center),
+                    Vec3::from(*radii),
+                    r,
+                    MODEL_SUBDIVISIONS,
+                );
+                (name, m.map_err(geom)?, Some(*volume_mm3))
+            }
+            ShapeTruth::Sphere {
+                name,
+                center,
+                radius,
+                volume_mm3,
+            } => {
+                let m = icosphere(Vec3::from(*center), *radius, MODEL_SUBDIVISIONS);
+                (name, m.map_err(geom)?, Some(*volume_mm3))
+            }
+            ShapeTruth::Tube {
+                name,
+                radius,
+                points,
+                volume_mm3,
+                ..
+            } => {
+                // A capsule chain: a cylinder per segment and a ball at every joint. The parts
+                // overlap, so the enclosed volume of the model is not the tube's.
+                let mut parts = points
+                    .windows(2)
+                    .map(|w| cylinder(Vec3::from(w[0]), Vec3::from(w[1]), *radius, 64, 8))
+                    .collect::<Result<Vec<_>, _>>()
+                    .map_err(geom)?;
+                for p in points {
+                    parts.push(icosphere(Vec3::from(*p), *radius, 3).map_err(geom)?);
+                }
+                let _ = volume_mm3;
+                (name, TriMesh::concat(&parts).map_err(geom)?, None)
+            }
+        };
+        out.push((name.clone(), mesh, exact));
+    }
+    Ok(out)
+}
+
+fn write_models(
+    dir: &Path,
+    meshes: &[(String, TriMesh, Option<f64>)],
+) -> Result<Vec<Model>, CliError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| CliError::Failed(format!("{}: cannot create folder: {e}", dir.display())))?;
+    let mut out = Vec::new();
+    for (name, mesh, exact) in meshes {
+        let file_name: String = name
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        let file = dir.join(format!("{}.vtp", file_name.trim_matches('_')));
+        resecta_io::write_mesh(&file, mesh)?;
+        let report = mesh.report();
+        out.push(Model {
+            file,
+            triangles: report.triangles,
+            watertight: report.watertight,
+            volume_ml: exact.map(|_| mesh.enclosed_volume() / 1000.0),
+            analytic_ml: exact.map(|v| v / 1000.0),
+        });
+    }
+    Ok(out)
+}
+
+/// Tumour-to-vessel clearance: exact from the shapes, from an EDT of each tumour's voxels, and
+/// from the surface models.
+fn clearances(
+    phantom: &Phantom,
+    meshes: &[(String, TriMesh, Option<f64>)],
+) -> Result<Vec<Clearance>, CliError> {
+    let mesh_of = |name: &str| meshes.iter().find(|(n, ..)| n == name).map(|(_, m, _)| m);
     let labels = &phantom.labels;
     let grid = labels.grid();
     let roles = &phantom.truth.spec.roles;
@@ -209,11 +319,23 @@ fn clearances(phantom: &Phantom) -> Result<Vec<Clearance>, CliError> {
                 .filter(|(l, _)| vlabels.contains(l))
                 .map(|(_, &d)| f64::from(d))
                 .fold(f64::INFINITY, f64::min);
+            let model_mm = match (mesh_of(name), mesh_of(vname)) {
+                (Some(t), Some(v)) => {
+                    let bvh = MeshBvh::new(v).map_err(|e| CliError::Failed(e.to_string()))?;
+                    bvh.closest_points(t.vertices())
+                        .into_iter()
+                        .flatten()
+                        .map(|c| c.distance)
+                        .fold(f64::INFINITY, f64::min)
+                }
+                _ => f64::NAN,
+            };
             out.push(Clearance {
                 tumor: name.clone(),
                 vessel: vname.clone(),
                 analytic_mm: analytic,
                 voxel_edt_mm,
+                model_mm,
             });
         }
     }
@@ -248,11 +370,24 @@ fn print_report(r: &Report) {
             100.0 * v.relative_error
         );
     }
-    println!("tumour–vessel clearance (EDT between voxel centres vs exact gap):");
+    println!("tumour–vessel clearance (voxel EDT, surface models, exact):");
     for c in &r.clearances {
         println!(
-            "  {:<10} – {:<10} {:>7.2} mm EDT, {:>7.2} mm exact",
-            c.tumor, c.vessel, c.voxel_edt_mm, c.analytic_mm
+            "  {:<10} – {:<10} {:>7.2} mm EDT, {:>7.2} mm models, {:>7.2} mm exact",
+            c.tumor, c.vessel, c.voxel_edt_mm, c.model_mm, c.analytic_mm
+        );
+    }
+    println!("surface models (RAS, .vtp):");
+    for m in &r.models {
+        let volume = match (m.volume_ml, m.analytic_ml) {
+            (Some(v), Some(a)) => format!(", {v:>9.3} ml (analytic {a:.3} ml)"),
+            _ => String::new(),
+        };
+        println!(
+            "  {:<36} {:>6} triangles, watertight {}{volume}",
+            m.file.display(),
+            m.triangles,
+            m.watertight
         );
     }
 }

@@ -62,6 +62,18 @@ impl TriMesh {
         })
     }
 
+    /// One mesh holding the vertices and triangles of all `meshes` (attributes are dropped).
+    pub fn concat(meshes: &[TriMesh]) -> Result<Self, GeomError> {
+        let mut vertices = Vec::new();
+        let mut triangles = Vec::new();
+        for m in meshes {
+            let base = u32::try_from(vertices.len()).map_err(|_| GeomError::TooManyVertices)?;
+            vertices.extend_from_slice(&m.vertices);
+            triangles.extend(m.triangles.iter().map(|t| t.map(|i| i + base)));
+        }
+        Self::new(vertices, triangles)
+    }
+
     /// Attaches per-vertex normals (one per vertex).
     pub fn with_normals(mut self, normals: Vec<Vec3>) -> Result<Self, GeomError> {
         self.check_len("normals", normals.len())?;
@@ -323,6 +335,17 @@ mod tests {
         let bad = TriMesh::new(v, t).unwrap().report();
         assert_eq!(bad.non_manifold_edges, 1);
         assert_eq!(bad.degenerate_triangles, 1);
+    }
+
+    #[test]
+    fn concat_offsets_indices() {
+        let a = cuboid(1.0, 1.0, 1.0);
+        let b = cuboid(2.0, 2.0, 2.0);
+        let m = TriMesh::concat(&[a.clone(), b]).unwrap();
+        assert_eq!(m.vertices().len(), 16);
+        assert_eq!(m.triangles()[12], a.triangles()[0].map(|i| i + 8));
+        assert_relative_eq!(m.signed_volume(), 9.0, epsilon = 1e-12);
+        assert!(m.report().watertight);
     }
 
     #[test]

@@ -277,3 +277,13 @@ fn huge_counts_of_empty_elements_do_not_hang() {
     let e = err(vtp.as_bytes(), MeshFormat::Vtp);
     assert!(matches!(e.kind, ErrorKind::Mesh(_)), "{e}");
 }
+
+/// Found by `cargo fuzz run mesh_vtk`: a line holding only a vertical tab is not blank to the
+/// line reader but has no words; it used to index an empty word list.
+#[test]
+fn vtk_line_of_only_vertical_tab_is_skipped() {
+    let data = b"# vtk DataFile Version 4.2\nt\nASCII\nDATASET POLYDATA\n\x0b\nPOINTS 3 double\n\
+                 0 0 0 1 0 0 0 1 0\nPOLYGONS 1 4\n3 0 1 2\n";
+    let m = read_mesh_bytes(data, MeshFormat::Vtk, "vt.vtk").unwrap();
+    assert_eq!(m.triangles(), &[[0, 1, 2]]);
+}

@@ -214,7 +214,9 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     let mut npoints: Option<usize> = None;
     let mut attr = Attr::None;
     while let Some(words) = r.words() {
-        let kw = words[0].to_ascii_uppercase();
+        let Some(kw) = words.first().map(|w| w.to_ascii_uppercase()) else {
+            continue;
+        };
         let word = |i: usize| words.get(i).map(String::as_str);
         let attr_count = |attr: Attr| match attr {
             Attr::Point(n) | Attr::Cell(n) => Ok(n),
