@@ -266,32 +266,8 @@ mod tests {
     use super::*;
     use approx::assert_relative_eq;
 
-    /// Axis-aligned box [0,a]×[0,b]×[0,c], outward-oriented.
-    pub(crate) fn cuboid(a: Real, b: Real, c: Real) -> TriMesh {
-        let v: Vec<Vec3> = (0..8)
-            .map(|i| {
-                Vec3::new(
-                    if i & 1 == 0 { 0.0 } else { a },
-                    if i & 2 == 0 { 0.0 } else { b },
-                    if i & 4 == 0 { 0.0 } else { c },
-                )
-            })
-            .collect();
-        let t = vec![
-            [0, 2, 1],
-            [1, 2, 3], // z = 0
-            [4, 5, 6],
-            [5, 7, 6], // z = c
-            [0, 1, 4],
-            [1, 5, 4], // y = 0
-            [2, 6, 3],
-            [3, 6, 7], // y = b
-            [0, 4, 2],
-            [2, 4, 6], // x = 0
-            [1, 3, 5],
-            [3, 7, 5], // x = a
-        ];
-        TriMesh::new(v, t).unwrap()
+    fn cuboid(a: Real, b: Real, c: Real) -> TriMesh {
+        crate::primitives::cuboid(Vec3::zeros(), Vec3::new(a, b, c)).unwrap()
     }
 
     #[test]

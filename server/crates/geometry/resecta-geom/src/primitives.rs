@@ -103,6 +103,31 @@ fn unit_icosphere(subdivisions: u32) -> Result<(Vec<Vec3>, Vec<[u32; 3]>), GeomE
     Ok((vertices, triangles))
 }
 
+/// Axis-aligned box from `min` to `max` (12 triangles; each face split along a diagonal).
+pub fn cuboid(min: Vec3, max: Vec3) -> Result<TriMesh, GeomError> {
+    check_point("min", &min)?;
+    check_point("max", &max)?;
+    if (0..3).any(|a| max[a] <= min[a]) {
+        return Err(invalid("max", "must exceed min on every axis"));
+    }
+    let corner = |i: usize| Vec3::from_fn(|a, _| if (i >> a) & 1 == 0 { min[a] } else { max[a] });
+    let triangles = vec![
+        [0, 2, 1],
+        [1, 2, 3], // z = min
+        [4, 5, 6],
+        [5, 7, 6], // z = max
+        [0, 1, 4],
+        [1, 5, 4], // y = min
+        [2, 6, 3],
+        [3, 6, 7], // y = max
+        [0, 4, 2],
+        [2, 4, 6], // x = min
+        [1, 3, 5],
+        [3, 7, 5], // x = max
+    ];
+    TriMesh::new((0..8).map(corner).collect(), triangles)
+}
+
 /// Sphere of `radius` about `center`, by `subdivisions` midpoint subdivisions of an icosahedron
 /// (`20·4ˢ` triangles: 5 → 20 480, 7 → 327 680).
 pub fn icosphere(center: Vec3, radius: Real, subdivisions: u32) -> Result<TriMesh, GeomError> {

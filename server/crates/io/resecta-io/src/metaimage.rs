@@ -17,8 +17,8 @@ use resecta_geom::{GeomError, Grid, Mat3, Vec3, VoxelLimit};
 use crate::error::{ErrorKind, IoError};
 use crate::image::{Image, ScalarType, VoxelData};
 use crate::volume_io::{
-    Codec, checked_bytes, checked_voxels, data_file_path, inflate, read_data_file, read_file,
-    write_file,
+    Codec, checked_bytes, checked_voxels, data_file_path, header_lines, inflate, read_data_file,
+    read_file, write_file,
 };
 
 /// Reads a `.mha` or `.mhd` (with its data file).
@@ -161,15 +161,10 @@ fn boolean(key: &str, value: &str) -> Result<bool, ErrorKind> {
 fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<Image, ErrorKind> {
     // Header lines up to and including ElementDataFile, which must come last.
     let mut fields: Vec<(String, String)> = Vec::new();
-    let mut pos = 0;
+    let mut pos = bytes.len();
     let mut data_file = None;
-    while pos < bytes.len() {
-        let end = bytes[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |e| pos + e);
-        let line = String::from_utf8_lossy(&bytes[pos..end]);
-        pos = (end + 1).min(bytes.len());
+    for (line, next) in header_lines(bytes, 0) {
+        pos = next;
         let line = line.trim();
         if line.is_empty() {
             continue;

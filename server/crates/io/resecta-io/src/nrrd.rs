@@ -23,8 +23,8 @@ use resecta_geom::{Grid, Mat3, Vec3, Volume, VoxelLimit};
 use crate::error::{ErrorKind, IoError};
 use crate::image::{Image, ScalarType, VoxelData};
 use crate::volume_io::{
-    Codec, checked_bytes, checked_voxels, data_file_path, inflate, read_data_file, read_file,
-    write_file,
+    Codec, checked_bytes, checked_voxels, data_file_path, header_lines, inflate, read_data_file,
+    read_file, write_file,
 };
 
 /// Reads a `.nrrd` or `.nhdr` (with its data file) as one image; 4D files need a first axis of
@@ -615,21 +615,14 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
     let mut fields: BTreeMap<String, String> = BTreeMap::new();
     let mut kv = Vec::new();
     // The magic line, then lines up to the first empty one (attached data follows it).
-    let mut pos = bytes
+    let magic_end = bytes
         .iter()
         .position(|&b| b == b'\n')
         .map_or(bytes.len(), |e| e + 1);
     let mut data_start = None;
-    while pos < bytes.len() {
-        let end = bytes[pos..]
-            .iter()
-            .position(|&b| b == b'\n')
-            .map_or(bytes.len(), |e| pos + e);
-        let line = String::from_utf8_lossy(&bytes[pos..end]);
-        let line = line.strip_suffix('\r').unwrap_or(&line);
-        pos = (end + 1).min(bytes.len());
+    for (line, next) in header_lines(bytes, magic_end) {
         if line.is_empty() {
-            data_start = Some(pos);
+            data_start = Some(next);
             break;
         }
         if line.starts_with('#') {

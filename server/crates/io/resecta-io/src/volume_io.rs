@@ -1,6 +1,7 @@
 //! Format dispatch by file name ([`read_image`], [`write_image`]) and the helpers the image
 //! readers share: bounded decompression and safe detached-data paths.
 
+use std::borrow::Cow;
 use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
@@ -187,4 +188,27 @@ pub(crate) fn checked_bytes(voxels: usize, size: usize) -> Result<u64, ErrorKind
     (voxels as u64)
         .checked_mul(size as u64)
         .ok_or_else(|| ErrorKind::Header("data size overflows".into()))
+}
+
+/// Lines of a text header from byte `start`: each line without its `\n` (and a trailing `\r`),
+/// with the offset just after it (where attached data would begin).
+pub(crate) fn header_lines(
+    bytes: &[u8],
+    start: usize,
+) -> impl Iterator<Item = (Cow<'_, str>, usize)> {
+    let mut pos = start.min(bytes.len());
+    std::iter::from_fn(move || {
+        if pos >= bytes.len() {
+            return None;
+        }
+        let end = bytes[pos..]
+            .iter()
+            .position(|&b| b == b'\n')
+            .map_or(bytes.len(), |e| pos + e);
+        let raw = bytes[pos..end]
+            .strip_suffix(b"\r")
+            .unwrap_or(&bytes[pos..end]);
+        pos = (end + 1).min(bytes.len());
+        Some((String::from_utf8_lossy(raw), pos))
+    })
 }

@@ -17,30 +17,7 @@ use resecta_io::{
 /// A closed box with awkward coordinates, normals and two scalar arrays (one name has a space).
 fn fixture() -> TriMesh {
     let (o, s) = (Vec3::new(-120.3, 45.7, 100.0 / 3.0), [2.1, 3.0e-3, 5.5e7]);
-    let v: Vec<Vec3> = (0..8)
-        .map(|i| {
-            o + Vec3::new(
-                if i & 1 == 0 { 0.0 } else { s[0] },
-                if i & 2 == 0 { 0.0 } else { s[1] },
-                if i & 4 == 0 { 0.0 } else { s[2] },
-            )
-        })
-        .collect();
-    let t = vec![
-        [0, 2, 1],
-        [1, 2, 3],
-        [4, 5, 6],
-        [5, 7, 6],
-        [0, 1, 4],
-        [1, 5, 4],
-        [2, 6, 3],
-        [3, 6, 7],
-        [0, 4, 2],
-        [2, 4, 6],
-        [1, 3, 5],
-        [3, 7, 5],
-    ];
-    let m = TriMesh::new(v, t).unwrap();
+    let m = resecta_geom::primitives::cuboid(o, o + Vec3::from(s)).unwrap();
     let n = m.compute_vertex_normals();
     let d: Vec<f64> = (0..8).map(|i| f64::from(i) * 0.1 + 1.0 / 3.0).collect();
     let x: Vec<f64> = m.vertices().iter().map(|p| -p.x * 1e-9).collect();

@@ -687,31 +687,9 @@ pub(crate) mod tests {
 
     #[test]
     fn rays_through_vertices_and_edges_count_once() {
-        // Unit cube [0,1]³ as in mesh.rs (diagonals 1–2 on z=0, 5–6 on z=1, …).
-        let v: Vec<Vec3> = (0..8)
-            .map(|i| {
-                Vec3::new(
-                    (i & 1) as Real,
-                    ((i >> 1) & 1) as Real,
-                    ((i >> 2) & 1) as Real,
-                )
-            })
-            .collect();
-        let t = vec![
-            [0, 2, 1],
-            [1, 2, 3],
-            [4, 5, 6],
-            [5, 7, 6],
-            [0, 1, 4],
-            [1, 5, 4],
-            [2, 6, 3],
-            [3, 6, 7],
-            [0, 4, 2],
-            [2, 4, 6],
-            [1, 3, 5],
-            [3, 7, 5],
-        ];
-        let cube = MeshBvh::new(&TriMesh::new(v, t).unwrap()).unwrap();
+        // Unit cube [0,1]³ (diagonals 1–2 on z=0, 5–6 on z=1, …).
+        let unit = crate::primitives::cuboid(Vec3::zeros(), Vec3::repeat(1.0)).unwrap();
+        let cube = MeshBvh::new(&unit).unwrap();
         let count = |o: [Real; 3], d: [Real; 3]| {
             let ray = Ray {
                 origin: Vec3::from(o),
