@@ -7,10 +7,12 @@ root=$(pwd)
 step() { printf '\n== %s ==\n' "$*" >&2; }
 
 step "system packages"
+# Mesa's lavapipe gives wgpu a CPU Vulkan device (with f64), so the GPU tests really run here.
 need_apt=()
-# (GPU-twin tests of later issues add mesa-vulkan-drivers/libvulkan1 here.)
+for p in mesa-vulkan-drivers libvulkan1; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
 if ((${#need_apt[@]})); then
   sudo_=""; [ "$(id -u)" = 0 ] || sudo_=sudo
+  export DEBIAN_FRONTEND=noninteractive
   $sudo_ apt-get update -qq && $sudo_ apt-get install -y -qq --no-install-recommends "${need_apt[@]}"
 fi
 command -v cargo-nextest >/dev/null || cargo install --locked cargo-nextest
@@ -25,6 +27,7 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 .venv/bin/python scripts/check_layers.py
 
 step "rust tests (nextest)"
+export WGPU_BACKEND=vulkan
 cargo build --workspace --locked --bins
 cargo nextest run --workspace --locked --profile ci
 
