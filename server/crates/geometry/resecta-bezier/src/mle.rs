@@ -167,7 +167,6 @@ impl<T: BezierScalar> MleEvaluator<T> {
     /// Evaluates into `grid` without allocating (after the first call); fills every array the
     /// grid holds. The grid's resolution must be the evaluator's.
     pub fn evaluate_into(&mut self, grid: &mut SurfaceGrid<T>) -> Result<(), BezierError> {
-        check_len(self.resolution.len(), grid.resolution().len())?;
         if grid.resolution() != self.resolution {
             return Err(BezierError::BufferLength {
                 expected: self.resolution.len(),
