@@ -3,6 +3,8 @@
 //! Every computing subcommand takes `--json` and then prints exactly one JSON object on stdout;
 //! progress and logs go to stderr. Exit codes: 0 success, 2 bad input, 1 other failure.
 
+mod bench;
+mod bezier;
 mod demo;
 mod error;
 mod info;
@@ -28,6 +30,12 @@ enum Command {
     Phantom(phantom::Args),
     /// Run the demo on the embedded default phantom: write files, read them back, check them.
     Demo(demo::Args),
+    /// Bézier surfaces.
+    #[command(subcommand)]
+    Bezier(bezier::Command),
+    /// Benchmarks, with their anchors in the same run.
+    #[command(subcommand)]
+    Bench(bench::Command),
 }
 
 fn main() -> ExitCode {
@@ -36,6 +44,8 @@ fn main() -> ExitCode {
         Command::Info(a) => info::run(&a),
         Command::Phantom(a) => phantom::run(&a),
         Command::Demo(a) => demo::run(&a),
+        Command::Bezier(c) => bezier::run(&c),
+        Command::Bench(c) => bench::run(&c),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
