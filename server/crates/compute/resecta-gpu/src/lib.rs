@@ -1,0 +1,1 @@
+//! wgpu device set-up and compute kernels, each with a CPU twin.
