@@ -290,3 +290,90 @@ impl<T: GpuScalar> Cooperative<T> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use resecta_bezier::{MleEvaluator, P3, Resolution};
+
+    use super::{Cooperative, CpuRows};
+    use crate::device::testing::context;
+    use crate::kernels::GpuScalar;
+    use crate::kernels::bezier::tests::{Rng, max_diff, random_net, scale, tol};
+
+    fn cpu_mle<T: GpuScalar>(net: &resecta_bezier::ControlNet<T>, res: Resolution) -> Vec<P3<T>> {
+        let mut out = vec![[T::ZERO; 3]; res.len()];
+        MleEvaluator::new(net.clone(), res)
+            .evaluate_points_into(&mut out)
+            .unwrap();
+        out
+    }
+
+    #[test]
+    fn cpu_rows_match_mle() {
+        let mut rng = Rng(41);
+        let net = random_net::<f64>(&mut rng, 7, 3);
+        let res = Resolution::new(23, 41).unwrap();
+        let mut rows = CpuRows::new(&net, res);
+        rows.prepare(&net, res).unwrap();
+        let want = cpu_mle(&net, res);
+        let mut part = vec![[0.0; 3]; 5 * 41];
+        rows.rows_into(10..15, &mut part).unwrap();
+        assert!(max_diff(&part, &want[10 * 41..15 * 41]) / scale(&net) <= 1e-14);
+        assert!(rows.rows_into(20..25, &mut part).is_err());
+    }
+
+    fn check<T: GpuScalar>(seed: u64) {
+        let Some(ctx) = context() else { return };
+        if !T::supported(&ctx) {
+            eprintln!("SKIP: device lacks SHADER_F64");
+            return;
+        }
+        let mut rng = Rng(seed);
+        let net = random_net::<T>(&mut rng, 5, 9);
+        let res = Resolution::new(61, 47).unwrap();
+        let want = cpu_mle(&net, res);
+        let s = scale(&net);
+        let mut out = vec![[T::ZERO; 3]; res.len()];
+        for tile in [1, 7, 16, 64] {
+            let mut co = Cooperative::new(&ctx, net.clone(), res, tile).unwrap();
+            for alpha in [0.0, 0.3, 0.5, 1.0] {
+                out.fill([T::from_f64(f64::NAN); 3]);
+                let k = co.evaluate_sdc(alpha, &mut out).unwrap();
+                assert!(
+                    k == 61 || k % tile == 0,
+                    "split {k} not whole tiles of {tile}"
+                );
+                if alpha == 0.0 || alpha == 1.0 {
+                    assert_eq!(k, if alpha == 0.0 { 0 } else { 61 });
+                }
+                let d = max_diff(&out, &want) / s;
+                assert!(d <= tol::<T>(), "SDC tile {tile} α {alpha}: {d:e}");
+            }
+            out.fill([T::from_f64(f64::NAN); 3]);
+            let rep = co.evaluate_ddc(&mut out).unwrap();
+            assert_eq!(rep.gpu_tiles + rep.cpu_tiles, 61usize.div_ceil(tile));
+            let d = max_diff(&out, &want) / s;
+            assert!(d <= tol::<T>(), "DDC tile {tile}: {d:e} ({rep:?})");
+        }
+        // After moving the control points both sides follow.
+        let mut co = Cooperative::new(&ctx, net, res, 8).unwrap();
+        let moved = random_net::<T>(&mut rng, 5, 9);
+        co.set_control_points(moved.points()).unwrap();
+        co.evaluate_ddc(&mut out).unwrap();
+        assert!(max_diff(&out, &cpu_mle(&moved, res)) / scale(&moved) <= tol::<T>());
+        let p = co.profile(1, &mut out).unwrap();
+        assert!(p.alpha > 0.0 && p.alpha < 1.0, "{p:?}");
+        co.evaluate_sdc(p.alpha, &mut out).unwrap();
+        assert!(max_diff(&out, &cpu_mle(&moved, res)) / scale(&moved) <= tol::<T>());
+    }
+
+    #[test]
+    fn sdc_and_ddc_match_cpu_f32() {
+        check::<f32>(43);
+    }
+
+    #[test]
+    fn sdc_and_ddc_match_cpu_f64() {
+        check::<f64>(47);
+    }
+}

@@ -19,7 +19,7 @@ use crate::device::{GpuContext, GpuError};
 use crate::kernels::GpuScalar;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 /// The WGSL template (f32); see [`shader_source`].
 pub const TEMPLATE: &str = include_str!("bezier.wgsl");
