@@ -105,6 +105,9 @@ impl<T: GpuScalar> CpuRows<T> {
     }
 }
 
+/// Tiles left to compute: (tile index, its slice of the output).
+type TileQueue<'a, T> = Mutex<VecDeque<(usize, &'a mut [P3<T>])>>;
+
 /// Timings of the profiling step and the resulting GPU share.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Profile {
@@ -252,8 +255,7 @@ impl<T: GpuScalar> Cooperative<T> {
         let rv = self.gpu.resolution().rv();
         let tile = self.tile_rows;
         self.cpu.prepare(self.gpu.net(), self.gpu.resolution())?;
-        let queue: Mutex<VecDeque<(usize, &mut [P3<T>])>> =
-            Mutex::new(out.chunks_mut(tile * rv).enumerate().collect());
+        let queue: TileQueue<'_, T> = Mutex::new(out.chunks_mut(tile * rv).enumerate().collect());
         let pop = |front: bool| {
             let mut q = queue.lock().unwrap_or_else(|e| e.into_inner());
             if front { q.pop_front() } else { q.pop_back() }

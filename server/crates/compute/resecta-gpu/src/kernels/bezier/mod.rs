@@ -547,7 +547,7 @@ fn entry(binding: u32, buffer: &wgpu::Buffer) -> wgpu::BindGroupEntry<'_> {
 #[derive(Debug)]
 pub enum BezierBackend<T: GpuScalar> {
     /// `resecta_bezier::MleEvaluator` (rayon).
-    Cpu(MleEvaluator<T>),
+    Cpu(Box<MleEvaluator<T>>),
     /// [`GpuMle`] (wgpu).
     Gpu(Box<GpuMle<T>>),
 }
@@ -557,7 +557,7 @@ impl<T: GpuScalar> BezierBackend<T> {
     pub fn new(ctx: Option<&GpuContext>, net: ControlNet<T>, resolution: Resolution) -> Self {
         match ctx.map(|c| GpuMle::new(c, net.clone(), resolution)) {
             Some(Ok(g)) => Self::Gpu(Box::new(g)),
-            _ => Self::Cpu(MleEvaluator::new(net, resolution)),
+            _ => Self::Cpu(Box::new(MleEvaluator::new(net, resolution))),
         }
     }
     /// `"wgpu"` or `"cpu"`.
