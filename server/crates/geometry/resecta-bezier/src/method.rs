@@ -37,7 +37,7 @@ impl Method {
 enum State<T> {
     Brf(ControlNet<T>),
     Mat(MatEvaluator<T>),
-    Mle(MleEvaluator<T>),
+    Mle(Box<MleEvaluator<T>>),
 }
 
 /// A prepared evaluator with its output grid, so [`Prepared::run`] times exactly one surface
@@ -59,7 +59,7 @@ impl<T: BezierScalar> Prepared<T> {
         let state = match method {
             Method::Brf => State::Brf(net),
             Method::Mat => State::Mat(MatEvaluator::new(net)),
-            Method::Mle => State::Mle(MleEvaluator::new(net, resolution)),
+            Method::Mle => State::Mle(Box::new(MleEvaluator::new(net, resolution))),
         };
         let mut p = Self {
             state,

@@ -52,6 +52,7 @@ pub struct MleEvaluator<T> {
     level2: Option<Level2<T>>,
     level2_d: Option<Level2<T>>,
     q: Vec<T>,
+    d: Vec<T>,
     counters: MleCounters,
 }
 
@@ -65,6 +66,7 @@ impl<T: BezierScalar> MleEvaluator<T> {
             level2: None,
             level2_d: None,
             q: Vec::new(),
+            d: Vec::new(),
             counters: MleCounters::default(),
         }
     }
@@ -167,7 +169,6 @@ impl<T: BezierScalar> MleEvaluator<T> {
     /// Evaluates into `grid` without allocating (after the first call); fills every array the
     /// grid holds. The grid's resolution must be the evaluator's.
     pub fn evaluate_into(&mut self, grid: &mut SurfaceGrid<T>) -> Result<(), BezierError> {
-        check_len(self.resolution.len(), grid.resolution().len())?;
         if grid.resolution() != self.resolution {
             return Err(BezierError::BufferLength {
                 expected: self.resolution.len(),
@@ -194,6 +195,7 @@ impl<T: BezierScalar> MleEvaluator<T> {
                 &l2.v,
                 rv,
                 &mut self.q,
+                &mut self.d,
                 du,
             );
             tensor_aos(
@@ -204,6 +206,7 @@ impl<T: BezierScalar> MleEvaluator<T> {
                 &l2d.v,
                 rv,
                 &mut self.q,
+                &mut self.d,
                 dv,
             );
             if let Some(normals) = normals {
@@ -255,7 +258,14 @@ impl<T: BezierScalar> MleEvaluator<T> {
             }
         }
         for (c, out) in [x, y, z].into_iter().enumerate() {
-            rows_from_q(&l2.u, m, &self.q[c * m * rv..(c + 1) * m * rv], rv, out);
+            rows_from_q(
+                &l2.u,
+                m,
+                &self.q[c * m * rv..(c + 1) * m * rv],
+                rv,
+                &mut self.d,
+                out,
+            );
         }
         Ok(())
     }
@@ -272,6 +282,7 @@ impl<T: BezierScalar> MleEvaluator<T> {
                 &l2.v,
                 self.resolution.rv(),
                 &mut self.q,
+                &mut self.d,
                 out,
             );
         }
@@ -288,6 +299,7 @@ fn tensor_aos<T: BezierScalar>(
     bv: &[T],
     rv: usize,
     q: &mut Vec<T>,
+    d: &mut Vec<T>,
     out: &mut [P3<T>],
 ) {
     let w = 3 * rv;
@@ -309,59 +321,116 @@ fn tensor_aos<T: BezierScalar>(
     } else {
         q.chunks_exact_mut(w).enumerate().for_each(fill_q);
     }
-    rows_from_q(bu, mm, q, w, out.as_flattened_mut());
+    rows_from_q(bu, mm, q, w, d, out.as_flattened_mut());
 }
 
-/// `out[a·w .. (a+1)·w] = Σᵢ bu[a·mm + i] · q[i·w .. (i+1)·w]`, rows in parallel. Blocks of up
-/// to four Q rows per sweep so each output value is stored once per block.
-fn rows_from_q<T: BezierScalar>(bu: &[T], mm: usize, q: &[T], w: usize, out: &mut [T]) {
+/// `out[a·w .. (a+1)·w] = Σᵢ bu[a·mm + i] · q[i·w .. (i+1)·w]`, rows in parallel.
+///
+/// Uses the partition of unity Σᵢ B_i = 1 to save one multiply per value: rows with u < ½ are
+/// `Q₀ + Σ_{i≥1} B_i (Q_i − Q₀)`, rows with u ≥ ½ are `Q_last + Σ_{i<last} B_i (Q_i − Q_last)`
+/// (differences precomputed into `d`). At u = 0 and u = 1 all other weights are exactly zero,
+/// so borders stay exact. Blocks of up to four terms per sweep keep each value stored once per
+/// block; the inner loops are contiguous and vectorise.
+fn rows_from_q<T: BezierScalar>(
+    bu: &[T],
+    mm: usize,
+    q: &[T],
+    w: usize,
+    d: &mut Vec<T>,
+    out: &mut [T],
+) {
+    let last = mm - 1;
+    // d = [Q_i − Q_0 for i = 1..mm] ++ [Q_i − Q_last for i = 0..last]
+    d.resize(2 * last * w, T::ZERO);
+    let (d0, d1) = d.split_at_mut(last * w);
+    let q0 = &q[..w];
+    let ql = &q[last * w..mm * w];
+    for (i, dr) in d0.chunks_exact_mut(w).enumerate() {
+        for ((o, &x), &b) in dr.iter_mut().zip(&q[(i + 1) * w..(i + 2) * w]).zip(q0) {
+            *o = x - b;
+        }
+    }
+    for (i, dr) in d1.chunks_exact_mut(w).enumerate() {
+        for ((o, &x), &b) in dr.iter_mut().zip(&q[i * w..(i + 1) * w]).zip(ql) {
+            *o = x - b;
+        }
+    }
+    let (d0, d1) = (&*d0, &*d1);
+    let ru = out.len() / w;
     out.par_chunks_exact_mut(w)
         .with_min_len(4)
         .enumerate()
         .for_each(|(a, row)| {
             let b = &bu[a * mm..(a + 1) * mm];
-            let mut i = 0;
-            while i < mm {
-                let k = (mm - i).min(4);
-                if i == 0 {
-                    sweep::<T, true>(row, q, w, &b[i..i + k], i);
-                } else {
-                    sweep::<T, false>(row, q, w, &b[i..i + k], i);
-                }
+            let (base, diffs, weights) = if 2 * a < ru {
+                (q0, d0, &b[1..])
+            } else {
+                (ql, d1, &b[..last])
+            };
+            // First sweep writes base + up to three terms, later sweeps add up to four.
+            let k = last.min(3);
+            sweep_init(row, base, diffs, w, &weights[..k]);
+            let mut i = k;
+            while i < last {
+                let k = (last - i).min(4);
+                sweep(row, diffs, w, &weights[i..i + k], i);
                 i += k;
             }
         });
 }
 
+/// `row = base + Σ_k b[k] · q[k·w ..]` for up to three terms (one store per value).
 #[inline(always)]
-fn sweep<T: BezierScalar, const INIT: bool>(row: &mut [T], q: &[T], w: usize, b: &[T], i: usize) {
+fn sweep_init<T: BezierScalar>(row: &mut [T], base: &[T], q: &[T], w: usize, b: &[T]) {
+    let qr = |k: usize| &q[k * w..(k + 1) * w];
+    match *b {
+        [b0, b1, b2] => {
+            let (q0, q1, q2) = (qr(0), qr(1), qr(2));
+            for ((((o, &y), &x0), &x1), &x2) in row.iter_mut().zip(base).zip(q0).zip(q1).zip(q2) {
+                *o = y + b0 * x0 + b1 * x1 + b2 * x2;
+            }
+        }
+        [b0, b1] => {
+            let (q0, q1) = (qr(0), qr(1));
+            for (((o, &y), &x0), &x1) in row.iter_mut().zip(base).zip(q0).zip(q1) {
+                *o = y + b0 * x0 + b1 * x1;
+            }
+        }
+        [b0] => {
+            for ((o, &y), &x0) in row.iter_mut().zip(base).zip(qr(0)) {
+                *o = y + b0 * x0;
+            }
+        }
+        _ => row.copy_from_slice(base),
+    }
+}
+
+/// `row += Σ_k b[k] · q[(i+k)·w ..]` for up to four terms.
+#[inline(always)]
+fn sweep<T: BezierScalar>(row: &mut [T], q: &[T], w: usize, b: &[T], i: usize) {
     let qr = |k: usize| &q[(i + k) * w..(i + k + 1) * w];
     match *b {
         [b0, b1, b2, b3] => {
             let (q0, q1, q2, q3) = (qr(0), qr(1), qr(2), qr(3));
             for ((((o, &x0), &x1), &x2), &x3) in row.iter_mut().zip(q0).zip(q1).zip(q2).zip(q3) {
-                let s = b0 * x0 + b1 * x1 + b2 * x2 + b3 * x3;
-                *o = if INIT { s } else { *o + s };
+                *o += b0 * x0 + b1 * x1 + b2 * x2 + b3 * x3;
             }
         }
         [b0, b1, b2] => {
             let (q0, q1, q2) = (qr(0), qr(1), qr(2));
             for (((o, &x0), &x1), &x2) in row.iter_mut().zip(q0).zip(q1).zip(q2) {
-                let s = b0 * x0 + b1 * x1 + b2 * x2;
-                *o = if INIT { s } else { *o + s };
+                *o += b0 * x0 + b1 * x1 + b2 * x2;
             }
         }
         [b0, b1] => {
             let (q0, q1) = (qr(0), qr(1));
             for ((o, &x0), &x1) in row.iter_mut().zip(q0).zip(q1) {
-                let s = b0 * x0 + b1 * x1;
-                *o = if INIT { s } else { *o + s };
+                *o += b0 * x0 + b1 * x1;
             }
         }
         [b0] => {
             for (o, &x0) in row.iter_mut().zip(qr(0)) {
-                let s = b0 * x0;
-                *o = if INIT { s } else { *o + s };
+                *o += b0 * x0;
             }
         }
         _ => {}
