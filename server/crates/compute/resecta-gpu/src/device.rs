@@ -1,0 +1,277 @@
+//! Device set-up, separate from the kernels: one [`GpuContext`] (device, queue, adapter info,
+//! capabilities) created by [`GpuContext::new`], which honours `WGPU_BACKEND` and asks for
+//! `SHADER_F64` whenever the adapter offers it. Kernels borrow the context, so tests inject it.
+
+use std::sync::mpsc;
+
+/// What the device can do that the kernels care about.
+#[derive(Debug, Clone)]
+pub struct Capabilities {
+    /// `SHADER_F64` was granted (64-bit float kernels available).
+    pub f64: bool,
+    /// The device's limits (the adapter's own limits were requested).
+    pub limits: wgpu::Limits,
+}
+
+/// A wgpu device and queue with what is known about them. Cheap to clone (handles are shared).
+#[derive(Debug, Clone)]
+pub struct GpuContext {
+    /// The logical device.
+    pub device: wgpu::Device,
+    /// Its queue.
+    pub queue: wgpu::Queue,
+    /// Adapter name, driver, backend, device type.
+    pub info: wgpu::AdapterInfo,
+    /// Features and limits in use.
+    pub caps: Capabilities,
+}
+
+/// Errors of device set-up and GPU evaluation.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter for the requested backends (`WGPU_BACKEND`, or all of them when unset).
+    #[error("no GPU adapter for backends {backends:?}: {reason}")]
+    NoAdapter {
+        /// Backends that were searched.
+        backends: wgpu::Backends,
+        /// wgpu's reason.
+        reason: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("device request failed: {0}")]
+    RequestDevice(#[from] wgpu::RequestDeviceError),
+    /// A 64-bit kernel was asked for on a device without `SHADER_F64`.
+    #[error("the device lacks SHADER_F64; f64 kernels are unavailable")]
+    NoF64,
+    /// A buffer would exceed the device limits even after splitting.
+    #[error("{what} needs {bytes} bytes; the device allows {limit}")]
+    TooLarge {
+        /// Which buffer.
+        what: &'static str,
+        /// Bytes needed.
+        bytes: u64,
+        /// Device limit.
+        limit: u64,
+    },
+    /// Shader or pipeline creation failed validation.
+    #[error("pipeline creation failed: {0}")]
+    Pipeline(String),
+    /// Waiting for the queue or mapping a buffer failed.
+    #[error("GPU read-back failed: {0}")]
+    ReadBack(String),
+    /// Invalid surface input (net, resolution, buffer length).
+    #[error(transparent)]
+    Bezier(#[from] resecta_bezier::BezierError),
+}
+
+/// Backends from `WGPU_BACKEND` (e.g. `vulkan`, `gl`, `metal`), or `None` when unset.
+pub fn backends_from_env() -> Option<wgpu::Backends> {
+    wgpu::Backends::from_env()
+}
+
+impl GpuContext {
+    /// Creates a device on the first adapter of the backends in `WGPU_BACKEND` (all primary
+    /// and secondary backends when unset). Requests `SHADER_F64` when the adapter has it, and
+    /// the adapter's full limits.
+    pub fn new() -> Result<Self, GpuError> {
+        Self::with_backends(backends_from_env().unwrap_or(wgpu::Backends::all()))
+    }
+
+    /// Like [`GpuContext::new`], `None` instead of an error (callers fall back to the CPU).
+    pub fn try_new() -> Option<Self> {
+        Self::new().ok()
+    }
+
+    /// Creates a device on the first adapter of `backends`.
+    pub fn with_backends(backends: wgpu::Backends) -> Result<Self, GpuError> {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();
+        desc.backends = backends;
+        let instance = wgpu::Instance::new(desc);
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::NoAdapter {
+            backends,
+            reason: e.to_string(),
+        })?;
+        let info = adapter.get_info();
+        let f64 = adapter.features().contains(wgpu::Features::SHADER_F64);
+        let required_features = if f64 {
+            wgpu::Features::SHADER_F64
+        } else {
+            wgpu::Features::empty()
+        };
+        let limits = adapter.limits();
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+                label: Some("resecta-gpu"),
+                required_features,
+                required_limits: limits.clone(),
+                ..Default::default()
+            }))?;
+        Ok(Self {
+            device,
+            queue,
+            info,
+            caps: Capabilities { f64, limits },
+        })
+    }
+
+    /// Largest storage binding in bytes (128 MiB on lavapipe).
+    pub fn max_binding(&self) -> u64 {
+        self.caps
+            .limits
+            .max_storage_buffer_binding_size
+            .min(self.caps.limits.max_buffer_size)
+    }
+
+    /// Blocks until all submitted work is done.
+    pub fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::ReadBack(e.to_string()))
+    }
+
+    /// Compiles `source` into a compute pipeline with an automatic layout, capturing
+    /// validation errors as [`GpuError::Pipeline`] instead of wgpu's default panic.
+    pub fn compute_pipeline(
+        &self,
+        label: &str,
+        source: &str,
+        entry_point: &str,
+    ) -> Result<wgpu::ComputePipeline, GpuError> {
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module = self
+            .device
+            .create_shader_module(wgpu::ShaderModuleDescriptor {
+                label: Some(label),
+                source: wgpu::ShaderSource::Wgsl(source.into()),
+            });
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some(entry_point),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        match pollster::block_on(scope.pop()) {
+            Some(e) => Err(GpuError::Pipeline(e.to_string())),
+            None => Ok(pipeline),
+        }
+    }
+
+    /// Maps `ranges` of MAP_READ buffers, waits, and hands each mapped byte slice to `sink`
+    /// (in order); unmaps afterwards.
+    pub fn read_back(
+        &self,
+        ranges: &[(&wgpu::Buffer, std::ops::Range<u64>)],
+        mut sink: impl FnMut(usize, &[u8]),
+    ) -> Result<(), GpuError> {
+        let (tx, rx) = mpsc::channel();
+        for (k, (buf, range)) in ranges.iter().enumerate() {
+            let tx = tx.clone();
+            buf.map_async(wgpu::MapMode::Read, range.clone(), move |r| {
+                let _ = tx.send((k, r.is_ok()));
+            });
+        }
+        drop(tx);
+        self.wait()?;
+        let mut ok = true;
+        for (_, good) in rx.iter() {
+            ok &= good;
+        }
+        let result = if ok {
+            let mut res = Ok(());
+            for (k, (buf, range)) in ranges.iter().enumerate() {
+                match buf.get_mapped_range(range.clone()) {
+                    Ok(view) => sink(k, &view),
+                    Err(e) => {
+                        res = Err(GpuError::ReadBack(e.to_string()));
+                        break;
+                    }
+                }
+            }
+            res
+        } else {
+            Err(GpuError::ReadBack("buffer mapping failed".into()))
+        };
+        for (buf, _) in ranges {
+            buf.unmap();
+        }
+        result
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod testing {
+    //! Test device: fails when `WGPU_BACKEND` is set but no adapter exists, skips otherwise.
+    use super::GpuContext;
+
+    /// The shared test context, or `None` (with a visible `SKIP:`) when no adapter exists and
+    /// `WGPU_BACKEND` is unset. Panics (fails the test) when `WGPU_BACKEND` is set and there is
+    /// no adapter, or when it asks for Vulkan and another backend answered (e.g. GL fallback).
+    pub(crate) fn context() -> Option<GpuContext> {
+        static CTX: std::sync::OnceLock<Option<GpuContext>> = std::sync::OnceLock::new();
+        CTX.get_or_init(|| {
+            let env = std::env::var("WGPU_BACKEND").ok();
+            match GpuContext::new() {
+                Ok(ctx) => {
+                    if env
+                        .as_deref()
+                        .is_some_and(|b| b.eq_ignore_ascii_case("vulkan"))
+                    {
+                        assert_eq!(
+                            ctx.info.backend,
+                            wgpu::Backend::Vulkan,
+                            "WGPU_BACKEND=vulkan but got {:?}",
+                            ctx.info
+                        );
+                    }
+                    Some(ctx)
+                }
+                Err(e) => {
+                    assert!(
+                        env.is_none(),
+                        "WGPU_BACKEND={env:?} is set but no adapter was found: {e}"
+                    );
+                    eprintln!("SKIP: no GPU adapter ({e}); set WGPU_BACKEND=vulkan with lavapipe");
+                    None
+                }
+            }
+        })
+        .clone()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testing::context;
+
+    #[test]
+    fn adapter_matches_env_and_reports_caps() {
+        let Some(ctx) = context() else { return };
+        eprintln!("adapter: {:?}, f64: {}", ctx.info, ctx.caps.f64);
+        assert!(ctx.max_binding() >= 1 << 20);
+        assert!(ctx.caps.limits.max_compute_invocations_per_workgroup >= 256);
+        // Lavapipe (llvmpipe) exposes shaderFloat64; losing it means a wrong driver/backend.
+        if ctx.info.name.contains("llvmpipe") && ctx.info.backend == wgpu::Backend::Vulkan {
+            assert!(ctx.caps.f64, "lavapipe should grant SHADER_F64");
+        }
+    }
+
+    #[test]
+    fn bad_pipeline_is_a_typed_error() {
+        let Some(ctx) = context() else { return };
+        let r = ctx.compute_pipeline(
+            "bad",
+            "@compute @workgroup_size(1) fn main() { let x: u32 = 1.5; }",
+            "main",
+        );
+        assert!(matches!(r, Err(super::GpuError::Pipeline(_))), "{r:?}");
+    }
+}

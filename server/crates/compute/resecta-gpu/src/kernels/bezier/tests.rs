@@ -1,0 +1,424 @@
+//! GPU vs CPU (`resecta_bezier` MLE and BRF) on the test device (lavapipe in CI).
+
+use resecta_bezier::{
+    ControlNet, MleEvaluator, Outputs, P3, Resolution, bernstein_table, binomial_row, evaluate_brf,
+};
+
+use super::{BezierBackend, GpuMle, GpuPrepared, shader_source};
+use crate::device::testing::context;
+use crate::kernels::GpuScalar;
+
+/// SplitMix64: deterministic test randomness without a dependency.
+pub(crate) struct Rng(pub(crate) u64);
+impl Rng {
+    pub(crate) fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    pub(crate) fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub(crate) fn range(&mut self, lo: usize, hi: usize) -> usize {
+        lo + (self.next() % (hi - lo + 1) as u64) as usize
+    }
+}
+
+/// A random M×N net in [−50, 50]³.
+pub(crate) fn random_net<T: GpuScalar>(rng: &mut Rng, m: usize, n: usize) -> ControlNet<T> {
+    ControlNet::from_fn(m, n, |_, _| {
+        std::array::from_fn(|_| T::from_f64(100.0 * rng.unit() - 50.0))
+    })
+    .unwrap()
+}
+
+/// Largest coordinate magnitude of the net (the scale errors are relative to).
+pub(crate) fn scale<T: GpuScalar>(net: &ControlNet<T>) -> f64 {
+    let (lo, hi) = net.bounds();
+    lo.iter()
+        .chain(&hi)
+        .map(|c| c.to_f64().abs())
+        .fold(0.0, f64::max)
+}
+
+pub(crate) fn max_diff<T: GpuScalar>(a: &[P3<T>], b: &[P3<T>]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .flat_map(|(p, q)| (0..3).map(move |c| (p[c].to_f64() - q[c].to_f64()).abs()))
+        .fold(0.0, f64::max)
+}
+
+fn cpu_mle<T: GpuScalar>(net: &ControlNet<T>, res: Resolution) -> Vec<P3<T>> {
+    let mut out = vec![[T::ZERO; 3]; res.len()];
+    MleEvaluator::new(net.clone(), res)
+        .evaluate_points_into(&mut out)
+        .unwrap();
+    out
+}
+
+/// Relative tolerance per type: f32 1e-5, f64 1e-12 (of the net's coordinate scale).
+pub(crate) fn tol<T: GpuScalar>() -> f64 {
+    if T::NAME == "f32" { 1e-5 } else { 1e-12 }
+}
+
+fn f64_ok() -> bool {
+    context().is_some_and(|c| {
+        if !c.caps.f64 {
+            eprintln!("SKIP: device lacks SHADER_F64");
+        }
+        c.caps.f64
+    })
+}
+
+#[test]
+fn wgsl_validates_with_naga() {
+    use wgpu::naga;
+    for (name, src) in [
+        ("f32", shader_source::<f32>()),
+        ("f64", shader_source::<f64>()),
+    ] {
+        let module = naga::front::wgsl::parse_str(&src)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(&src)));
+        let mut v = naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::FLOAT64,
+        );
+        v.validate(&module)
+            .unwrap_or_else(|e| panic!("{name}: {e:?}"));
+        assert_eq!(module.entry_points.len(), 2);
+    }
+    assert!(shader_source::<f64>().contains("alias real = f64;"));
+    // Without the f64 capability the f64 variant must be rejected (it really uses f64).
+    let src = shader_source::<f64>();
+    let module = naga::front::wgsl::parse_str(&src).unwrap();
+    let mut v = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::empty(),
+    );
+    assert!(v.validate(&module).is_err());
+}
+
+fn check_basis<T: GpuScalar>(m: usize, n: usize, ru: usize, rv: usize) {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(7);
+    let net = random_net::<T>(&mut rng, m, n);
+    let mut g = GpuMle::new(&ctx, net, Resolution::new(ru, rv).unwrap()).unwrap();
+    let (bu, bv) = g.basis_tables().unwrap();
+    let cu: Vec<T> = bernstein_table(&binomial_row(m), ru);
+    let cv: Vec<T> = bernstein_table(&binomial_row(n), rv);
+    let t = if T::NAME == "f32" { 1e-6 } else { 1e-14 };
+    let diff = |a: &[T], b: &[T]| {
+        assert_eq!(a.len(), b.len());
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x.to_f64() - y.to_f64()).abs())
+            .fold(0.0, f64::max)
+    };
+    let (du, dv) = (diff(&bu, &cu), diff(&bv, &cv));
+    assert!(
+        du <= t && dv <= t,
+        "{} {m}x{n} @ {ru}x{rv}: du {du:e} dv {dv:e}",
+        T::NAME
+    );
+    assert_eq!(g.counters().level2, 1);
+}
+
+#[test]
+fn basis_tables_match_cpu_f32() {
+    check_basis::<f32>(4, 7, 37, 53);
+    check_basis::<f32>(12, 12, 40, 40); // isotropy: B^v is B^u (direct addressing)
+    check_basis::<f32>(2, 9, 2, 300);
+}
+
+#[test]
+fn basis_tables_match_cpu_f64() {
+    if !f64_ok() {
+        return;
+    }
+    check_basis::<f64>(4, 7, 37, 53);
+    check_basis::<f64>(12, 12, 40, 40);
+}
+
+/// GPU vs CPU MLE and BRF (same type) for random nets, within `tol::<T>()·scale`.
+fn check_random<T: GpuScalar>(seed: u64, cases: &[(usize, usize)]) {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(seed);
+    for &(ru, rv) in cases {
+        let (m, n) = (rng.range(2, 12), rng.range(2, 12));
+        let net = random_net::<T>(&mut rng, m, n);
+        let res = Resolution::new(ru, rv).unwrap();
+        let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+        let mut out = vec![[T::ZERO; 3]; res.len()];
+        g.evaluate_points_into(&mut out).unwrap();
+        let s = scale(&net);
+        let d_mle = max_diff(&out, &cpu_mle(&net, res)) / s;
+        let d_brf = max_diff(&out, evaluate_brf(&net, res, Outputs::Points).points()) / s;
+        eprintln!(
+            "{} {m}x{n} @ {ru}x{rv}: vs MLE {d_mle:.2e}, vs BRF {d_brf:.2e}",
+            T::NAME
+        );
+        assert!(
+            d_mle <= tol::<T>(),
+            "{} {m}x{n} @ {ru}x{rv}: vs MLE {d_mle:e}",
+            T::NAME
+        );
+        assert!(
+            d_brf <= tol::<T>(),
+            "{} {m}x{n} @ {ru}x{rv}: vs BRF {d_brf:e}",
+            T::NAME
+        );
+    }
+}
+
+const CASES: &[(usize, usize)] = &[
+    (2, 2),
+    (16, 16),
+    (37, 53),
+    (53, 37),
+    (17, 200),
+    (64, 5),
+    (100, 100),
+];
+
+#[test]
+fn random_nets_match_cpu_f32() {
+    check_random::<f32>(1, CASES);
+    check_random::<f32>(2, CASES);
+}
+
+#[test]
+fn random_nets_match_cpu_f64() {
+    if !f64_ok() {
+        return;
+    }
+    check_random::<f64>(3, CASES);
+    check_random::<f64>(4, CASES);
+}
+
+#[test]
+fn every_net_size_2_to_12_f32() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(11);
+    let res = Resolution::new(19, 23).unwrap();
+    for m in 2..=12 {
+        // n cycles through 2..=12 shifted, so M≠N almost always and every n occurs.
+        let n = 2 + (m + 5) % 11;
+        let net = random_net::<f32>(&mut rng, m, n);
+        let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+        let mut out = vec![[0.0; 3]; res.len()];
+        g.evaluate_points_into(&mut out).unwrap();
+        let d = max_diff(&out, &cpu_mle(&net, res)) / scale(&net);
+        assert!(d <= 1e-5, "{m}x{n}: {d:e}");
+    }
+}
+
+#[test]
+fn large_nets_beyond_one_chunk_f64() {
+    // M, N > 16 exercise the chunked staging of control points in workgroup memory.
+    if !f64_ok() {
+        return;
+    }
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(5);
+    let net = random_net::<f64>(&mut rng, 40, 17);
+    let res = Resolution::new(45, 33).unwrap();
+    let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+    let mut out = vec![[0.0; 3]; res.len()];
+    g.evaluate_points_into(&mut out).unwrap();
+    let d = max_diff(&out, &cpu_mle(&net, res)) / scale(&net);
+    assert!(d <= 1e-12, "{d:e}");
+}
+
+#[test]
+fn large_resolution_1000_squared() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(9);
+    let res = Resolution::new(1000, 1000).unwrap();
+    let net = random_net::<f32>(&mut rng, 4, 5);
+    let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+    let mut out = vec![[0.0; 3]; res.len()];
+    g.evaluate_points_into(&mut out).unwrap();
+    let d = max_diff(&out, &cpu_mle(&net, res)) / scale(&net);
+    assert!(d <= 1e-5, "f32: {d:e}");
+    if ctx.caps.f64 {
+        let net = random_net::<f64>(&mut rng, 12, 12);
+        let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+        let mut out = vec![[0.0; 3]; res.len()];
+        g.evaluate_points_into(&mut out).unwrap();
+        let d = max_diff(&out, &cpu_mle(&net, res)) / scale(&net);
+        assert!(d <= 1e-12, "f64: {d:e}");
+    }
+}
+
+#[test]
+fn split_output_bands_and_row_ranges() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(13);
+    let net = random_net::<f32>(&mut rng, 5, 3);
+    let res = Resolution::new(37, 53).unwrap();
+    let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+    // 5 rows per band: 8 bands, the last partial.
+    g.set_band_limit(5 * 53 * 12);
+    let mut out = vec![[0.0; 3]; res.len()];
+    g.evaluate_points_into(&mut out).unwrap();
+    assert_eq!(g.bands().len(), 8);
+    assert_eq!(g.bands()[7].rows(), 35..37);
+    let cpu = cpu_mle(&net, res);
+    assert!(max_diff(&out, &cpu) / scale(&net) <= 1e-5);
+    // A row range straddling bands at an odd (8-byte-unaligned) offset.
+    let mut part = vec![[0.0; 3]; 9 * 53];
+    g.evaluate_rows_into(3..12, &mut part).unwrap();
+    assert!(max_diff(&part, &cpu[3 * 53..12 * 53]) / scale(&net) <= 1e-5);
+    // Bad ranges and lengths are typed errors.
+    assert!(
+        g.evaluate_rows_into(30..38, &mut vec![[0.0; 3]; 8 * 53])
+            .is_err()
+    );
+    assert!(g.evaluate_rows_into(3..12, &mut part[1..]).is_err());
+    assert!(g.evaluate_points_into(&mut out[1..]).is_err());
+}
+
+#[test]
+fn level_caching_and_updates() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(17);
+    let net = random_net::<f32>(&mut rng, 6, 4);
+    let res = Resolution::new(33, 21).unwrap();
+    let mut g = GpuMle::new(&ctx, net, res).unwrap();
+    let mut out = vec![[0.0; 3]; res.len()];
+    g.evaluate_points_into(&mut out).unwrap();
+    for _ in 0..3 {
+        let moved = random_net::<f32>(&mut rng, 6, 4);
+        g.set_control_points(moved.points()).unwrap();
+        g.evaluate_points_into(&mut out).unwrap();
+        assert!(max_diff(&out, &cpu_mle(&moved, res)) / scale(&moved) <= 1e-5);
+    }
+    let c = g.counters();
+    assert_eq!((c.level3, c.level2, c.level1), (1, 1, 4));
+    // One point moved.
+    g.set_control_point(2, 1, [1.0, 2.0, 3.0]).unwrap();
+    g.evaluate_points_into(&mut out).unwrap();
+    assert!(max_diff(&out, &cpu_mle(g.net(), res)) / scale(g.net()) <= 1e-5);
+    // Requirement B keeps level 3; C rebuilds both.
+    let res2 = Resolution::new(10, 70).unwrap();
+    g.set_resolution(res2);
+    let mut out2 = vec![[0.0; 3]; res2.len()];
+    g.evaluate_points_into(&mut out2).unwrap();
+    assert!(max_diff(&out2, &cpu_mle(g.net(), res2)) / scale(g.net()) <= 1e-5);
+    assert_eq!((g.counters().level3, g.counters().level2), (1, 2));
+    let net3 = random_net::<f32>(&mut rng, 9, 9);
+    g.set_net(net3.clone());
+    g.evaluate_points_into(&mut out2).unwrap();
+    assert!(max_diff(&out2, &cpu_mle(&net3, res2)) / scale(&net3) <= 1e-5);
+    assert_eq!((g.counters().level3, g.counters().level2), (2, 3));
+}
+
+fn check_corners<T: GpuScalar>() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(23);
+    let net = random_net::<T>(&mut rng, 5, 8);
+    let (ru, rv) = (29, 31);
+    let res = Resolution::new(ru, rv).unwrap();
+    let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+    let mut out = vec![[T::ZERO; 3]; res.len()];
+    g.evaluate_points_into(&mut out).unwrap();
+    let t = if T::NAME == "f32" { 1e-6 } else { 1e-14 } * scale(&net);
+    for (a, b, i, j) in [
+        (0, 0, 0, 0),
+        (0, rv - 1, 0, 7),
+        (ru - 1, 0, 4, 0),
+        (ru - 1, rv - 1, 4, 7),
+    ] {
+        let d = max_diff(&out[a * rv + b..a * rv + b + 1], &[net.get(i, j).unwrap()]);
+        assert!(d <= t, "{} corner ({a},{b}): {d:e}", T::NAME);
+    }
+}
+
+#[test]
+fn corners_interpolate_control_points() {
+    check_corners::<f32>();
+    if f64_ok() {
+        check_corners::<f64>();
+    }
+}
+
+#[test]
+fn resident_result_stays_on_gpu() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(29);
+    let net = random_net::<f32>(&mut rng, 4, 4);
+    let res = Resolution::new(20, 30).unwrap();
+    let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+    g.set_band_limit(7 * 30 * 12);
+    let bands = g.evaluate_resident().unwrap();
+    assert_eq!(bands.len(), 3);
+    // Copy the resident buffers out by hand, as a renderer or streamer would consume them.
+    let mut enc = ctx.device.create_command_encoder(&Default::default());
+    let mut staging = Vec::new();
+    for band in bands {
+        let size = band.buffer().size();
+        let st = ctx.device.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        enc.copy_buffer_to_buffer(band.buffer(), 0, &st, 0, size);
+        staging.push((st, size));
+    }
+    ctx.queue.submit([enc.finish()]);
+    let maps: Vec<_> = staging.iter().map(|(b, s)| (b, 0..*s)).collect();
+    let mut all: Vec<f32> = Vec::new();
+    ctx.read_back(&maps, |_, bytes| {
+        all.extend(bytemuck::pod_collect_to_vec::<u8, f32>(bytes))
+    })
+    .unwrap();
+    let pts: &[P3<f32>] = bytemuck::cast_slice(&all);
+    assert!(max_diff(pts, &cpu_mle(&net, res)) / scale(&net) <= 1e-5);
+}
+
+#[test]
+fn backend_picks_gpu_or_cpu_with_same_results() {
+    let mut rng = Rng(31);
+    let net = random_net::<f32>(&mut rng, 3, 6);
+    let res = Resolution::new(25, 18).unwrap();
+    let mut cpu = BezierBackend::new(None, net.clone(), res);
+    assert_eq!(cpu.name(), "cpu");
+    let mut a = vec![[0.0; 3]; res.len()];
+    cpu.evaluate_points_into(&mut a).unwrap();
+    let Some(ctx) = context() else { return };
+    let mut gpu = BezierBackend::new(Some(&ctx), net.clone(), res);
+    assert_eq!(gpu.name(), "wgpu");
+    let mut b = vec![[0.0; 3]; res.len()];
+    gpu.evaluate_points_into(&mut b).unwrap();
+    assert!(max_diff(&a, &b) / scale(&net) <= 1e-5);
+    let moved = random_net::<f32>(&mut rng, 3, 6);
+    for be in [&mut cpu, &mut gpu] {
+        be.set_control_points(moved.points()).unwrap();
+        be.evaluate_points_into(&mut a).unwrap();
+        assert!(max_diff(&a, &cpu_mle(&moved, res)) / scale(&moved) <= 1e-5);
+        assert_eq!(be.counters().level2, 1);
+    }
+}
+
+#[test]
+fn prepared_runs_and_times() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(37);
+    let net = random_net::<f32>(&mut rng, 4, 4);
+    let res = Resolution::new(64, 64).unwrap();
+    let mut p = GpuPrepared::new(&ctx, net.clone(), res).unwrap();
+    assert!(max_diff(p.output(), &cpu_mle(&net, res)) / scale(&net) <= 1e-5);
+    let moved = random_net::<f32>(&mut rng, 4, 4);
+    p.set_control_points(moved.points()).unwrap();
+    p.run().unwrap();
+    assert!(max_diff(p.output(), &cpu_mle(&moved, res)) / scale(&moved) <= 1e-5);
+    p.run_resident().unwrap();
+    let mut out = vec![[0.0; 3]; res.len()];
+    let dt = p.evaluator().evaluate_timed(&mut out).unwrap();
+    assert!(dt.as_nanos() > 0);
+    assert_eq!(p.evaluator().counters().level2, 1);
+}
