@@ -1,6 +1,7 @@
 """`resecta bezier eval` against an independent numpy Bernstein evaluation, and the benchmark
 command as a smoke test (its figures are not asserted)."""
 import json
+import os
 from math import comb
 
 import numpy as np
@@ -78,3 +79,9 @@ def test_bench_quick_smoke(resecta):
             assert key in r
         assert r["evals_per_s"] > 0
     assert rep["speedups"] and rep["write_ceilings"]
+    if os.environ.get("WGPU_BACKEND") == "vulkan":
+        # CI installs lavapipe: the wgpu rows must be there, on Vulkan, with f64.
+        assert rep["wgpu"] and rep["wgpu"]["backend"] == "vulkan" and rep["wgpu"]["f64"], rep["wgpu"]
+        gpu = [r for r in rows if r["backend"] == "wgpu"]
+        assert {r["precision"] for r in gpu} == {"f32", "f64"}
+        assert all(r["threads"] is None and r["method"] == "mle" for r in gpu)

@@ -3,9 +3,8 @@
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
-use resecta_bezier::{
-    BezierScalar, ControlNet, Method, Outputs, P3, Prepared, Resolution, write_ceiling,
-};
+use resecta_bezier::{ControlNet, Method, Outputs, P3, Prepared, Resolution, write_ceiling};
+use resecta_gpu::{GpuContext, GpuPrepared, GpuScalar};
 use serde::Serialize;
 
 use crate::error::CliError;
@@ -34,8 +33,8 @@ struct Row {
     precision: &'static str,
     grid: [usize; 2],
     resolution: [usize; 2],
-    /// CPU threads (rayon pool size).
-    threads: usize,
+    /// CPU threads (rayon pool size); `null` for the wgpu backend, where the device decides.
+    threads: Option<usize>,
     backend: &'static str,
     evals_per_s: f64,
     runs: u64,
@@ -68,9 +67,19 @@ struct Machine {
 }
 
 #[derive(Debug, Serialize)]
+struct Device {
+    name: String,
+    backend: String,
+    driver: String,
+    f64: bool,
+}
+
+#[derive(Debug, Serialize)]
 struct Report {
     quick: bool,
     machine: Machine,
+    /// The wgpu adapter, or `null` when none was found (wgpu rows are then absent).
+    wgpu: Option<Device>,
     results: Vec<Row>,
     write_ceilings: Vec<Ceiling>,
     speedups: Vec<Speedup>,
@@ -127,14 +136,24 @@ fn bezier(args: &BezierArgs) -> Result<(), CliError> {
         }
         pb
     };
+    pb.set_message("looking for a wgpu adapter");
+    let gpu = GpuContext::try_new();
     let mut results = Vec::new();
     let mut write_ceilings = Vec::new();
-    sweep::<f64>(&plan, &pb, &mut results, &mut write_ceilings)?;
-    sweep::<f32>(&plan, &pb, &mut results, &mut write_ceilings)?;
+    sweep::<f64>(&plan, gpu.as_ref(), &pb, &mut results, &mut write_ceilings)?;
+    sweep::<f32>(&plan, gpu.as_ref(), &pb, &mut results, &mut write_ceilings)?;
     pb.finish_and_clear();
     let report = Report {
         quick: args.quick,
         machine: machine(),
+        wgpu: gpu.map(|g| Device {
+            name: g.info.name.clone(),
+            backend: format!("{:?}", g.info.backend).to_lowercase(),
+            driver: format!("{} {}", g.info.driver, g.info.driver_info)
+                .trim()
+                .to_owned(),
+            f64: g.caps.f64,
+        }),
         speedups: speedups(&results),
         results,
         write_ceilings,
@@ -146,8 +165,9 @@ fn bezier(args: &BezierArgs) -> Result<(), CliError> {
     Ok(())
 }
 
-fn sweep<T: BezierScalar>(
+fn sweep<T: GpuScalar>(
     plan: &Plan,
+    gpu: Option<&GpuContext>,
     pb: &ProgressBar,
     rows: &mut Vec<Row>,
     ceilings: &mut Vec<Ceiling>,
@@ -197,7 +217,7 @@ fn sweep<T: BezierScalar>(
                         precision: T::NAME,
                         grid: [g, g],
                         resolution: [res, res],
-                        threads,
+                        threads: Some(threads),
                         backend: "cpu",
                         evals_per_s,
                         runs,
@@ -205,6 +225,40 @@ fn sweep<T: BezierScalar>(
                         fraction_of_write_ceiling: evals_per_s / ceiling,
                     });
                 }
+            }
+        }
+        if let Some(ctx) = gpu.filter(|c| T::supported(c)) {
+            let ceiling = ceilings
+                .iter()
+                .filter(|c| c.precision == T::NAME && c.resolution == [res, res])
+                .map(|c| c.write_ceiling_evals_per_s)
+                .fold(0.0, f64::max);
+            for &g in &plan.grids {
+                pb.set_message(format!("mle {} {g}×{g} {res}² wgpu", T::NAME));
+                let net = bench_net::<T>(g).map_err(failed)?;
+                let gpu_failed = |e: resecta_gpu::GpuError| CliError::Failed(e.to_string());
+                let mut prepared = GpuPrepared::new(ctx, net, resolution).map_err(gpu_failed)?;
+                let mut err = None;
+                let (evals_per_s, runs) = rate(plan, || {
+                    if let Err(e) = prepared.run() {
+                        err = Some(e);
+                    }
+                });
+                if let Some(e) = err {
+                    return Err(gpu_failed(e));
+                }
+                rows.push(Row {
+                    method: Method::Mle.name(),
+                    precision: T::NAME,
+                    grid: [g, g],
+                    resolution: [res, res],
+                    threads: None,
+                    backend: "wgpu",
+                    evals_per_s,
+                    runs,
+                    write_ceiling_evals_per_s: ceiling,
+                    fraction_of_write_ceiling: evals_per_s / ceiling,
+                });
             }
         }
     }
@@ -224,7 +278,9 @@ fn rate(plan: &Plan, mut f: impl FnMut()) -> (f64, u64) {
 }
 
 /// A deterministic non-planar control net of g×g points over a 100 mm square.
-fn bench_net<T: BezierScalar>(g: usize) -> Result<ControlNet<T>, resecta_bezier::BezierError> {
+fn bench_net<T: resecta_bezier::BezierScalar>(
+    g: usize,
+) -> Result<ControlNet<T>, resecta_bezier::BezierError> {
     let step = 100.0 / (g - 1) as f64;
     let points: Vec<P3<T>> = (0..g * g)
         .map(|k| {
@@ -254,7 +310,7 @@ fn speedups(rows: &[Row]) -> Vec<Speedup> {
                 precision: r.precision,
                 grid: r.grid,
                 resolution: r.resolution,
-                threads: r.threads,
+                threads: r.threads?,
                 mle_over_brf: r.evals_per_s / find(r, "brf")?.evals_per_s,
                 mle_over_mat: r.evals_per_s / find(r, "mat")?.evals_per_s,
             })
@@ -296,7 +352,7 @@ fn print_table(r: &Report) {
             row.precision,
             format!("{}×{}", row.grid[0], row.grid[1]),
             format!("{}²", row.resolution[0]),
-            row.threads,
+            row.threads.map_or("-".to_owned(), |t| t.to_string()),
             row.backend,
             row.evals_per_s,
             100.0 * row.fraction_of_write_ceiling
