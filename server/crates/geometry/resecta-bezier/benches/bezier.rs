@@ -1,11 +1,10 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-//! BRF / MAT / MLE × f32 / f64 × 4×4, 12×12 × 256², 1000² × 1 and 2 threads, plus the
-//! memory-write ceiling. Throughput is in surfaces per second (one element = one surface).
+//! Output layout of MLE level 1: interleaved xyz (AoS, what meshes and GPUs consume) against
+//! separate x, y, z arrays (SoA), single-threaded, f32 / f64 × 4×4, 12×12 × 256², 1000².
+//! The method sweep (BRF / MAT / MLE × threads × backends) is `resecta bench bezier`.
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use resecta_bezier::{
-    BezierScalar, ControlNet, Method, Outputs, Prepared, Resolution, write_ceiling,
-};
+use resecta_bezier::{BezierScalar, ControlNet, MleEvaluator, Resolution};
 
 fn net<T: BezierScalar>(m: usize) -> ControlNet<T> {
     ControlNet::from_fn(m, m, |i, j| {
@@ -16,38 +15,35 @@ fn net<T: BezierScalar>(m: usize) -> ControlNet<T> {
 }
 
 fn bench_type<T: BezierScalar>(c: &mut Criterion) {
-    for threads in [1usize, 2] {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        for m in [4usize, 12] {
-            for r in [256usize, 1000] {
-                let res = Resolution::new(r, r).unwrap();
-                let mut group =
-                    c.benchmark_group(format!("bezier/{}/{m}x{m}/{r}x{r}/t{threads}", T::NAME));
-                group.throughput(Throughput::Elements(1));
-                if r >= 1000 || m >= 12 {
-                    group.sample_size(10);
-                }
-                for method in Method::ALL {
-                    // BRF at 12×12, 1000² takes seconds per surface; skip it.
-                    if method == Method::Brf && m == 12 && r == 1000 {
-                        continue;
-                    }
-                    let mut p = Prepared::new(method, net::<T>(m), res, Outputs::Points).unwrap();
-                    group.bench_function(BenchmarkId::from_parameter(method.name()), |b| {
-                        pool.install(|| b.iter(|| p.run().unwrap()))
-                    });
-                }
-                let mut buf = vec![[T::ZERO; 3]; res.len()];
-                group.bench_function(BenchmarkId::from_parameter("write_ceiling"), |b| {
-                    pool.install(|| {
-                        b.iter(|| write_ceiling(&mut buf, std::hint::black_box(T::ONE)))
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    for m in [4usize, 12] {
+        for r in [256usize, 1000] {
+            let res = Resolution::new(r, r).unwrap();
+            let mut group = c.benchmark_group(format!("mle_layout/{}/{m}x{m}/{r}x{r}", T::NAME));
+            group.throughput(Throughput::Elements(1));
+            group.sample_size(if r >= 1000 { 20 } else { 50 });
+            let mut mle = MleEvaluator::new(net::<T>(m), res);
+            let mut aos = vec![[T::ZERO; 3]; res.len()];
+            group.bench_function(BenchmarkId::from_parameter("aos"), |b| {
+                pool.install(|| b.iter(|| mle.evaluate_points_into(&mut aos).unwrap()))
+            });
+            let (mut x, mut y, mut z) = (
+                vec![T::ZERO; res.len()],
+                vec![T::ZERO; res.len()],
+                vec![T::ZERO; res.len()],
+            );
+            group.bench_function(BenchmarkId::from_parameter("soa"), |b| {
+                pool.install(|| {
+                    b.iter(|| {
+                        mle.evaluate_points_soa_into(&mut x, &mut y, &mut z)
+                            .unwrap()
                     })
-                });
-                group.finish();
-            }
+                })
+            });
+            group.finish();
         }
     }
 }
