@@ -88,7 +88,7 @@ fn wgsl_validates_with_naga() {
         );
         v.validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {e:?}"));
-        assert_eq!(module.entry_points.len(), 2);
+        assert_eq!(module.entry_points.len(), 3);
     }
     assert!(shader_source::<f64>().contains("alias real = f64;"));
     // Without the f64 capability the f64 variant must be rejected (it really uses f64).
