@@ -1,7 +1,8 @@
 //! Quick timing of the GPU Bézier path against the CPU MLE, and of SDC/DDC cooperation.
 //! Run: `WGPU_BACKEND=vulkan cargo run --release -p resecta-gpu --example bezier_timing`.
-//! "gpu" includes control-point upload and read-back into host memory; "gpu-resident" leaves
-//! the surface on the GPU (upload + kernel + wait).
+//! Pass `--no-coop` to skip the SDC/DDC table. "empty submit+wait" is the floor of any GPU
+//! call; "gpu" is one evaluation with read-back into host memory; "gpu-resident" leaves the
+//! surface on the GPU (kernels + wait); "+ upload" re-sends the control points first.
 
 use std::time::Instant;
 

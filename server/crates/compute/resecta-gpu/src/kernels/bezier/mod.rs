@@ -9,8 +9,10 @@
 //! S(a, b) = Σ_i B^u_i(a) Q_i(b), each thread a segment of [`ROWS`] rows of one column, in
 //! 64-thread workgroups along v. Algorithm 7's original form (16×16 workgroups staging P and
 //! basis blocks in workgroup memory between barriers, M·N terms per point) was 10–80× slower
-//! on lavapipe, where the barriers and per-point M·N loads dominated; the two-pass form needs
-//! M·(N + RU)/RU loads per point, no workgroup memory and no barriers.
+//! on lavapipe, where the barriers and the 4·M·N workgroup-memory loads per point dominated;
+//! the two-pass form needs about M·(1 + 3/ROWS) loads per point in 1b (plus 4·M·N·RV in 1a,
+//! shared by all RU rows), no workgroup memory and no barriers. ROWS = 4 measured best on
+//! lavapipe (1: 2–4× slower; 8: slower again, the accumulators spill).
 //!
 //! GPU layouts: B^u is M×RU and B^v is N×RV (basis-function major: consecutive threads read
 //! consecutive memory); Q is SoA `[c][i][b]`; the surface is AoS `xyz` with index `a·RV + b`,
