@@ -1,7 +1,8 @@
 //! Quick timing of the GPU Bézier path against the CPU MLE, and of SDC/DDC cooperation.
 //! Run: `WGPU_BACKEND=vulkan cargo run --release -p resecta-gpu --example bezier_timing`.
-//! "gpu" includes control-point upload and read-back into host memory; "gpu-resident" leaves
-//! the surface on the GPU (upload + kernel + wait).
+//! Pass `--no-coop` to skip the SDC/DDC table. "empty submit+wait" is the floor of any GPU
+//! call; "gpu" is one evaluation with read-back into host memory; "gpu-resident" leaves the
+//! surface on the GPU (kernels + wait); "+ upload" re-sends the control points first.
 
 use std::time::Instant;
 
@@ -28,6 +29,16 @@ fn per_s(reps: usize, f: &mut dyn FnMut() -> Result<(), GpuError>) -> Result<f64
     Ok(reps as f64 / t.elapsed().as_secs_f64())
 }
 
+/// Floor of any GPU evaluation: an empty compute pass, submitted and waited for.
+fn empty_rate(ctx: &GpuContext) -> Result<f64, GpuError> {
+    per_s(200, &mut || {
+        let mut enc = ctx.device.create_command_encoder(&Default::default());
+        drop(enc.begin_compute_pass(&Default::default()));
+        ctx.queue.submit([enc.finish()]);
+        ctx.wait()
+    })
+}
+
 fn table<T: GpuScalar>(ctx: &GpuContext) -> Result<(), Box<dyn std::error::Error>> {
     for m in [4, 12] {
         for r in [256, 1000] {
@@ -36,11 +47,17 @@ fn table<T: GpuScalar>(ctx: &GpuContext) -> Result<(), Box<dyn std::error::Error
             let mut p = GpuPrepared::new(ctx, net::<T>(m)?, res)?;
             let gpu = per_s(reps, &mut || p.run())?;
             let resident = per_s(reps, &mut || p.run_resident())?;
+            // Upload included: the same points re-sent before each resident run.
+            let pts = p.evaluator().net().points().to_vec();
+            let upload = per_s(reps, &mut || {
+                p.set_control_points(&pts)?;
+                p.run_resident()
+            })?;
             let mut cpu = MleEvaluator::new(net::<T>(m)?, res);
             let mut out: Vec<P3<T>> = vec![[T::ZERO; 3]; res.len()];
             let cpu_rate = per_s(reps, &mut || Ok(cpu.evaluate_points_into(&mut out)?))?;
             println!(
-                "| {} | {m}x{m} | {r}x{r} | {gpu:.1} | {resident:.1} | {cpu_rate:.1} |",
+                "| {} | {m}x{m} | {r}x{r} | {gpu:.1} | {resident:.1} | {upload:.1} | {cpu_rate:.1} |",
                 T::NAME
             );
         }
@@ -79,6 +96,7 @@ fn cooperation<T: GpuScalar>(
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let coop = std::env::args().all(|a| a != "--no-coop");
     let ctx = GpuContext::new()?;
     println!(
         "adapter: {} ({:?}), f64: {}, threads (rayon): {}",
@@ -87,13 +105,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ctx.caps.f64,
         rayon::current_num_threads()
     );
+    println!("empty submit+wait: {:.0}/s", empty_rate(&ctx)?);
     println!(
-        "| type | net | resolution | gpu eval/s (with read-back) | gpu-resident eval/s | cpu MLE eval/s |"
+        "| type | net | resolution | gpu eval/s (with read-back) | gpu-resident eval/s | resident + upload /s | cpu MLE eval/s |"
     );
-    println!("|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|");
     table::<f32>(&ctx)?;
     if ctx.caps.f64 {
         table::<f64>(&ctx)?;
+    }
+    if !coop {
+        return Ok(());
     }
     println!(
         "\n| type | net | resolution | α (SDC) | cpu only /s | gpu only /s | SDC /s | DDC /s | DDC tiles gpu/cpu |"

@@ -2,10 +2,6 @@
 // `alias real` line below (see mod.rs); nothing else depends on the scalar type.
 alias real = f32;
 
-// Workgroup edge (TILE×TILE threads) and control-point chunk staged in workgroup memory.
-const TILE: u32 = 16u;
-const CHUNK: u32 = 16u;
-
 // 32 bytes, explicit padding (uniform structs are 16-byte aligned). Mirrors `Params` in mod.rs.
 struct Params {
     m: u32,          // control points along u
@@ -54,71 +50,59 @@ fn basis(@builtin(global_invocation_id) gid: vec3<u32>) {
     }
 }
 
-// ---- Level 1 (Algorithm 7): one thread per surface point, TILE×TILE blocks. -------------
-// x → v sample b (fastest in the output), y → u sample a. Control points and the block's
-// basis rows are staged chunk by chunk (CHUNK×CHUNK control points) in workgroup memory.
+// ---- Level 1 (Algorithm 7) as two small products, like the CPU MLE. -------------------
+// Pass 1a: Q_i(b) = Σ_j P_ij B^v_j(b), thread (b, i); SoA q[(c·M + i)·RV + b].
 @group(0) @binding(1) var<storage, read> ctrl: array<real>;  // P_ij xyz at 3(i·N + j)
-@group(0) @binding(2) var<storage, read> bu: array<real>;    // M×RU
-@group(0) @binding(3) var<storage, read> bv: array<real>;    // N×RV
-@group(0) @binding(4) var<storage, read_write> surface: array<real>; // AoS xyz, rows of RV
+@group(0) @binding(2) var<storage, read> bv: array<real>;    // N×RV
+@group(0) @binding(3) var<storage, read_write> q_out: array<real>; // 3×M×RV
 
-var<workgroup> sp: array<real, 768>;  // 3·CHUNK·CHUNK control coordinates
-var<workgroup> sbu: array<real, 256>; // CHUNK functions × TILE samples (u)
-var<workgroup> sbv: array<real, 256>; // CHUNK functions × TILE samples (v)
-
-@compute @workgroup_size(16, 16)
-fn surface_points(
-    @builtin(local_invocation_id) lid: vec3<u32>,
-    @builtin(workgroup_id) wid: vec3<u32>,
-) {
-    let tid = lid.y * TILE + lid.x;
-    let a0 = params.row_start + wid.y * TILE;
-    let b0 = wid.x * TILE;
-    let a = a0 + lid.y;
-    let b = b0 + lid.x;
+@compute @workgroup_size(64)
+fn partial_sums(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    let i = gid.y;
+    if b >= params.rv || i >= params.m { return; }
+    let x = i * params.rv + b;
+    let plane = params.m * params.rv;
     var acc = vec3<real>(real(0.0));
-    for (var i0 = 0u; i0 < params.m; i0 += CHUNK) {
-        let ci = min(CHUNK, params.m - i0);
-        for (var j0 = 0u; j0 < params.n; j0 += CHUNK) {
-            let cj = min(CHUNK, params.n - j0);
-            // Stage P[i0.., j0..] (lines 2–4), B^u and B^v of this block (lines 5–12).
-            for (var k = tid; k < 3u * ci * cj; k += TILE * TILE) {
-                let p = k / 3u;
-                let c = k % 3u;
-                let src = 3u * ((i0 + p / cj) * params.n + j0 + p % cj) + c;
-                sp[k] = ctrl[src];
-            }
-            for (var k = tid; k < ci * TILE; k += TILE * TILE) {
-                let i = k / TILE;
-                let aa = a0 + k % TILE;
-                var w = real(0.0);
-                if aa < params.row_end { w = bu[(i0 + i) * params.ru + aa]; }
-                sbu[k] = w;
-            }
-            for (var k = tid; k < cj * TILE; k += TILE * TILE) {
-                let j = k / TILE;
-                let bb = b0 + k % TILE;
-                var w = real(0.0);
-                if bb < params.rv { w = bv[(j0 + j) * params.rv + bb]; }
-                sbv[k] = w;
-            }
-            workgroupBarrier(); // line 13
-            // Lines 17–24: Σ_i B^u_i(a) Σ_j P_ij B^v_j(b).
-            for (var i = 0u; i < ci; i++) {
-                var q = vec3<real>(real(0.0));
-                for (var j = 0u; j < cj; j++) {
-                    let p = 3u * (i * cj + j);
-                    q += vec3<real>(sp[p], sp[p + 1u], sp[p + 2u]) * sbv[j * TILE + lid.x];
-                }
-                acc += q * sbu[i * TILE + lid.y];
-            }
-            workgroupBarrier();
+    for (var j = 0u; j < params.n; j++) {
+        let p = 3u * (i * params.n + j);
+        acc += vec3<real>(ctrl[p], ctrl[p + 1u], ctrl[p + 2u]) * bv[j * params.rv + b];
+    }
+    q_out[x] = acc.x;
+    q_out[plane + x] = acc.y;
+    q_out[2u * plane + x] = acc.z;
+}
+
+// Pass 1b: S(a, b) = Σ_i B^u_i(a) Q_i(b). Thread (b, g) computes ROWS consecutive rows of
+// column b, so each Q_i(b) is loaded once per ROWS outputs. No workgroup memory, no barriers.
+const ROWS: u32 = 4u;
+@group(0) @binding(1) var<storage, read> q: array<real>;     // 3×M×RV (pass 1a)
+@group(0) @binding(2) var<storage, read> bu: array<real>;    // M×RU
+@group(0) @binding(3) var<storage, read_write> surface: array<real>; // AoS xyz, rows of RV
+
+@compute @workgroup_size(64)
+fn surface_points(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    let a0 = params.row_start + gid.y * ROWS;
+    if b >= params.rv || a0 >= params.row_end { return; }
+    let plane = params.m * params.rv;
+    let last = params.row_end - 1u;
+    var acc: array<vec3<real>, ROWS>;
+    for (var i = 0u; i < params.m; i++) {
+        let k = i * params.rv + b;
+        let qi = vec3<real>(q[k], q[plane + k], q[2u * plane + k]);
+        let row = i * params.ru;
+        for (var r = 0u; r < ROWS; r++) {
+            acc[r] += qi * bu[row + min(a0 + r, last)];
         }
     }
-    if a < params.row_end && b < params.rv {
-        let o = 3u * ((a - params.band_start) * params.rv + b);
-        surface[o] = acc.x;
-        surface[o + 1u] = acc.y;
-        surface[o + 2u] = acc.z;
+    for (var r = 0u; r < ROWS; r++) {
+        let a = a0 + r;
+        if a <= last {
+            let o = 3u * ((a - params.band_start) * params.rv + b);
+            surface[o] = acc[r].x;
+            surface[o + 1u] = acc[r].y;
+            surface[o + 2u] = acc[r].z;
+        }
     }
 }

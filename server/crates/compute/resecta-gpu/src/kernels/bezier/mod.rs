@@ -4,8 +4,19 @@
 //! GPU and are rebuilt only when M×N or the resolution change; control-point changes re-run
 //! level 1 only. Outputs larger than one storage binding are split into row bands.
 //!
-//! GPU layouts: B^u is M×RU and B^v is N×RV (basis-function major, coalesced per block); the
-//! surface is AoS `xyz` with index `a·RV + b`, byte-identical to `&[P3<T>]`.
+//! Level 1 runs as two small products, like the CPU MLE: pass 1a computes Q = P·B^vᵀ
+//! (Q_i(b) = Σ_j P_ij B^v_j(b), 3×M×RV, one thread per (i, b)), pass 1b computes
+//! S(a, b) = Σ_i B^u_i(a) Q_i(b), each thread a segment of [`ROWS`] rows of one column, in
+//! 64-thread workgroups along v. Algorithm 7's original form (16×16 workgroups staging P and
+//! basis blocks in workgroup memory between barriers, M·N terms per point) was 10–80× slower
+//! on lavapipe, where the barriers and the 4·M·N workgroup-memory loads per point dominated;
+//! the two-pass form needs about M·(1 + 3/ROWS) loads per point in 1b (plus 4·M·N·RV in 1a,
+//! shared by all RU rows), no workgroup memory and no barriers. ROWS = 4 measured best on
+//! lavapipe (1: 2–4× slower; 8: slower again, the accumulators spill).
+//!
+//! GPU layouts: B^u is M×RU and B^v is N×RV (basis-function major: consecutive threads read
+//! consecutive memory); Q is SoA `[c][i][b]`; the surface is AoS `xyz` with index `a·RV + b`,
+//! byte-identical to `&[P3<T>]`.
 
 use std::ops::Range;
 use std::time::{Duration, Instant};
@@ -23,8 +34,10 @@ pub(crate) mod tests;
 
 /// The WGSL template (f32); see [`shader_source`].
 pub const TEMPLATE: &str = include_str!("bezier.wgsl");
-/// Workgroup edge of the level-1 kernel (TILE×TILE threads).
-pub const TILE: u32 = 16;
+/// Rows of one output column computed per level-1b thread (`ROWS` in the WGSL).
+pub const ROWS: u32 = 4;
+/// Threads per workgroup of both level-1 passes (along v).
+const GROUP: u32 = 64;
 const BASIS_GROUP: u32 = 256;
 
 /// WGSL source of both kernels for scalar `T`.
@@ -66,11 +79,16 @@ impl OutputBand {
     }
 }
 
+/// Level-2 tables and what else depends only on M×N and the resolution.
 #[derive(Debug)]
 struct Level2 {
     bu: wgpu::Buffer,
     /// `None` on isotropy (M = N, RU = RV): B^u is bound as B^v (direct addressing).
     bv: Option<wgpu::Buffer>,
+    /// Level-1a partial sums Q = P·B^vᵀ (3×M×RV, SoA), rewritten by every evaluation.
+    q: wgpu::Buffer,
+    /// Whole-surface parameters (rows 0..RU), read by the basis and level-1a passes.
+    uniform: wgpu::Buffer,
 }
 
 /// Stateful GPU multi-level evaluator (points only), mirroring `MleEvaluator`.
@@ -78,6 +96,7 @@ struct Level2 {
 pub struct GpuMle<T: GpuScalar> {
     ctx: GpuContext,
     basis: wgpu::ComputePipeline,
+    partial: wgpu::ComputePipeline,
     surface: wgpu::ComputePipeline,
     net: ControlNet<T>,
     resolution: Resolution,
@@ -86,6 +105,7 @@ pub struct GpuMle<T: GpuScalar> {
     ctrl: Option<wgpu::Buffer>,
     ctrl_dirty: bool,
     bands: Vec<OutputBand>,
+    /// Level-1a bind group, then one level-1b bind group per band (empty when stale).
     bind_groups: Vec<wgpu::BindGroup>,
     band_limit: u64,
     counters: MleCounters,
@@ -113,10 +133,12 @@ impl<T: GpuScalar> GpuMle<T> {
         }
         let src = shader_source::<T>();
         let basis = ctx.compute_pipeline("bezier-basis", &src, "basis")?;
+        let partial = ctx.compute_pipeline("bezier-partial", &src, "partial_sums")?;
         let surface = ctx.compute_pipeline("bezier-surface", &src, "surface_points")?;
         Ok(Self {
             ctx: ctx.clone(),
             basis,
+            partial,
             surface,
             net,
             resolution,
@@ -305,26 +327,31 @@ impl<T: GpuScalar> GpuMle<T> {
                 return Err(GpuError::Pipeline("levels missing".into()));
             };
             let bv = l2.bv.as_ref().unwrap_or(&l2.bu);
+            let device = &self.ctx.device;
+            let partial = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("bezier-partial"),
+                layout: &self.partial.get_bind_group_layout(0),
+                entries: &[
+                    entry(0, &l2.uniform),
+                    entry(1, ctrl),
+                    entry(2, bv),
+                    entry(3, &l2.q),
+                ],
+            });
             let layout = self.surface.get_bind_group_layout(0);
-            self.bind_groups = self
-                .bands
-                .iter()
-                .map(|band| {
-                    self.ctx
-                        .device
-                        .create_bind_group(&wgpu::BindGroupDescriptor {
-                            label: Some("bezier-surface"),
-                            layout: &layout,
-                            entries: &[
-                                entry(0, &band.uniform),
-                                entry(1, ctrl),
-                                entry(2, &l2.bu),
-                                entry(3, bv),
-                                entry(4, &band.buffer),
-                            ],
-                        })
+            let bands = self.bands.iter().map(|band| {
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("bezier-surface"),
+                    layout: &layout,
+                    entries: &[
+                        entry(0, &band.uniform),
+                        entry(1, &l2.q),
+                        entry(2, &l2.bu),
+                        entry(3, &band.buffer),
+                    ],
                 })
-                .collect();
+            });
+            self.bind_groups = std::iter::once(partial).chain(bands).collect();
         }
         Ok(())
     }
@@ -341,6 +368,7 @@ impl<T: GpuScalar> GpuMle<T> {
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
         self.check_size("B^u", bytes_of::<T>(m * ru))?;
         self.check_size("B^v", bytes_of::<T>(n * rv))?;
+        self.check_size("Q", bytes_of::<T>(3 * m * rv))?;
         let bu = self.buffer("bezier-bu", bytes_of::<T>(m * ru), storage);
         let bv = (!iso).then(|| self.buffer("bezier-bv", bytes_of::<T>(n * rv), storage));
         let uniform = self
@@ -375,22 +403,39 @@ impl<T: GpuScalar> GpuMle<T> {
             pass.dispatch_workgroups(groups, if iso { 1 } else { 2 }, 1);
         }
         self.ctx.queue.submit([enc.finish()]);
-        self.level2 = Some(Level2 { bu, bv });
+        let q = self.buffer(
+            "bezier-q",
+            bytes_of::<T>(3 * m * rv),
+            wgpu::BufferUsages::STORAGE,
+        );
+        self.level2 = Some(Level2 { bu, bv, q, uniform });
         Ok(())
     }
 
-    /// Encodes level 1 for `rows` (clipped per band); with `copy`, also copies the computed
-    /// bytes into each band's staging buffer. Returns (band, byte range) pairs touched.
+    /// Encodes level 1 for `rows`: 1a (Q = P·B^vᵀ) once, 1b per band (clipped); with `copy`,
+    /// also copies the computed bytes into each band's staging buffer. Returns (band, byte
+    /// range) pairs touched.
     fn encode_rows(
         &self,
         rows: Range<usize>,
         copy: bool,
     ) -> (wgpu::CommandEncoder, Vec<(usize, Range<u64>)>) {
+        let (m, _) = self.net.dims();
         let rv = self.resolution.rv();
         let row_bytes = bytes_of::<T>(3 * rv);
+        let columns = u32_of(rv.div_ceil(GROUP as usize));
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         let mut touched = Vec::new();
-        for (k, (band, bind)) in self.bands.iter().zip(&self.bind_groups).enumerate() {
+        let Some((partial, band_binds)) = self.bind_groups.split_first() else {
+            return (enc, touched);
+        };
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&self.partial);
+            pass.set_bind_group(0, partial, &[]);
+            pass.dispatch_workgroups(columns, u32_of(m), 1);
+        }
+        for (k, (band, bind)) in self.bands.iter().zip(band_binds).enumerate() {
             let lo = rows.start.max(band.rows.start);
             let hi = rows.end.min(band.rows.end);
             if lo >= hi {
@@ -404,11 +449,7 @@ impl<T: GpuScalar> GpuMle<T> {
                 let mut pass = enc.begin_compute_pass(&Default::default());
                 pass.set_pipeline(&self.surface);
                 pass.set_bind_group(0, bind, &[]);
-                pass.dispatch_workgroups(
-                    u32_of(rv.div_ceil(TILE as usize)),
-                    u32_of((hi - lo).div_ceil(TILE as usize)),
-                    1,
-                );
+                pass.dispatch_workgroups(columns, u32_of((hi - lo).div_ceil(ROWS as usize)), 1);
             }
             let bytes = row_bytes * (lo - band.rows.start) as u64
                 ..row_bytes * (hi - band.rows.start) as u64;

@@ -88,7 +88,7 @@ fn wgsl_validates_with_naga() {
         );
         v.validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {e:?}"));
-        assert_eq!(module.entry_points.len(), 2);
+        assert_eq!(module.entry_points.len(), 3);
     }
     assert!(shader_source::<f64>().contains("alias real = f64;"));
     // Without the f64 capability the f64 variant must be rejected (it really uses f64).
@@ -216,20 +216,24 @@ fn every_net_size_2_to_12_f32() {
 }
 
 #[test]
-fn large_nets_beyond_one_chunk_f64() {
-    // M, N > 16 exercise the chunked staging of control points in workgroup memory.
+fn large_nets_and_ragged_row_segments_f64() {
+    // Large M×N; RU not a multiple of ROWS (also RU < ROWS) and RV not a multiple of the
+    // 64-thread workgroup exercise the clipped row segments and columns of level 1b.
     if !f64_ok() {
         return;
     }
     let Some(ctx) = context() else { return };
     let mut rng = Rng(5);
-    let net = random_net::<f64>(&mut rng, 40, 17);
-    let res = Resolution::new(45, 33).unwrap();
-    let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
-    let mut out = vec![[0.0; 3]; res.len()];
-    g.evaluate_points_into(&mut out).unwrap();
-    let d = max_diff(&out, &cpu_mle(&net, res)) / scale(&net);
-    assert!(d <= 1e-12, "{d:e}");
+    for (m, n, ru, rv) in [(40, 17, 45, 33), (6, 9, 3, 70), (17, 40, 2, 129)] {
+        let net = random_net::<f64>(&mut rng, m, n);
+        let res = Resolution::new(ru, rv).unwrap();
+        let mut g = GpuMle::new(&ctx, net.clone(), res).unwrap();
+        let mut out = vec![[0.0; 3]; res.len()];
+        g.evaluate_points_into(&mut out).unwrap();
+        let d = max_diff(&out, &cpu_mle(&net, res)) / scale(&net);
+        assert!(d <= 1e-12, "{m}x{n} @ {ru}x{rv}: {d:e}");
+    }
+    const { assert!(super::ROWS > 3, "the cases above assume RU = 2, 3 < ROWS") };
 }
 
 #[test]
