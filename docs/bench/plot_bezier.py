@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -46,6 +47,7 @@ def main(path: str) -> None:
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_xticks(res, [f"{r}²" for r in res])
+            ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
             ax.set_title(f"{g}×{g} control points, {prec}")
             ax.set_xlabel("resolution")
             ax.set_ylabel("evaluations / s")
