@@ -6,104 +6,18 @@
 //! - **DDC** (dynamic): a shared tile queue drained concurrently by a GPU worker (front) and a
 //!   rayon CPU worker (back) until empty.
 //!
-//! The CPU side is [`CpuRows`]: the MLE tensor product restricted to a row range, from the
-//! same level 3/2 tables as `resecta_bezier` (`binomial_row`, `bernstein_table`).
+//! The CPU side is `resecta_bezier`'s [`MleEvaluator`] in its two-step row form
+//! (`prepare_rows` once per update, then `rows_into` for any tile, concurrently).
 
 use std::collections::VecDeque;
-use std::ops::Range;
 use std::sync::Mutex;
 use std::time::Instant;
 
-use rayon::prelude::*;
-use resecta_bezier::{BezierError, ControlNet, P3, Resolution, bernstein_table, binomial_row};
+use resecta_bezier::{BezierError, ControlNet, MleEvaluator, P3, Resolution};
 
 use crate::device::{GpuContext, GpuError};
 use crate::kernels::GpuScalar;
 use crate::kernels::bezier::GpuMle;
-
-/// CPU level 1 over row ranges: `Q = P·B^vᵀ` once per control-point update
-/// ([`CpuRows::prepare`]), then row `a` is `Σᵢ B^u[a,i]·Q[i]`.
-#[derive(Debug, Clone)]
-pub struct CpuRows<T> {
-    dims: (usize, usize),
-    resolution: Resolution,
-    bu: Vec<T>,
-    bv: Vec<T>,
-    q: Vec<T>,
-}
-
-impl<T: GpuScalar> CpuRows<T> {
-    /// Levels 3 and 2 for `net`'s M×N at `resolution`.
-    pub fn new(net: &ControlNet<T>, resolution: Resolution) -> Self {
-        let (m, n) = net.dims();
-        Self {
-            dims: (m, n),
-            resolution,
-            bu: bernstein_table(&binomial_row(m), resolution.ru()),
-            bv: bernstein_table(&binomial_row(n), resolution.rv()),
-            q: Vec::new(),
-        }
-    }
-
-    /// Computes `Q = P·B^vᵀ` (M×RV, xyz interleaved) for the current control points.
-    /// Rebuilds the tables first when M×N or the resolution changed.
-    pub fn prepare(
-        &mut self,
-        net: &ControlNet<T>,
-        resolution: Resolution,
-    ) -> Result<(), BezierError> {
-        if net.dims() != self.dims || resolution != self.resolution {
-            *self = Self::new(net, resolution);
-        }
-        let (m, n) = self.dims;
-        let rv = self.resolution.rv();
-        let pts = net.points();
-        let bv = &self.bv;
-        self.q.resize(m * 3 * rv, T::ZERO);
-        self.q
-            .par_chunks_exact_mut(3 * rv)
-            .enumerate()
-            .for_each(|(i, qrow)| {
-                let prow = &pts[i * n..(i + 1) * n];
-                for (qb, w) in qrow.chunks_exact_mut(3).zip(bv.chunks_exact(n)) {
-                    let mut s = [T::ZERO; 3];
-                    for (p, &w) in prow.iter().zip(w) {
-                        s[0] += p[0] * w;
-                        s[1] += p[1] * w;
-                        s[2] += p[2] * w;
-                    }
-                    qb.copy_from_slice(&s);
-                }
-            });
-        Ok(())
-    }
-
-    /// Rows `rows` into `out` (`rows.len()·RV` points), rows in parallel on the current pool.
-    pub fn rows_into(&self, rows: Range<usize>, out: &mut [P3<T>]) -> Result<(), BezierError> {
-        let (m, _) = self.dims;
-        let rv = self.resolution.rv();
-        let expected = rows.len() * rv;
-        if out.len() != expected || rows.end > self.resolution.ru() || self.q.is_empty() {
-            return Err(BezierError::BufferLength {
-                expected,
-                got: out.len(),
-            });
-        }
-        let w = 3 * rv;
-        out.as_flattened_mut()
-            .par_chunks_exact_mut(w)
-            .zip(rows)
-            .for_each(|(row, a)| {
-                row.fill(T::ZERO);
-                for (i, &b) in self.bu[a * m..(a + 1) * m].iter().enumerate() {
-                    for (o, &x) in row.iter_mut().zip(&self.q[i * w..(i + 1) * w]) {
-                        *o += b * x;
-                    }
-                }
-            });
-        Ok(())
-    }
-}
 
 /// Tiles left to compute: (tile index, its slice of the output).
 type TileQueue<'a, T> = Mutex<VecDeque<(usize, &'a mut [P3<T>])>>;
@@ -132,7 +46,7 @@ pub struct DdcReport {
 #[derive(Debug)]
 pub struct Cooperative<T: GpuScalar> {
     gpu: GpuMle<T>,
-    cpu: CpuRows<T>,
+    cpu: MleEvaluator<T>,
     tile_rows: usize,
 }
 
@@ -144,7 +58,7 @@ impl<T: GpuScalar> Cooperative<T> {
         resolution: Resolution,
         tile_rows: usize,
     ) -> Result<Self, GpuError> {
-        let cpu = CpuRows::new(&net, resolution);
+        let cpu = MleEvaluator::new(net.clone(), resolution);
         Ok(Self {
             gpu: GpuMle::new(ctx, net, resolution)?,
             cpu,
@@ -176,10 +90,17 @@ impl<T: GpuScalar> Cooperative<T> {
         Ok(())
     }
 
+    /// Brings the CPU twin to the GPU side's net and resolution and computes its Q.
+    fn prepare_cpu(&mut self) {
+        self.cpu.set_resolution(self.gpu.resolution());
+        self.cpu.set_net(self.gpu.net().clone());
+        self.cpu.prepare_rows();
+    }
+
     /// The whole surface on the CPU only.
     pub fn evaluate_cpu(&mut self, out: &mut [P3<T>]) -> Result<(), GpuError> {
         self.check_out(out)?;
-        self.cpu.prepare(self.gpu.net(), self.gpu.resolution())?;
+        self.prepare_cpu();
         Ok(self.cpu.rows_into(0..self.gpu.resolution().ru(), out)?)
     }
 
@@ -228,7 +149,7 @@ impl<T: GpuScalar> Cooperative<T> {
         self.check_out(out)?;
         let (ru, rv) = (self.gpu.resolution().ru(), self.gpu.resolution().rv());
         let k = self.sdc_split(alpha);
-        self.cpu.prepare(self.gpu.net(), self.gpu.resolution())?;
+        self.prepare_cpu();
         let (gpu_out, cpu_out) = out.split_at_mut(k * rv);
         let (gpu, cpu) = (&mut self.gpu, &self.cpu);
         std::thread::scope(|s| {
@@ -254,7 +175,7 @@ impl<T: GpuScalar> Cooperative<T> {
         self.check_out(out)?;
         let rv = self.gpu.resolution().rv();
         let tile = self.tile_rows;
-        self.cpu.prepare(self.gpu.net(), self.gpu.resolution())?;
+        self.prepare_cpu();
         let queue: TileQueue<'_, T> = Mutex::new(out.chunks_mut(tile * rv).enumerate().collect());
         let pop = |front: bool| {
             let mut q = queue.lock().unwrap_or_else(|e| e.into_inner());
@@ -297,7 +218,7 @@ impl<T: GpuScalar> Cooperative<T> {
 mod tests {
     use resecta_bezier::{MleEvaluator, P3, Resolution};
 
-    use super::{Cooperative, CpuRows};
+    use super::Cooperative;
     use crate::device::testing::context;
     use crate::kernels::GpuScalar;
     use crate::kernels::bezier::tests::{Rng, max_diff, random_net, scale, tol};
@@ -308,20 +229,6 @@ mod tests {
             .evaluate_points_into(&mut out)
             .unwrap();
         out
-    }
-
-    #[test]
-    fn cpu_rows_match_mle() {
-        let mut rng = Rng(41);
-        let net = random_net::<f64>(&mut rng, 7, 3);
-        let res = Resolution::new(23, 41).unwrap();
-        let mut rows = CpuRows::new(&net, res);
-        rows.prepare(&net, res).unwrap();
-        let want = cpu_mle(&net, res);
-        let mut part = vec![[0.0; 3]; 5 * 41];
-        rows.rows_into(10..15, &mut part).unwrap();
-        assert!(max_diff(&part, &want[10 * 41..15 * 41]) / scale(&net) <= 1e-14);
-        assert!(rows.rows_into(20..25, &mut part).is_err());
     }
 
     fn check<T: GpuScalar>(seed: u64) {

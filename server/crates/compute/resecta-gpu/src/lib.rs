@@ -11,7 +11,7 @@ pub mod cooperation;
 pub mod device;
 pub mod kernels;
 
-pub use cooperation::{Cooperative, CpuRows, DdcReport, Profile};
+pub use cooperation::{Cooperative, DdcReport, Profile};
 pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};

@@ -4,6 +4,8 @@
 //! Q = P·B^vᵀ (M×RV, stored interleaved x,y,z so Q's rows match the AoS output rows) followed
 //! by S = B^u·Q, one contiguous multiply-add sweep over each output row, rows in parallel.
 
+use std::ops::Range;
+
 use rayon::prelude::*;
 
 use crate::basis::{bernstein_table, binomial_row};
@@ -257,16 +259,56 @@ impl<T: BezierScalar> MleEvaluator<T> {
                 }
             }
         }
+        let ru = self.resolution.ru();
         for (c, out) in [x, y, z].into_iter().enumerate() {
-            rows_from_q(
-                &l2.u,
-                m,
-                &self.q[c * m * rv..(c + 1) * m * rv],
-                rv,
-                &mut self.d,
-                out,
-            );
+            let qc = &self.q[c * m * rv..(c + 1) * m * rv];
+            q_differences(qc, m, rv, &mut self.d);
+            rows_from_q(&l2.u, m, qc, rv, &self.d, 0, ru, out);
         }
+        Ok(())
+    }
+
+    /// Level 1 in two steps, for callers that split the rows (CPU–GPU cooperation): computes
+    /// Q = P·B^vᵀ for the current control points (levels 3 and 2 as needed). Call once per
+    /// control-point update, then [`MleEvaluator::rows_into`] for any row ranges.
+    pub fn prepare_rows(&mut self) {
+        self.ensure_levels(false);
+        self.counters.level1 += 1;
+        let (m, n) = self.net.dims();
+        let rv = self.resolution.rv();
+        if let Some(l2) = &self.level2 {
+            partial_sums(self.net.points(), m, n, &l2.v, rv, &mut self.q);
+            q_differences(&self.q, m, 3 * rv, &mut self.d);
+        }
+    }
+
+    /// Rows `rows` of the surface (`rows.len()·RV` points) from the Q of the last
+    /// [`MleEvaluator::prepare_rows`]; shared access, so disjoint ranges can run concurrently.
+    pub fn rows_into(&self, rows: Range<usize>, out: &mut [P3<T>]) -> Result<(), BezierError> {
+        let (m, _) = self.net.dims();
+        let (ru, rv) = (self.resolution.ru(), self.resolution.rv());
+        let w = 3 * rv;
+        check_len(rows.len() * rv, out.len())?;
+        let Some(l2) = self
+            .level2
+            .as_ref()
+            .filter(|_| self.q.len() == m * w && rows.end <= ru)
+        else {
+            return Err(BezierError::BufferLength {
+                expected: rows.len() * rv,
+                got: out.len(),
+            });
+        };
+        rows_from_q(
+            &l2.u,
+            m,
+            &self.q,
+            w,
+            &self.d,
+            rows.start,
+            ru,
+            out.as_flattened_mut(),
+        );
         Ok(())
     }
 
@@ -302,6 +344,22 @@ fn tensor_aos<T: BezierScalar>(
     d: &mut Vec<T>,
     out: &mut [P3<T>],
 ) {
+    partial_sums(arr, mm, nn, bv, rv, q);
+    let w = 3 * rv;
+    q_differences(q, mm, w, d);
+    let ru = out.len() / rv;
+    rows_from_q(bu, mm, q, w, d, 0, ru, out.as_flattened_mut());
+}
+
+/// Q = arr·B^vᵀ (`mm` rows of RV points, xyz interleaved), rows in parallel when large.
+fn partial_sums<T: BezierScalar>(
+    arr: &[P3<T>],
+    mm: usize,
+    nn: usize,
+    bv: &[T],
+    rv: usize,
+    q: &mut Vec<T>,
+) {
     let w = 3 * rv;
     q.resize(mm * w, T::ZERO);
     let fill_q = |(i, qrow): (usize, &mut [T])| {
@@ -321,26 +379,11 @@ fn tensor_aos<T: BezierScalar>(
     } else {
         q.chunks_exact_mut(w).enumerate().for_each(fill_q);
     }
-    rows_from_q(bu, mm, q, w, d, out.as_flattened_mut());
 }
 
-/// `out[a·w .. (a+1)·w] = Σᵢ bu[a·mm + i] · q[i·w .. (i+1)·w]`, rows in parallel.
-///
-/// Uses the partition of unity Σᵢ B_i = 1 to save one multiply per value: rows with u < ½ are
-/// `Q₀ + Σ_{i≥1} B_i (Q_i − Q₀)`, rows with u ≥ ½ are `Q_last + Σ_{i<last} B_i (Q_i − Q_last)`
-/// (differences precomputed into `d`). At u = 0 and u = 1 all other weights are exactly zero,
-/// so borders stay exact. Blocks of up to four terms per sweep keep each value stored once per
-/// block; the inner loops are contiguous and vectorise.
-fn rows_from_q<T: BezierScalar>(
-    bu: &[T],
-    mm: usize,
-    q: &[T],
-    w: usize,
-    d: &mut Vec<T>,
-    out: &mut [T],
-) {
+/// `d = [Q_i − Q_0 for i = 1..mm] ++ [Q_i − Q_last for i = 0..last]` (see [`rows_from_q`]).
+fn q_differences<T: BezierScalar>(q: &[T], mm: usize, w: usize, d: &mut Vec<T>) {
     let last = mm - 1;
-    // d = [Q_i − Q_0 for i = 1..mm] ++ [Q_i − Q_last for i = 0..last]
     d.resize(2 * last * w, T::ZERO);
     let (d0, d1) = d.split_at_mut(last * w);
     let q0 = &q[..w];
@@ -355,12 +398,35 @@ fn rows_from_q<T: BezierScalar>(
             *o = x - b;
         }
     }
-    let (d0, d1) = (&*d0, &*d1);
-    let ru = out.len() / w;
+}
+
+/// Rows `first..first + out.len()/w` of a surface of `ru` rows:
+/// `out[a] = Σᵢ bu[a·mm + i] · q[i·w .. (i+1)·w]`, rows in parallel.
+///
+/// Uses the partition of unity Σᵢ B_i = 1 to save one multiply per value: rows with u < ½ are
+/// `Q₀ + Σ_{i≥1} B_i (Q_i − Q₀)`, rows with u ≥ ½ are `Q_last + Σ_{i<last} B_i (Q_i − Q_last)`
+/// (differences `d` from [`q_differences`]). At u = 0 and u = 1 all other weights are exactly
+/// zero, so borders stay exact. Blocks of up to four terms per sweep keep each value stored once
+/// per block; the inner loops are contiguous and vectorise.
+fn rows_from_q<T: BezierScalar>(
+    bu: &[T],
+    mm: usize,
+    q: &[T],
+    w: usize,
+    d: &[T],
+    first: usize,
+    ru: usize,
+    out: &mut [T],
+) {
+    let last = mm - 1;
+    let (d0, d1) = d.split_at(last * w);
+    let q0 = &q[..w];
+    let ql = &q[last * w..mm * w];
     out.par_chunks_exact_mut(w)
         .with_min_len(4)
         .enumerate()
-        .for_each(|(a, row)| {
+        .for_each(|(local, row)| {
+            let a = first + local;
             let b = &bu[a * mm..(a + 1) * mm];
             let (base, diffs, weights) = if 2 * a < ru {
                 (q0, d0, &b[1..])

@@ -57,6 +57,32 @@ fn mle_levels_invalidate_only_what_changed() {
 }
 
 #[test]
+fn row_ranges_equal_the_whole_surface() {
+    let net = random_net::<f64>(7, 5, 11);
+    let res = Resolution::new(23, 17).unwrap();
+    let mut e = MleEvaluator::new(net.clone(), res);
+    let whole = e.evaluate(Outputs::Points);
+    // Not prepared yet for rows: refused.
+    let mut part = vec![[0.0; 3]; 3 * 17];
+    assert!(
+        MleEvaluator::new(net, res)
+            .rows_into(0..3, &mut part)
+            .is_err()
+    );
+    e.prepare_rows();
+    // Ranges on both sides of u = 1/2 (the partition-of-unity base switches there).
+    for rows in [0..3, 10..13, 11..14, 20..23] {
+        e.rows_into(rows.clone(), &mut part).unwrap();
+        assert_eq!(
+            part.as_slice(),
+            &whole.points()[rows.start * 17..rows.end * 17]
+        );
+    }
+    assert!(e.rows_into(21..24, &mut part).is_err());
+    assert!(e.rows_into(0..2, &mut part).is_err());
+}
+
+#[test]
 fn evaluate_into_caller_buffers() {
     let net = random_net::<f32>(4, 4, 5);
     let res = Resolution::new(16, 16).unwrap();

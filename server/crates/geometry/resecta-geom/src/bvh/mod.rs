@@ -198,8 +198,9 @@ impl MeshBvh {
                 first: left as u32,
                 count: 0,
             };
-            let placeholder = nodes[node];
-            nodes.extend([placeholder, placeholder]);
+            // Reserve the two child slots; each is overwritten when it is popped.
+            let reserved = nodes[node];
+            nodes.extend([reserved, reserved]);
             stack.push((left + 1, mid, end));
             stack.push((left, start, mid));
         }
