@@ -161,12 +161,7 @@ fn volumes(phantom: &Phantom) -> Vec<VolumeCheck> {
     t.roles
         .iter()
         .map(|(&role, m)| {
-            let vox: f64 = t
-                .labels
-                .values()
-                .filter(|l| l.role == role)
-                .map(|l| l.volume_mm3)
-                .sum();
+            let vox = t.voxelised_mm3(role);
             VolumeCheck {
                 role,
                 analytic_ml: m.volume_mm3 / 1000.0,

@@ -131,12 +131,7 @@ fn summarise(
         .roles
         .iter()
         .map(|(&role, m)| {
-            let voxelised_mm3: f64 = t
-                .labels
-                .values()
-                .filter(|l| l.role == role)
-                .map(|l| l.volume_mm3)
-                .sum();
+            let voxelised_mm3 = t.voxelised_mm3(role);
             let r = RoleSummary {
                 analytic_ml: m.volume_mm3 / 1000.0,
                 error_bound_ml: m.error_bound_mm3 / 1000.0,

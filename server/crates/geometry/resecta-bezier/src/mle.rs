@@ -128,26 +128,23 @@ impl<T: BezierScalar> MleEvaluator<T> {
         let Some(l3) = &self.level3 else { return };
         let (ru, rv) = (self.resolution.ru(), self.resolution.rv());
         let iso = m == n && ru == rv;
-        if self.level2.is_none() {
-            self.counters.level2 += 1;
-            let u = bernstein_table(&l3.u, ru);
-            // Copy on isotropy (Algorithm 5).
+        // Copy on isotropy (Algorithm 5).
+        let tables = |bu: &[u64], bv: &[u64]| {
+            let u = bernstein_table(bu, ru);
             let v = if iso {
                 u.clone()
             } else {
-                bernstein_table(&l3.v, rv)
+                bernstein_table(bv, rv)
             };
-            self.level2 = Some(Level2 { u, v });
+            Level2 { u, v }
+        };
+        if self.level2.is_none() {
+            self.counters.level2 += 1;
+            self.level2 = Some(tables(&l3.u, &l3.v));
         }
         if derivatives && self.level2_d.is_none() {
             self.counters.level2_derivative += 1;
-            let u = bernstein_table(&l3.du, ru);
-            let v = if iso {
-                u.clone()
-            } else {
-                bernstein_table(&l3.dv, rv)
-            };
-            self.level2_d = Some(Level2 { u, v });
+            self.level2_d = Some(tables(&l3.du, &l3.dv));
         }
     }
 

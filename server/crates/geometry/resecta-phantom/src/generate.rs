@@ -36,6 +36,17 @@ pub struct Truth {
     pub integration_leaves: u64,
 }
 
+impl Truth {
+    /// Voxelised volume (mm³) of every label with `role`.
+    pub fn voxelised_mm3(&self, role: Role) -> Real {
+        self.labels
+            .values()
+            .filter(|l| l.role == role)
+            .map(|l| l.volume_mm3)
+            .sum()
+    }
+}
+
 /// One shape of the spec with its exact measures.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]

@@ -33,7 +33,7 @@ impl Solid {
                 radii,
             } => {
                 let q = axes.transpose() * (p - center);
-                (0..3).map(|i| (q[i] / radii[i]).powi(2)).sum::<Real>() <= 1.0
+                ellipsoid_level(q, *radii) <= 1.0
             }
             Solid::Ball { center, radius } => (p - center).norm_squared() <= radius * radius,
             Solid::Capsule { a, b, radius } => {
@@ -57,7 +57,7 @@ impl Solid {
             } => {
                 let q = axes.transpose() * (p - center);
                 let (x, d) = ellipsoid_nearest(*radii, [q.x, q.y, q.z]);
-                let inside = (0..3).map(|i| (q[i] / radii[i]).powi(2)).sum::<Real>() < 1.0;
+                let inside = ellipsoid_level(q, *radii) < 1.0;
                 (center + axes * Vec3::from(x), if inside { -d } else { d })
             }
             Solid::Ball { center, radius } => {
@@ -176,6 +176,11 @@ pub fn closest_on_segment(a: Vec3, b: Vec3, p: Vec3) -> Vec3 {
         return a;
     }
     a + ab * ((p - a).dot(&ab) / l2).clamp(0.0, 1.0)
+}
+
+/// `Σ (qᵢ/rᵢ)²`: below 1 inside the axis-aligned ellipsoid of radii `radii`.
+fn ellipsoid_level(q: Vec3, radii: [Real; 3]) -> Real {
+    (0..3).map(|i| (q[i] / radii[i]).powi(2)).sum()
 }
 
 /// Distance between segments `p1–q1` and `p2–q2` (Ericson, Real-Time Collision Detection 5.1.9).
