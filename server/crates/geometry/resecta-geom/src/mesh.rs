@@ -3,7 +3,7 @@
 use std::collections::{BTreeMap, HashMap};
 
 use crate::error::GeomError;
-use crate::math::{Real, Vec3};
+use crate::math::{Mat4, Real, Vec3};
 use crate::pca::Pca;
 
 /// Vertices, triangles (counter-clockwise seen from outside for closed meshes), optional
@@ -175,6 +175,42 @@ impl TriMesh {
             vol += v;
         }
         (vol.abs() > Real::EPSILON).then(|| sum / vol)
+    }
+
+    /// The mesh mapped by the affine `m` (e.g. index → RAS). Normals follow the inverse
+    /// transpose; triangle winding is reversed when `m` flips orientation, so outward stays
+    /// outward. Fails if `m` is singular or not affine.
+    pub fn transformed(&self, m: &Mat4) -> Result<Self, GeomError> {
+        let linear = m.fixed_view::<3, 3>(0, 0).into_owned();
+        let det = linear.determinant();
+        let affine = m[(3, 0)] == 0.0 && m[(3, 1)] == 0.0 && m[(3, 2)] == 0.0 && m[(3, 3)] == 1.0;
+        let normal_map = linear.try_inverse().map(|inv| inv.transpose());
+        let (Some(normal_map), true, true) = (normal_map, affine, det.is_finite() && det != 0.0)
+        else {
+            return Err(GeomError::InvalidParameter {
+                name: "mesh transform",
+                reason: "must be an invertible affine matrix",
+            });
+        };
+        let shift = m.fixed_view::<3, 1>(0, 3).into_owned();
+        let vertices = self.vertices.iter().map(|v| linear * v + shift).collect();
+        let triangles = if det < 0.0 {
+            self.triangles.iter().map(|&[a, b, c]| [a, c, b]).collect()
+        } else {
+            self.triangles.clone()
+        };
+        let mut out = Self::new(vertices, triangles)?;
+        out.normals = self.normals.as_ref().map(|ns| {
+            ns.iter()
+                .map(|n| {
+                    (normal_map * n)
+                        .try_normalize(0.0)
+                        .unwrap_or_else(Vec3::zeros)
+                })
+                .collect()
+        });
+        out.scalars = self.scalars.clone();
+        Ok(out)
     }
 
     /// PCA of the vertex positions.

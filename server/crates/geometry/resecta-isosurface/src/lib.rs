@@ -1,0 +1,483 @@
+//! Isosurfaces of scalar lattices by marching cubes, closed and manifold by construction.
+//!
+//! The case table is derived from the cube's faces ([`table`]): ambiguous faces are resolved by
+//! the asymptotic decider on that face alone (ties separate the inside corners), so two cubes
+//! sharing a face always cut it the same way and the surface has no cracks. Vertices are shared
+//! through lattice-edge ids, so the output is an indexed mesh, closed whenever the lattice
+//! border is outside (or [`Options::close_border`] is set), with triangles facing outward
+//! (from values above the iso-value towards values below it).
+//!
+//! The work is split into z-layers processed in parallel (rayon); vertex and triangle order
+//! depend only on the input, never on the thread count. Output is in lattice (index)
+//! coordinates; map it to RAS with [`TriMesh::transformed`].
+
+mod table;
+
+use rayon::prelude::*;
+use resecta_geom::{GeomError, TriMesh, Vec3, Volume};
+use table::{EDGES, FACES, TABLE};
+
+/// What can go wrong extracting a surface.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum IsoError {
+    #[error("lattice dimensions {dims:?} need at least 2 nodes along every axis")]
+    TooSmall { dims: [usize; 3] },
+    #[error("lattice has {got} values but dimensions {dims:?} need {expected}")]
+    DataLength {
+        dims: [usize; 3],
+        expected: usize,
+        got: usize,
+    },
+    #[error("iso-value {0} is not finite")]
+    BadIso(f32),
+    #[error("value at lattice node {0} is not finite")]
+    NonFinite(usize),
+    #[error("surface has more than u32::MAX vertices")]
+    TooManyVertices,
+    #[error(transparent)]
+    Geometry(#[from] GeomError),
+}
+
+/// A lattice value: anything that reads as an `f32`.
+pub trait Sample: Copy + Send + Sync {
+    fn value(self) -> f32;
+}
+impl Sample for f32 {
+    #[inline]
+    fn value(self) -> f32 {
+        self
+    }
+}
+impl Sample for u8 {
+    #[inline]
+    fn value(self) -> f32 {
+        f32::from(self)
+    }
+}
+impl Sample for bool {
+    #[inline]
+    fn value(self) -> f32 {
+        if self { 1.0 } else { 0.0 }
+    }
+}
+
+/// Extraction options.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Options {
+    /// Treat nodes on the lattice border as outside, so the surface is closed even where the
+    /// object touches the border (there it follows the border, as if the lattice were padded).
+    pub close_border: bool,
+}
+
+/// Surface `value = iso` of the lattice `values` (`i` fastest) with `dims` nodes, in lattice
+/// coordinates. Inside is `value > iso`.
+pub fn extract<T: Sample>(
+    dims: [usize; 3],
+    values: &[T],
+    iso: f32,
+    options: Options,
+) -> Result<TriMesh, IsoError> {
+    Lattice::new(dims, values, iso, options)?.extract()
+}
+
+/// Boundary surface of a binary mask in voxel-index coordinates (vertices at edge midpoints, as
+/// discrete marching cubes / flying edges), closed also where the mask touches the volume
+/// border: the mask is treated as padded with one layer of background.
+pub fn extract_mask(mask: &Volume<bool>) -> Result<TriMesh, IsoError> {
+    let [nx, ny, nz] = mask.grid().dims();
+    let padded_dims = [nx + 2, ny + 2, nz + 2];
+    let mut padded = vec![false; padded_dims.iter().product()];
+    let src = mask.data();
+    padded
+        .par_chunks_mut(padded_dims[0] * padded_dims[1])
+        .enumerate()
+        .for_each(|(k, plane)| {
+            if k == 0 || k > nz {
+                return;
+            }
+            for j in 0..ny {
+                let row = &src[(k - 1) * nx * ny + j * nx..][..nx];
+                plane[(j + 1) * padded_dims[0] + 1..][..nx].copy_from_slice(row);
+            }
+        });
+    let mesh = extract(padded_dims, &padded, 0.5, Options::default())?;
+    let shift = Vec3::repeat(-1.0);
+    let vertices = mesh.vertices().iter().map(|v| v + shift).collect();
+    Ok(TriMesh::new(vertices, mesh.triangles().to_vec())?)
+}
+
+/// Vertex positions along lattice edges are kept this far from the nodes, so no triangle
+/// collapses when a node value equals the iso-value.
+const T_MARGIN: f32 = 1e-4;
+
+/// Marks a layer-local centre vertex id until the layers are joined.
+const CENTRE: u32 = 1 << 31;
+
+struct Lattice<'a, T> {
+    dims: [usize; 3],
+    values: &'a [T],
+    iso: f32,
+    /// 1 where the node is inside, else 0.
+    class: Vec<u8>,
+    /// Per node row (j, k): bit 0 some node inside, bit 1 some node outside.
+    rows: Vec<u8>,
+}
+
+/// Per z-slice vertex counts: x-edges and y-edges in the slice, z-edges to the next slice.
+#[derive(Clone, Copy, Default)]
+struct SliceCounts {
+    x: usize,
+    y: usize,
+    z: usize,
+    /// Does the slice have inside nodes / outside nodes?
+    any_in: bool,
+    any_out: bool,
+}
+
+impl<'a, T: Sample> Lattice<'a, T> {
+    fn new(
+        dims: [usize; 3],
+        values: &'a [T],
+        iso: f32,
+        options: Options,
+    ) -> Result<Self, IsoError> {
+        if dims.iter().any(|&d| d < 2) {
+            return Err(IsoError::TooSmall { dims });
+        }
+        let expected = dims
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .unwrap_or(usize::MAX);
+        if values.len() != expected {
+            return Err(IsoError::DataLength {
+                dims,
+                expected,
+                got: values.len(),
+            });
+        }
+        if !iso.is_finite() {
+            return Err(IsoError::BadIso(iso));
+        }
+        if let Some(i) = values.par_iter().position_first(|v| !v.value().is_finite()) {
+            return Err(IsoError::NonFinite(i));
+        }
+        let [nx, ny, nz] = dims;
+        let mut class = vec![0u8; expected];
+        let mut rows = vec![0u8; ny * nz];
+        class
+            .par_chunks_mut(nx)
+            .zip(rows.par_iter_mut())
+            .enumerate()
+            .for_each(|(r, (row, state))| {
+                let (j, k) = (r % ny, r / ny);
+                let border_row = j == 0 || k == 0 || j + 1 == ny || k + 1 == nz;
+                for (i, c) in row.iter_mut().enumerate() {
+                    let border = border_row || i == 0 || i + 1 == nx;
+                    let inside =
+                        values[r * nx + i].value() > iso && !(options.close_border && border);
+                    *c = u8::from(inside);
+                    *state |= if inside { 1 } else { 2 };
+                }
+            });
+        Ok(Self {
+            dims,
+            values,
+            iso,
+            class,
+            rows,
+        })
+    }
+
+    #[inline]
+    fn at(&self, i: usize, j: usize, k: usize) -> f32 {
+        self.values[i + self.dims[0] * (j + self.dims[1] * k)].value()
+    }
+
+    #[inline]
+    fn inside(&self, i: usize, j: usize, k: usize) -> bool {
+        self.class[i + self.dims[0] * (j + self.dims[1] * k)] == 1
+    }
+
+    /// Does the cell row (j, k) .. (j + 1, k + 1) hold both inside and outside nodes?
+    #[inline]
+    fn mixed_cells(&self, j: usize, k: usize) -> bool {
+        let ny = self.dims[1];
+        let s = self.rows[j + ny * k]
+            | self.rows[j + 1 + ny * k]
+            | self.rows[j + ny * (k + 1)]
+            | self.rows[j + 1 + ny * (k + 1)];
+        s == 3
+    }
+
+    /// Crossing parameter along the edge from node `a` (value `va`) to `b`.
+    #[inline]
+    fn crossing(&self, va: f32, vb: f32) -> f32 {
+        let t = if va == vb {
+            0.5
+        } else {
+            (self.iso - va) / (vb - va)
+        };
+        // NaN-free: values and iso are finite, and va != vb here.
+        t.clamp(T_MARGIN, 1.0 - T_MARGIN)
+    }
+
+    fn extract(&self) -> Result<TriMesh, IsoError> {
+        let nz = self.dims[2];
+        let counts: Vec<SliceCounts> = (0..nz).into_par_iter().map(|k| self.count(k)).collect();
+        // Vertex ids: slice after slice, x-edges, y-edges, then z-edges up to the next slice.
+        let mut base = Vec::with_capacity(nz + 1);
+        let mut total = 0usize;
+        for c in &counts {
+            base.push(total);
+            total += c.x + c.y + c.z;
+        }
+        base.push(total);
+        if total >= CENTRE as usize {
+            return Err(IsoError::TooManyVertices);
+        }
+        let vertices: Vec<Vec3> = (0..nz)
+            .into_par_iter()
+            .flat_map_iter(|k| self.slice_vertices(k))
+            .collect();
+        let layers: Vec<(Vec<[u32; 3]>, Vec<Vec3>)> = (0..nz - 1)
+            .into_par_iter()
+            .map(|k| {
+                if (!counts[k].any_in && !counts[k + 1].any_in)
+                    || (!counts[k].any_out && !counts[k + 1].any_out)
+                {
+                    return (Vec::new(), Vec::new());
+                }
+                self.layer_triangles(k, &base, &vertices)
+            })
+            .collect();
+        debug_assert_eq!(vertices.len(), total);
+        // Centre vertices of each layer follow all edge vertices, layer after layer.
+        let mut vertices = vertices;
+        let mut triangles = Vec::with_capacity(layers.iter().map(|l| l.0.len()).sum());
+        for (tris, extra) in layers {
+            let offset = u32::try_from(vertices.len()).map_err(|_| IsoError::TooManyVertices)?;
+            if u32::try_from(vertices.len() + extra.len()).map_or(true, |n| n >= CENTRE) {
+                return Err(IsoError::TooManyVertices);
+            }
+            triangles.extend(
+                tris.into_iter()
+                    .map(|t| t.map(|v| if v >= CENTRE { v - CENTRE + offset } else { v })),
+            );
+            vertices.extend(extra);
+        }
+        Ok(TriMesh::new(vertices, triangles)?)
+    }
+
+    fn count(&self, k: usize) -> SliceCounts {
+        let [nx, ny, nz] = self.dims;
+        let mut c = SliceCounts::default();
+        for j in 0..ny {
+            let mut prev = self.inside(0, j, k);
+            c.any_in |= prev;
+            c.any_out |= !prev;
+            for i in 0..nx {
+                let here = if i == 0 { prev } else { self.inside(i, j, k) };
+                c.any_in |= here;
+                c.any_out |= !here;
+                if i > 0 && here != prev {
+                    c.x += 1;
+                }
+                prev = here;
+                if j + 1 < ny && here != self.inside(i, j + 1, k) {
+                    c.y += 1;
+                }
+                if k + 1 < nz && here != self.inside(i, j, k + 1) {
+                    c.z += 1;
+                }
+            }
+        }
+        c
+    }
+
+    /// Vertices of slice `k` in id order (x-edges, y-edges, z-edges; each in scan order).
+    fn slice_vertices(&self, k: usize) -> Vec<Vec3> {
+        let [nx, ny, nz] = self.dims;
+        let mut out = Vec::new();
+        let mut push = |i: usize, j: usize, kk: usize, axis: usize| {
+            let (a, b) = match axis {
+                0 => (self.at(i, j, kk), self.at(i + 1, j, kk)),
+                1 => (self.at(i, j, kk), self.at(i, j + 1, kk)),
+                _ => (self.at(i, j, kk), self.at(i, j, kk + 1)),
+            };
+            // Orient the edge so the interpolation is the same from either end.
+            let t = f64::from(self.crossing(a, b));
+            let mut p = Vec3::new(i as f64, j as f64, kk as f64);
+            p[axis] += t;
+            out.push(p);
+        };
+        for j in 0..ny {
+            for i in 0..nx - 1 {
+                if self.inside(i, j, k) != self.inside(i + 1, j, k) {
+                    push(i, j, k, 0);
+                }
+            }
+        }
+        for j in 0..ny - 1 {
+            for i in 0..nx {
+                if self.inside(i, j, k) != self.inside(i, j + 1, k) {
+                    push(i, j, k, 1);
+                }
+            }
+        }
+        if k + 1 < nz {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if self.inside(i, j, k) != self.inside(i, j, k + 1) {
+                        push(i, j, k, 2);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Dense id maps for slice `k`: x-edges and y-edges (and z-edges up to `k + 1` when
+    /// `with_z`), `u32::MAX` where the edge does not cross.
+    fn id_maps(&self, k: usize, base: usize, with_z: bool) -> [Vec<u32>; 3] {
+        let [nx, ny, _] = self.dims;
+        let mut id = base as u32;
+        let mut xs = vec![u32::MAX; nx * ny];
+        let mut ys = vec![u32::MAX; nx * ny];
+        let mut zs = if with_z {
+            vec![u32::MAX; nx * ny]
+        } else {
+            Vec::new()
+        };
+        for j in 0..ny {
+            for i in 0..nx - 1 {
+                if self.inside(i, j, k) != self.inside(i + 1, j, k) {
+                    xs[i + nx * j] = id;
+                    id += 1;
+                }
+            }
+        }
+        for j in 0..ny - 1 {
+            for i in 0..nx {
+                if self.inside(i, j, k) != self.inside(i, j + 1, k) {
+                    ys[i + nx * j] = id;
+                    id += 1;
+                }
+            }
+        }
+        if with_z {
+            for j in 0..ny {
+                for i in 0..nx {
+                    if self.inside(i, j, k) != self.inside(i, j, k + 1) {
+                        zs[i + nx * j] = id;
+                        id += 1;
+                    }
+                }
+            }
+        }
+        [xs, ys, zs]
+    }
+
+    fn layer_triangles(
+        &self,
+        k: usize,
+        base: &[usize],
+        vertices: &[Vec3],
+    ) -> (Vec<[u32; 3]>, Vec<Vec3>) {
+        let [nx, ny, _] = self.dims;
+        let [x0, y0, z0] = self.id_maps(k, base[k], true);
+        let [x1, y1, _] = self.id_maps(k + 1, base[k + 1], false);
+        let mut tris = Vec::new();
+        let mut centres = Vec::new();
+        for j in 0..ny - 1 {
+            if !self.mixed_cells(j, k) {
+                continue;
+            }
+            for i in 0..nx - 1 {
+                let mut case = 0usize;
+                for c in 0..8 {
+                    let (di, dj, dk) = (c & 1, c >> 1 & 1, c >> 2 & 1);
+                    if self.inside(i + di, j + dj, k + dk) {
+                        case |= 1 << c;
+                    }
+                }
+                if case == 0 || case == 255 {
+                    continue;
+                }
+                let joined = self.face_decisions(i, j, k, TABLE.ambiguous[case]);
+                let loops = &TABLE.loops[case * 64 + joined];
+                let edge_id = |e: u8| -> u32 {
+                    let (a, _, axis) = EDGES[e as usize];
+                    let (di, dj, dk) = (
+                        (a & 1) as usize,
+                        (a >> 1 & 1) as usize,
+                        (a >> 2 & 1) as usize,
+                    );
+                    let cell = (i + di) + nx * (j + dj);
+                    match (axis, dk) {
+                        (0, 0) => x0[cell],
+                        (0, _) => x1[cell],
+                        (1, 0) => y0[cell],
+                        (1, _) => y1[cell],
+                        _ => z0[cell],
+                    }
+                };
+                tris.extend(loops.triangles.iter().map(|t| t.map(edge_id)));
+                for q in &loops.free_quads {
+                    let ids = q.map(edge_id);
+                    let p = |n: usize| vertices[ids[n] as usize];
+                    if (p(0) - p(2)).norm_squared() <= (p(1) - p(3)).norm_squared() {
+                        tris.push([ids[0], ids[1], ids[2]]);
+                        tris.push([ids[0], ids[2], ids[3]]);
+                    } else {
+                        tris.push([ids[1], ids[2], ids[3]]);
+                        tris.push([ids[1], ids[3], ids[0]]);
+                    }
+                }
+                for lp in &loops.centred {
+                    let ids: Vec<u32> = lp.iter().map(|&e| edge_id(e)).collect();
+                    let sum: Vec3 = ids.iter().map(|&v| vertices[v as usize]).sum();
+                    let c = CENTRE + centres.len() as u32;
+                    centres.push(sum / ids.len() as f64);
+                    for m in 0..ids.len() {
+                        tris.push([c, ids[m], ids[(m + 1) % ids.len()]]);
+                    }
+                }
+            }
+        }
+        (tris, centres)
+    }
+
+    /// Bit f set when ambiguous face f of cell (i, j, k) joins its inside corners: the
+    /// asymptotic decider (bilinear saddle value above iso), evaluated from the face's own
+    /// four values in a fixed order so the neighbouring cell decides identically.
+    fn face_decisions(&self, i: usize, j: usize, k: usize, ambiguous: u8) -> usize {
+        let mut joined = 0usize;
+        for (f, &(axis, side, _)) in FACES.iter().enumerate() {
+            if ambiguous >> f & 1 == 0 {
+                continue;
+            }
+            let mut o = [i, j, k];
+            o[axis] += side as usize;
+            let (u, v) = match axis {
+                0 => (1, 2),
+                1 => (0, 2),
+                _ => (0, 1),
+            };
+            let node = |du: usize, dv: usize| {
+                let mut p = o;
+                p[u] += du;
+                p[v] += dv;
+                f64::from(self.at(p[0], p[1], p[2]))
+            };
+            let (a, b, c, d) = (node(0, 0), node(1, 0), node(1, 1), node(0, 1));
+            let den = a + c - b - d;
+            if den != 0.0 {
+                let saddle = (a * c - b * d) / den;
+                if saddle > f64::from(self.iso) {
+                    joined |= 1 << f;
+                }
+            }
+        }
+        joined
+    }
+}
