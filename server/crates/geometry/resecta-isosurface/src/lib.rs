@@ -110,6 +110,20 @@ pub fn extract_mask(mask: &Volume<bool>) -> Result<TriMesh, IsoError> {
 /// collapses when a node value equals the iso-value.
 const T_MARGIN: f32 = 1e-4;
 
+/// Column code (bits: y, z, y+z neighbours) → the case bits of the cube's x = 0 corners.
+const SPREAD: [u8; 16] = {
+    let mut t = [0u8; 16];
+    let mut q = 0;
+    while q < 16 {
+        t[q] = (q as u8 & 1)
+            | (q as u8 >> 1 & 1) << 2
+            | (q as u8 >> 2 & 1) << 4
+            | (q as u8 >> 3 & 1) << 6;
+        q += 1;
+    }
+    t
+};
+
 /// Marks a layer-local centre vertex id until the layers are joined.
 const CENTRE: u32 = 1 << 31;
 
@@ -158,9 +172,6 @@ impl<'a, T: Sample> Lattice<'a, T> {
         if !iso.is_finite() {
             return Err(IsoError::BadIso(iso));
         }
-        if let Some(i) = values.par_iter().position_first(|v| !v.value().is_finite()) {
-            return Err(IsoError::NonFinite(i));
-        }
         let [nx, ny, nz] = dims;
         let mut class = vec![0u8; expected];
         let mut rows = vec![0u8; ny * nz];
@@ -171,14 +182,21 @@ impl<'a, T: Sample> Lattice<'a, T> {
             .for_each(|(r, (row, state))| {
                 let (j, k) = (r % ny, r / ny);
                 let border_row = j == 0 || k == 0 || j + 1 == ny || k + 1 == nz;
-                for (i, c) in row.iter_mut().enumerate() {
+                let mut st = 0u8;
+                for (i, (c, v)) in row.iter_mut().zip(&values[r * nx..][..nx]).enumerate() {
+                    let v = v.value();
                     let border = border_row || i == 0 || i + 1 == nx;
-                    let inside =
-                        values[r * nx + i].value() > iso && !(options.close_border && border);
+                    let inside = v > iso && !(options.close_border && border);
                     *c = u8::from(inside);
-                    *state |= if inside { 1 } else { 2 };
+                    st |= if inside { 1 } else { 2 };
+                    st |= u8::from(!v.is_finite()) << 2;
                 }
+                *state = st;
             });
+        if rows.par_iter().any(|&st| st & 4 != 0) {
+            let i = values.iter().position(|v| !v.value().is_finite());
+            return Err(IsoError::NonFinite(i.unwrap_or(0)));
+        }
         Ok(Self {
             dims,
             values,
@@ -191,11 +209,6 @@ impl<'a, T: Sample> Lattice<'a, T> {
     #[inline]
     fn at(&self, i: usize, j: usize, k: usize) -> f32 {
         self.values[i + self.dims[0] * (j + self.dims[1] * k)].value()
-    }
-
-    #[inline]
-    fn inside(&self, i: usize, j: usize, k: usize) -> bool {
-        self.class[i + self.dims[0] * (j + self.dims[1] * k)] == 1
     }
 
     /// Does the cell row (j, k) .. (j + 1, k + 1) hold both inside and outside nodes?
@@ -268,68 +281,102 @@ impl<'a, T: Sample> Lattice<'a, T> {
         Ok(TriMesh::new(vertices, triangles)?)
     }
 
+    /// Classes of node row (j, k).
+    #[inline]
+    fn row(&self, j: usize, k: usize) -> &[u8] {
+        let nx = self.dims[0];
+        &self.class[nx * (j + self.dims[1] * k)..][..nx]
+    }
+
+    /// Positions along the row where consecutive nodes differ (x-edges).
+    #[inline]
+    fn x_crossings(row: &[u8]) -> impl Iterator<Item = usize> + '_ {
+        row.windows(2)
+            .enumerate()
+            .filter(|(_, w)| w[0] != w[1])
+            .map(|(i, _)| i)
+    }
+
+    /// Positions where two rows differ (y- or z-edges between them).
+    #[inline]
+    fn pair_crossings<'r>(a: &'r [u8], b: &'r [u8]) -> impl Iterator<Item = usize> + 'r {
+        a.iter()
+            .zip(b)
+            .enumerate()
+            .filter(|(_, (p, q))| p != q)
+            .map(|(i, _)| i)
+    }
+
+    #[inline]
+    fn count_pair(a: &[u8], b: &[u8]) -> usize {
+        a.iter().zip(b).filter(|(p, q)| p != q).count()
+    }
+
     fn count(&self, k: usize) -> SliceCounts {
-        let [nx, ny, nz] = self.dims;
+        let [_, ny, nz] = self.dims;
         let mut c = SliceCounts::default();
         for j in 0..ny {
-            let mut prev = self.inside(0, j, k);
-            c.any_in |= prev;
-            c.any_out |= !prev;
-            for i in 0..nx {
-                let here = if i == 0 { prev } else { self.inside(i, j, k) };
-                c.any_in |= here;
-                c.any_out |= !here;
-                if i > 0 && here != prev {
-                    c.x += 1;
-                }
-                prev = here;
-                if j + 1 < ny && here != self.inside(i, j + 1, k) {
-                    c.y += 1;
-                }
-                if k + 1 < nz && here != self.inside(i, j, k + 1) {
-                    c.z += 1;
-                }
+            let state = self.rows[j + ny * k];
+            c.any_in |= state & 1 != 0;
+            c.any_out |= state & 2 != 0;
+            let row = self.row(j, k);
+            if state == 3 {
+                c.x += Self::count_pair(&row[..row.len() - 1], &row[1..]);
+            }
+            if j + 1 < ny && (state == 3 || state != self.rows[j + 1 + ny * k]) {
+                c.y += Self::count_pair(row, self.row(j + 1, k));
+            }
+            if k + 1 < nz && (state == 3 || state != self.rows[j + ny * (k + 1)]) {
+                c.z += Self::count_pair(row, self.row(j, k + 1));
             }
         }
         c
+    }
+
+    /// Does the row pair hold a crossing? (Rows uniform and equal have none.)
+    #[inline]
+    fn pair_may_cross(&self, j0: usize, k0: usize, j1: usize, k1: usize) -> bool {
+        let ny = self.dims[1];
+        let (a, b) = (self.rows[j0 + ny * k0], self.rows[j1 + ny * k1]);
+        a == 3 || b == 3 || a != b
     }
 
     /// Vertices of slice `k` in id order (x-edges, y-edges, z-edges; each in scan order).
     fn slice_vertices(&self, k: usize) -> Vec<Vec3> {
         let [nx, ny, nz] = self.dims;
         let mut out = Vec::new();
-        let mut push = |i: usize, j: usize, kk: usize, axis: usize| {
-            let (a, b) = match axis {
-                0 => (self.at(i, j, kk), self.at(i + 1, j, kk)),
-                1 => (self.at(i, j, kk), self.at(i, j + 1, kk)),
-                _ => (self.at(i, j, kk), self.at(i, j, kk + 1)),
-            };
-            // Orient the edge so the interpolation is the same from either end.
-            let t = f64::from(self.crossing(a, b));
+        let point = |i: usize, j: usize, kk: usize, axis: usize, a: f32, b: f32| {
             let mut p = Vec3::new(i as f64, j as f64, kk as f64);
-            p[axis] += t;
-            out.push(p);
+            p[axis] += f64::from(self.crossing(a, b));
+            p
         };
+        let vals = |j: usize, kk: usize| &self.values[nx * (j + ny * kk)..][..nx];
         for j in 0..ny {
-            for i in 0..nx - 1 {
-                if self.inside(i, j, k) != self.inside(i + 1, j, k) {
-                    push(i, j, k, 0);
-                }
+            if self.rows[j + ny * k] == 3 {
+                let v = vals(j, k);
+                out.extend(
+                    Self::x_crossings(self.row(j, k))
+                        .map(|i| point(i, j, k, 0, v[i].value(), v[i + 1].value())),
+                );
             }
         }
         for j in 0..ny - 1 {
-            for i in 0..nx {
-                if self.inside(i, j, k) != self.inside(i, j + 1, k) {
-                    push(i, j, k, 1);
-                }
+            if self.pair_may_cross(j, k, j + 1, k) {
+                let (v, w) = (vals(j, k), vals(j + 1, k));
+                out.extend(
+                    Self::pair_crossings(self.row(j, k), self.row(j + 1, k))
+                        .map(|i| point(i, j, k, 1, v[i].value(), w[i].value())),
+                );
             }
         }
         if k + 1 < nz {
             for j in 0..ny {
-                for i in 0..nx {
-                    if self.inside(i, j, k) != self.inside(i, j, k + 1) {
-                        push(i, j, k, 2);
-                    }
+                if self.pair_may_cross(j, k, j, k + 1) {
+                    let (v, w) = (vals(j, k), vals(j, k + 1));
+                    out.extend(
+                        Self::pair_crossings(self.row(j, k), self.row(j, k + 1))
+                            .map(|i| point(i, j, k, 2, v[i].value(), w[i].value())),
+                    );
                 }
             }
         }
@@ -337,7 +384,7 @@ impl<'a, T: Sample> Lattice<'a, T> {
     }
 
     /// Dense id maps for slice `k`: x-edges and y-edges (and z-edges up to `k + 1` when
-    /// `with_z`), `u32::MAX` where the edge does not cross.
+    /// `with_z`), `u32::MAX` where the edge does not cross. Ids follow [`Self::slice_vertices`].
     fn id_maps(&self, k: usize, base: usize, with_z: bool) -> [Vec<u32>; 3] {
         let [nx, ny, _] = self.dims;
         let mut id = base as u32;
@@ -348,29 +395,28 @@ impl<'a, T: Sample> Lattice<'a, T> {
         } else {
             Vec::new()
         };
+        let mut assign = |map: &mut [u32], crossings: &mut dyn Iterator<Item = usize>| {
+            for i in crossings {
+                map[i] = id;
+                id += 1;
+            }
+        };
         for j in 0..ny {
-            for i in 0..nx - 1 {
-                if self.inside(i, j, k) != self.inside(i + 1, j, k) {
-                    xs[i + nx * j] = id;
-                    id += 1;
-                }
+            if self.rows[j + ny * k] == 3 {
+                assign(&mut xs[nx * j..], &mut Self::x_crossings(self.row(j, k)));
             }
         }
         for j in 0..ny - 1 {
-            for i in 0..nx {
-                if self.inside(i, j, k) != self.inside(i, j + 1, k) {
-                    ys[i + nx * j] = id;
-                    id += 1;
-                }
+            if self.pair_may_cross(j, k, j + 1, k) {
+                let mut c = Self::pair_crossings(self.row(j, k), self.row(j + 1, k));
+                assign(&mut ys[nx * j..], &mut c);
             }
         }
         if with_z {
             for j in 0..ny {
-                for i in 0..nx {
-                    if self.inside(i, j, k) != self.inside(i, j, k + 1) {
-                        zs[i + nx * j] = id;
-                        id += 1;
-                    }
+                if self.pair_may_cross(j, k, j, k + 1) {
+                    let mut c = Self::pair_crossings(self.row(j, k), self.row(j, k + 1));
+                    assign(&mut zs[nx * j..], &mut c);
                 }
             }
         }
@@ -388,21 +434,27 @@ impl<'a, T: Sample> Lattice<'a, T> {
         let [x1, y1, _] = self.id_maps(k + 1, base[k + 1], false);
         let mut tris = Vec::new();
         let mut centres = Vec::new();
+        // Column codes: bit 0 (j, k), bit 1 (j+1, k), bit 2 (j, k+1), bit 3 (j+1, k+1).
+        let mut code = vec![0u8; nx];
         for j in 0..ny - 1 {
             if !self.mixed_cells(j, k) {
                 continue;
             }
+            let (r00, r10, r01, r11) = (
+                self.row(j, k),
+                self.row(j + 1, k),
+                self.row(j, k + 1),
+                self.row(j + 1, k + 1),
+            );
+            for (i, q) in code.iter_mut().enumerate() {
+                *q = r00[i] | r10[i] << 1 | r01[i] << 2 | r11[i] << 3;
+            }
             for i in 0..nx - 1 {
-                let mut case = 0usize;
-                for c in 0..8 {
-                    let (di, dj, dk) = (c & 1, c >> 1 & 1, c >> 2 & 1);
-                    if self.inside(i + di, j + dj, k + dk) {
-                        case |= 1 << c;
-                    }
-                }
-                if case == 0 || case == 255 {
+                let (qa, qb) = (code[i], code[i + 1]);
+                if qa == qb && (qa == 0 || qa == 15) {
                     continue;
                 }
+                let case = usize::from(SPREAD[qa as usize] | SPREAD[qb as usize] << 1);
                 let joined = self.face_decisions(i, j, k, TABLE.ambiguous[case]);
                 let loops = &TABLE.loops[case * 64 + joined];
                 let edge_id = |e: u8| -> u32 {
