@@ -11,9 +11,7 @@ pub enum PoissonError {
     TooFewPoints { found: usize, needed: usize },
     #[error("depth {depth} out of range 1..=10")]
     DepthOutOfRange { depth: u32 },
-    #[error(
-        "memory budget exceeded at depth {depth}: {needed} bytes needed, limit {limit} bytes"
-    )]
+    #[error("memory budget exceeded at depth {depth}: {needed} bytes needed, limit {limit} bytes")]
     MemoryBudget { depth: u32, needed: u64, limit: u64 },
     #[error(
         "point arrays differ in length: {positions} positions, {normals} normals, {areas} areas"

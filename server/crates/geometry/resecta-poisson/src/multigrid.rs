@@ -101,21 +101,22 @@ fn colour_pass(lv: &mut Level, zeros: &[f32], colour: usize) {
                 let (br, dr) = (&bp[j * n..(j + 1) * n], &dp[j * n..(j + 1) * n]);
                 let first = (colour + j + k) % 2;
                 // Entries of this colour depend only on entries of the other colour.
-                let n = row.len();
+                let (ym, yp, zm, zp) = (&nb.ym[..n], &nb.yp[..n], nb.zm, nb.zp);
                 let mut i = first;
-                while i < n {
-                    let mut s = nb.ym[i] + nb.yp[i] + nb.zm[i] + nb.zp[i];
-                    let mut c = nb.count;
-                    if i > 0 {
-                        s += row[i - 1];
-                        c += 1.0;
-                    }
-                    if i + 1 < n {
-                        s += row[i + 1];
-                        c += 1.0;
-                    }
-                    row[i] = (br[i] + lap * s) / (lap * c + dr[i]);
+                if i == 0 {
+                    let s = row[1] + ym[0] + yp[0] + zm[0] + zp[0];
+                    row[0] = (br[0] + lap * s) / (lap * (nb.count + 1.0) + dr[0]);
+                    i = 2;
+                }
+                let inner = lap * (nb.count + 2.0);
+                while i + 1 < n {
+                    let s = row[i - 1] + row[i + 1] + ym[i] + yp[i] + zm[i] + zp[i];
+                    row[i] = (br[i] + lap * s) / (inner + dr[i]);
                     i += 2;
+                }
+                if i == n - 1 {
+                    let s = row[i - 1] + ym[i] + yp[i] + zm[i] + zp[i];
+                    row[i] = (br[i] + lap * s) / (lap * (nb.count + 1.0) + dr[i]);
                 }
             }
         });
@@ -135,72 +136,88 @@ pub(crate) fn residual(lv: &mut Level, zeros: &[f32]) -> (f64, f64) {
     let n = lv.n;
     let plane = n * n;
     let (lap, x, b, diag) = (lv.lap, &lv.x, &lv.b, &lv.diag);
-    let sums: Vec<(f64, f64)> = lv
-        .r
-        .par_chunks_mut(plane)
-        .enumerate()
-        .map(|(k, rp)| {
-            let zm = if k > 0 { &x[(k - 1) * plane..k * plane] } else { zeros };
-            let zp = if k + 1 < n { &x[(k + 1) * plane..(k + 2) * plane] } else { zeros };
-            let zc = f32::from(u8::from(k > 0) + u8::from(k + 1 < n));
-            let (mut rr, mut bb) = (0.0f64, 0.0f64);
-            for j in 0..n {
-                let o = k * plane + j * n;
-                let row = &x[o..o + n];
-                let nb = Rows {
-                    ym: if j > 0 { &x[o - n..o] } else { zeros },
-                    yp: if j + 1 < n { &x[o + n..o + 2 * n] } else { zeros },
-                    zm: &zm[j * n..(j + 1) * n],
-                    zp: &zp[j * n..(j + 1) * n],
-                    count: zc + f32::from(u8::from(j > 0) + u8::from(j + 1 < n)),
+    let sums: Vec<(f64, f64)> =
+        lv.r.par_chunks_mut(plane)
+            .enumerate()
+            .map(|(k, rp)| {
+                let zm = if k > 0 {
+                    &x[(k - 1) * plane..k * plane]
+                } else {
+                    zeros
                 };
-                let (br, dr) = (&b[o..o + n], &diag[o..o + n]);
-                let rrow = &mut rp[j * n..(j + 1) * n];
-                for first in 0..2 {
-                    for_row(row, &nb, first, |i, s, c| {
-                        let v = br[i] - ((lap * c + dr[i]) * row[i] - lap * s);
-                        rrow[i] = v;
-                        rr += f64::from(v) * f64::from(v);
-                        bb += f64::from(br[i]) * f64::from(br[i]);
-                    });
+                let zp = if k + 1 < n {
+                    &x[(k + 1) * plane..(k + 2) * plane]
+                } else {
+                    zeros
+                };
+                let zc = f32::from(u8::from(k > 0) + u8::from(k + 1 < n));
+                let (mut rr, mut bb) = (0.0f64, 0.0f64);
+                for j in 0..n {
+                    let o = k * plane + j * n;
+                    let row = &x[o..o + n];
+                    let nb = Rows {
+                        ym: if j > 0 { &x[o - n..o] } else { zeros },
+                        yp: if j + 1 < n {
+                            &x[o + n..o + 2 * n]
+                        } else {
+                            zeros
+                        },
+                        zm: &zm[j * n..(j + 1) * n],
+                        zp: &zp[j * n..(j + 1) * n],
+                        count: zc + f32::from(u8::from(j > 0) + u8::from(j + 1 < n)),
+                    };
+                    let (br, dr) = (&b[o..o + n], &diag[o..o + n]);
+                    let rrow = &mut rp[j * n..(j + 1) * n];
+                    for first in 0..2 {
+                        for_row(row, &nb, first, |i, s, c| {
+                            let v = br[i] - ((lap * c + dr[i]) * row[i] - lap * s);
+                            rrow[i] = v;
+                            rr += f64::from(v) * f64::from(v);
+                            bb += f64::from(br[i]) * f64::from(br[i]);
+                        });
+                    }
                 }
-            }
-            (rr, bb)
-        })
-        .collect();
+                (rr, bb)
+            })
+            .collect();
     sums.iter()
         .fold((0.0, 0.0), |(a, b), (c, d)| (a + c, b + d))
 }
 
-/// `coarse = Pᵀ fine` (full weighting, the transpose of trilinear interpolation).
+/// Fine nodes and weights of coarse index `c` under full weighting (`n` fine nodes per axis).
+#[inline]
+fn children(c: usize, n: usize) -> impl Iterator<Item = (usize, f32)> {
+    [(0.5f32, -1isize), (1.0, 0), (0.5, 1)]
+        .into_iter()
+        .filter_map(move |(w, d)| {
+            (2 * c)
+                .checked_add_signed(d)
+                .filter(|&f| f < n)
+                .map(|f| (f, w))
+        })
+}
+
+/// `coarse = Pᵀ fine` (full weighting, the transpose of trilinear interpolation), separably.
 pub(crate) fn restrict(fine: &[f32], nf: usize, coarse: &mut [f32], nc: usize) {
-    const W: [f32; 3] = [0.5, 1.0, 0.5];
+    let pf = nf * nf;
     coarse
         .par_chunks_mut(nc * nc)
         .enumerate()
         .for_each(|(kc, cp)| {
+            let mut pz = vec![0f32; pf];
+            for (k, w) in children(kc, nf) {
+                let src = &fine[k * pf..(k + 1) * pf];
+                pz.iter_mut().zip(src).for_each(|(a, b)| *a += w * b);
+            }
+            let mut row = vec![0f32; nf];
             for jc in 0..nc {
-                for ic in 0..nc {
-                    let mut s = 0.0f32;
-                    for (dz, wz) in W.iter().enumerate() {
-                        let Some(k) = (2 * kc + dz).checked_sub(1).filter(|&k| k < nf) else {
-                            continue;
-                        };
-                        for (dy, wy) in W.iter().enumerate() {
-                            let Some(j) = (2 * jc + dy).checked_sub(1).filter(|&j| j < nf) else {
-                                continue;
-                            };
-                            let o = nf * (j + nf * k);
-                            let mut t = 0.0f32;
-                            for (dx, wx) in W.iter().enumerate() {
-                                if let Some(i) = (2 * ic + dx).checked_sub(1).filter(|&i| i < nf) {
-                                    t += wx * fine[o + i];
-                                }
-                            }
-                            s += wz * wy * t;
-                        }
-                    }
-                    cp[ic + nc * jc] = s;
+                row.iter_mut().for_each(|v| *v = 0.0);
+                for (j, w) in children(jc, nf) {
+                    let src = &pz[j * nf..(j + 1) * nf];
+                    row.iter_mut().zip(src).for_each(|(a, b)| *a += w * b);
+                }
+                for (ic, out) in cp[nc * jc..nc * (jc + 1)].iter_mut().enumerate() {
+                    *out = children(ic, nf).map(|(i, w)| w * row[i]).sum();
                 }
             }
         });

@@ -122,7 +122,11 @@ pub fn oriented_points(mask: &Volume<bool>) -> Result<OrientedPoints, PoissonErr
         .ok_or(PoissonError::SingularGrid)?
         .transpose();
     let voxel_volume = grid.voxel_volume_mm3();
-    let cols = [jac.column(0).into_owned(), jac.column(1).into_owned(), jac.column(2).into_owned()];
+    let cols = [
+        jac.column(0).into_owned(),
+        jac.column(1).into_owned(),
+        jac.column(2).into_owned(),
+    ];
 
     let per_slice: Vec<Vec<(Vec3, Vec3, Real)>> = (1..pd[2] - 1)
         .into_par_iter()
@@ -138,8 +142,11 @@ pub fn oriented_points(mask: &Volume<bool>) -> Result<OrientedPoints, PoissonErr
                     for (zc, sz) in S.iter().enumerate() {
                         for (yb, sy) in S.iter().enumerate() {
                             let r = c + pd[0] * (yb + pd[1] * zc) - pd[0] - plane;
-                            let (l, m, rr) =
-                                (i32::from(pad[r - 1]), i32::from(pad[r]), i32::from(pad[r + 1]));
+                            let (l, m, rr) = (
+                                i32::from(pad[r - 1]),
+                                i32::from(pad[r]),
+                                i32::from(pad[r + 1]),
+                            );
                             g[0] += sy * sz * (rr - l);
                             let row = l + 2 * m + rr;
                             g[1] += (yb as i32 - 1) * sz * row;

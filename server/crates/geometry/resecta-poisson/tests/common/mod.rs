@@ -66,18 +66,47 @@ pub fn enclosed_volume(f: &PoissonField, s: usize) -> Real {
     for k in 0..n - 1 {
         for j in 0..n - 1 {
             for i in 0..n - 1 {
-                let v = |a: usize, b: usize, c: usize| f.values[(i + a) + n * ((j + b) + n * (k + c))];
-                let corners = [v(0,0,0), v(1,0,0), v(0,1,0), v(1,1,0), v(0,0,1), v(1,0,1), v(0,1,1), v(1,1,1)];
-                let (mn, mx) = corners.iter().fold((f32::MAX, f32::MIN), |(a, b), &c| (a.min(c), b.max(c)));
-                if mn > f.iso { count += (s * s * s) as u64; continue; }
-                if mx <= f.iso { continue; }
-                for c in 0..s { for b in 0..s { for a in 0..s {
-                    let (x, y, z) = ((a as f32 + 0.5) / s as f32, (b as f32 + 0.5) / s as f32, (c as f32 + 0.5) / s as f32);
-                    let lx = |p: f32, q: f32| p * (1.0 - x) + q * x;
-                    let y0 = lx(corners[0], corners[1]) * (1.0 - y) + lx(corners[2], corners[3]) * y;
-                    let y1 = lx(corners[4], corners[5]) * (1.0 - y) + lx(corners[6], corners[7]) * y;
-                    if y0 * (1.0 - z) + y1 * z > f.iso { count += 1; }
-                }}}
+                let v =
+                    |a: usize, b: usize, c: usize| f.values[(i + a) + n * ((j + b) + n * (k + c))];
+                let corners = [
+                    v(0, 0, 0),
+                    v(1, 0, 0),
+                    v(0, 1, 0),
+                    v(1, 1, 0),
+                    v(0, 0, 1),
+                    v(1, 0, 1),
+                    v(0, 1, 1),
+                    v(1, 1, 1),
+                ];
+                let (mn, mx) = corners
+                    .iter()
+                    .fold((f32::MAX, f32::MIN), |(a, b), &c| (a.min(c), b.max(c)));
+                if mn > f.iso {
+                    count += (s * s * s) as u64;
+                    continue;
+                }
+                if mx <= f.iso {
+                    continue;
+                }
+                for c in 0..s {
+                    for b in 0..s {
+                        for a in 0..s {
+                            let (x, y, z) = (
+                                (a as f32 + 0.5) / s as f32,
+                                (b as f32 + 0.5) / s as f32,
+                                (c as f32 + 0.5) / s as f32,
+                            );
+                            let lx = |p: f32, q: f32| p * (1.0 - x) + q * x;
+                            let y0 = lx(corners[0], corners[1]) * (1.0 - y)
+                                + lx(corners[2], corners[3]) * y;
+                            let y1 = lx(corners[4], corners[5]) * (1.0 - y)
+                                + lx(corners[6], corners[7]) * y;
+                            if y0 * (1.0 - z) + y1 * z > f.iso {
+                                count += 1;
+                            }
+                        }
+                    }
+                }
             }
         }
     }
