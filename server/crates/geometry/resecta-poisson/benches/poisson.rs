@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Oriented points and the solver on a liver-sized ellipsoid (radii 95 × 70 × 60 mm on 0.8 mm
 //! voxels, ~170 K samples) at depths 7 and 8. Prints a stage breakdown before the criterion runs.
 

@@ -226,7 +226,7 @@ pub(crate) fn restrict(fine: &[f32], nf: usize, coarse: &mut [f32], nc: usize) {
 /// Coarse nodes and weights that interpolate fine index `f`.
 #[inline]
 fn parents(f: usize) -> [(usize, f32); 2] {
-    if f % 2 == 0 {
+    if f.is_multiple_of(2) {
         [(f / 2, 1.0), (f / 2, 0.0)]
     } else {
         [(f / 2, 0.5), (f / 2 + 1, 0.5)]

@@ -243,7 +243,7 @@ pub fn solve(
         hi = hi.sup(p);
     }
     let extent = (hi - lo).max();
-    if !(extent > 1e-9 * (1.0 + lo.abs().max())) {
+    if extent <= 1e-9 * (1.0 + lo.abs().max()) {
         return Err(PoissonError::DegenerateBounds { extent_mm: extent });
     }
     let cells = 1usize << depth;

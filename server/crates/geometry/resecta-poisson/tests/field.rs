@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The Poisson field against analytic spheres: iso-surface radius, enclosed volume, determinism,
 //! convergence and bad input.
 

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Oriented points against analytic spheres and planes.
 
 mod common;

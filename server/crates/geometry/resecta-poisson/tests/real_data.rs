@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Oriented points and a depth-7 solve on real liver masks (skipped when the data is absent).
 
 mod common;

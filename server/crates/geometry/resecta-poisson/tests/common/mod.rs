@@ -1,5 +1,5 @@
 //! Analytic spheres voxelised on axis-aligned, anisotropic and oblique grids.
-#![allow(dead_code)]
+#![allow(dead_code, clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use nalgebra::Rotation3;
 use resecta_geom::{Grid, Mat3, Real, Vec3, Volume};
