@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Writes test meshes and our windowed-sinc results for the VTK comparison in
 //! `docs/bench/meshfilter/compare_vtk.py`: `cargo run --release -p resecta-meshfilter --example
 //! sinc_dump -- OUT_DIR`. Files: `mesh_<name>.txt` (`v x y z` / `f a b c` lines),

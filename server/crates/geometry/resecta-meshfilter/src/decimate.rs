@@ -364,12 +364,13 @@ impl Decimator {
         let mid = (pu + pv) * 0.5;
         let a = q.matrix();
         let scale = a.norm();
-        if scale > 0.0 && a.determinant().abs() > 1e-9 * scale * scale * scale {
-            if let Some(inv) = a.try_inverse() {
-                let p = -(inv * Vec3::new(q.b[0], q.b[1], q.b[2]));
-                if p.iter().all(|c| c.is_finite()) && (p - mid).norm() <= (pu - pv).norm() {
-                    return (p, q.eval(&p));
-                }
+        if scale > 0.0
+            && a.determinant().abs() > 1e-9 * scale * scale * scale
+            && let Some(inv) = a.try_inverse()
+        {
+            let p = -(inv * Vec3::new(q.b[0], q.b[1], q.b[2]));
+            if p.iter().all(|c| c.is_finite()) && (p - mid).norm() <= (pu - pv).norm() {
+                return (p, q.eval(&p));
             }
         }
         [mid, pu, pv]

@@ -96,7 +96,7 @@ impl SincParams {
     /// [`windowed_sinc`] rejects.
     pub fn slicer(smoothing_factor: Real) -> Self {
         let s = smoothing_factor;
-        let smooth = !(s <= 0.0); // NaN falls through to the (rejected) formula
+        let smooth = s > 0.0 || s.is_nan(); // NaN falls through to the (rejected) formula
         Self {
             // Saturating float→int cast, like Slicer's truncating `int` conversion.
             iterations: if smooth { (20.0 + 40.0 * s) as u32 } else { 0 },
