@@ -3,11 +3,16 @@
 //!
 //! Every vertex carries the sum of the area-weighted plane quadrics of its triangles (plus, on
 //! open meshes, `boundary_weight`-weighted planes through each boundary edge perpendicular to
-//! its triangle). Edges are collapsed cheapest first (ties: smaller vertex indices first) into
-//! the quadric-optimal point — or, where that 3×3 system is ill-conditioned or its solution lies
-//! far from the edge, the best of midpoint and endpoints; an edge with exactly one boundary
-//! endpoint collapses onto that endpoint, so boundaries stay where they are. A collapse is
-//! refused unless
+//! its triangle). An edge collapses into the quadric-optimal point — or, where that 3×3 system
+//! is ill-conditioned or its solution lies far from the edge, the best of midpoint and
+//! endpoints; an edge with exactly one boundary endpoint collapses onto that endpoint, so
+//! boundaries stay where they are.
+//!
+//! Scheduling is by passes (as in meshoptimizer's simplifier, rather than one global priority
+//! queue, which is several times slower on large meshes): each pass costs all edges in
+//! parallel, sorts them by (cost, vertex indices) and walks them cheapest first up to the cost
+//! of the `3·needed`-th edge, collapsing every admissible edge whose endpoints have not been
+//! touched yet in this pass. A collapse is admissible unless
 //! - the edge is used by one (boundary) or two triangles and neither endpoint touches a
 //!   non-manifold edge or a degenerate triangle of the input;
 //! - the link condition holds (the endpoints' common neighbours are exactly the apexes of the
@@ -18,20 +23,19 @@
 //!
 //! Hence a watertight, manifold, consistently oriented input stays so. Collapses stop when the
 //! triangle count reaches `round((1 − target_reduction)·n)` (interior collapses remove two
-//! triangles, so it may end one below) or when no admissible collapse remains (after up to
-//! [`MAX_PASSES`] re-scans of all edges). The algorithm is sequential and deterministic; the
-//! set-up (quadrics, edge costs) runs on rayon.
+//! triangles, so it may end one below), when a pass without cost limit collapses nothing, or
+//! after [`MAX_PASSES`] passes. The result is deterministic and independent of the thread count
+//! (parallel steps only compute per-edge values, the collapses are sequential).
 
 use std::cmp::Ordering;
-use std::collections::BinaryHeap;
 
 use rayon::prelude::*;
 use resecta_geom::{Mat3, Real, TriMesh, Vec3};
 
 use crate::FilterError;
 
-/// Re-scans of all edges after the queue runs dry before giving up on the target.
-pub const MAX_PASSES: u32 = 8;
+/// Most sorting passes before giving up on the target.
+pub const MAX_PASSES: u32 = 200;
 
 /// Parameters of [`decimate`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,7 +90,7 @@ pub struct DecimateReport {
     pub target_triangles: usize,
     pub output_triangles: usize,
     pub collapses: usize,
-    /// Full edge scans (1 unless the queue ran dry before the target).
+    /// Sorting passes over all edges.
     pub passes: u32,
 }
 
@@ -166,36 +170,6 @@ impl Quadric {
     }
 }
 
-/// Queue entry; `Ord` makes `BinaryHeap` pop the cheapest, then smallest `(u, v)`.
-#[derive(Debug, Clone, Copy)]
-struct Candidate {
-    cost: Real,
-    u: u32,
-    v: u32,
-    version_u: u32,
-    version_v: u32,
-}
-
-impl PartialEq for Candidate {
-    fn eq(&self, o: &Self) -> bool {
-        self.cmp(o) == Ordering::Equal
-    }
-}
-impl Eq for Candidate {}
-impl PartialOrd for Candidate {
-    fn partial_cmp(&self, o: &Self) -> Option<Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Candidate {
-    fn cmp(&self, o: &Self) -> Ordering {
-        o.cost
-            .total_cmp(&self.cost)
-            .then(o.u.cmp(&self.u))
-            .then(o.v.cmp(&self.v))
-    }
-}
-
 /// An admissible collapse of `v` into `u`.
 struct Plan {
     u: usize,
@@ -214,14 +188,16 @@ struct Decimator {
     /// Touches a non-manifold edge or a degenerate triangle of the input: never moved.
     locked: Vec<bool>,
     alive: Vec<bool>,
-    version: Vec<u32>,
+    /// Collapsed into or away during the current pass.
+    touched: Vec<bool>,
     alive_tris: usize,
     cos_max: Real,
     area_eps: Real,
-    heap: BinaryHeap<Candidate>,
     // scratch
     nu: Vec<u32>,
     nv: Vec<u32>,
+    /// Edges of the input (for the first pass).
+    edges: Vec<(u32, u32)>,
 }
 
 impl Decimator {
@@ -320,37 +296,15 @@ impl Decimator {
             boundary,
             locked,
             alive: vec![true; nv],
-            version: vec![0; nv],
+            touched: vec![false; nv],
             cos_max: params.max_normal_change_deg.to_radians().cos(),
             area_eps: (diag * 1e-9).powi(2),
-            heap: BinaryHeap::new(),
             nu: Vec::new(),
             nv: Vec::new(),
+            edges: Vec::new(),
         };
-        d.fill_heap(&edges);
+        d.edges = edges;
         d
-    }
-
-    /// Replaces the queue with fresh entries for `edges`.
-    fn fill_heap(&mut self, edges: &[(u32, u32)]) {
-        let this = &*self;
-        let entries: Vec<Candidate> = edges
-            .par_iter()
-            .filter(|&&(a, b)| !this.locked[a as usize] && !this.locked[b as usize])
-            .map(|&(a, b)| this.candidate(a as usize, b as usize))
-            .collect();
-        self.heap = BinaryHeap::from(entries);
-    }
-
-    fn candidate(&self, u: usize, v: usize) -> Candidate {
-        let (_, cost) = self.placement(u, v);
-        Candidate {
-            cost,
-            u: u as u32,
-            v: v as u32,
-            version_u: self.version[u],
-            version_v: self.version[v],
-        }
     }
 
     /// Where the collapse of edge (u, v) puts the merged vertex, and its quadric error.
@@ -385,30 +339,49 @@ impl Decimator {
     }
 
     fn run(&mut self, target: usize, report: &mut DecimateReport) {
-        report.passes = 1;
-        let mut collapses_at_pass_start = 0;
-        while self.alive_tris > target {
-            let Some(c) = self.heap.pop() else {
-                if report.passes >= MAX_PASSES || report.collapses == collapses_at_pass_start {
+        let mut edges = std::mem::take(&mut self.edges);
+        let mut capped = true;
+        while self.alive_tris > target && report.passes < MAX_PASSES {
+            if report.passes > 0 {
+                edges = self.alive_edges();
+            }
+            report.passes += 1;
+            let this = &*self;
+            let mut costed: Vec<(Real, u32, u32)> = edges
+                .par_iter()
+                .filter(|&&(a, b)| !this.locked[a as usize] && !this.locked[b as usize])
+                .map(|&(a, b)| (this.placement(a as usize, b as usize).1, a, b))
+                .collect();
+            costed.par_sort_unstable_by(|x, y| {
+                x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)).then(x.2.cmp(&y.2))
+            });
+            let needed = (self.alive_tris - target).div_ceil(2);
+            let limit = match costed.get(3 * needed) {
+                Some(c) if capped => c.0,
+                _ => Real::INFINITY,
+            };
+            self.touched.fill(false);
+            let before = report.collapses;
+            for &(cost, u, v) in &costed {
+                if cost > limit || self.alive_tris <= target {
                     break;
                 }
-                report.passes += 1;
-                collapses_at_pass_start = report.collapses;
-                let edges = self.alive_edges();
-                self.fill_heap(&edges);
-                continue;
-            };
-            let (u, v) = (c.u as usize, c.v as usize);
-            if !self.alive[u]
-                || !self.alive[v]
-                || self.version[u] != c.version_u
-                || self.version[v] != c.version_v
-            {
-                continue;
+                let (u, v) = (u as usize, v as usize);
+                if self.touched[u] || self.touched[v] || !self.alive[u] || !self.alive[v] {
+                    continue;
+                }
+                if let Some(plan) = self.check(u, v) {
+                    self.apply(plan);
+                    self.touched[u] = true;
+                    self.touched[v] = true;
+                    report.collapses += 1;
+                }
             }
-            if let Some(plan) = self.check(u, v) {
-                self.apply(plan);
-                report.collapses += 1;
+            if report.collapses == before {
+                if !capped || limit == Real::INFINITY {
+                    break;
+                }
+                capped = false;
             }
         }
     }
@@ -550,19 +523,6 @@ impl Decimator {
         self.quadric[u] = self.quadric[u].add(&self.quadric[v]);
         self.boundary[u] |= self.boundary[v];
         self.alive[v] = false;
-        self.version[u] = self.version[u].wrapping_add(1);
-        self.version[v] = self.version[v].wrapping_add(1);
-        let mut nu = std::mem::take(&mut self.nu);
-        self.neighbours(u, &mut nu);
-        for &w in &nu {
-            let w = w as usize;
-            if !self.locked[w] {
-                let (a, b) = (u.min(w), u.max(w));
-                let c = self.candidate(a, b);
-                self.heap.push(c);
-            }
-        }
-        self.nu = nu;
     }
 
     fn output(&self) -> Result<TriMesh, FilterError> {

@@ -19,6 +19,7 @@
 //!
 //! Both take a [`resecta_geom::TriMesh`] and return a new one; per-vertex normals are dropped
 //! (recompute them after the last stage, e.g. with `TriMesh::compute_vertex_normals`).
+//! [`slicer_surface_filters`] chains the stages in Slicer's order.
 
 mod decimate;
 mod sinc;
@@ -26,7 +27,7 @@ mod sinc;
 pub use decimate::{DecimateParams, DecimateReport, decimate, decimate_with_report};
 pub use sinc::{MAX_ITERATIONS, SincParams, SincWindow, sinc_coefficients, windowed_sinc};
 
-use resecta_geom::{GeomError, Real};
+use resecta_geom::{GeomError, Real, TriMesh};
 
 /// What can be wrong with a filter's parameters or input. Messages name the offending value.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -45,4 +46,24 @@ pub enum FilterError {
     BadBoundaryWeight(Real),
     #[error("mesh: {0}")]
     Mesh(#[from] GeomError),
+}
+
+/// Slicer's post-processing of a marching-cubes surface: decimation with target reduction
+/// `decimation_factor` if it is > 0, then [`SincParams::slicer`]`(smoothing_factor)` smoothing
+/// if that is > 0, then angle-weighted vertex normals. Both factors 0: the input with normals.
+pub fn slicer_surface_filters(
+    mesh: &TriMesh,
+    smoothing_factor: Real,
+    decimation_factor: Real,
+) -> Result<TriMesh, FilterError> {
+    let sinc = SincParams::slicer(smoothing_factor);
+    // Validate both before doing any work.
+    sinc_coefficients(&sinc)?;
+    let decimation = DecimateParams::slicer(decimation_factor);
+    let mut out = decimate(mesh, &decimation)?;
+    if sinc.iterations > 0 {
+        out = windowed_sinc(&out, &sinc)?;
+    }
+    let normals = out.compute_vertex_normals();
+    Ok(out.with_normals(normals)?)
 }

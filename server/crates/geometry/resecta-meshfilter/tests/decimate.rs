@@ -170,3 +170,25 @@ fn bad_parameters_are_errors() {
     let empty = TriMesh::new(vec![], vec![]).unwrap();
     assert!(decimate(&empty, &params(0.5)).unwrap().is_empty());
 }
+
+#[test]
+fn slicer_pipeline_decimates_smooths_and_adds_normals() {
+    let mesh = noisy_sphere(5, 0.02);
+    let out = resecta_meshfilter::slicer_surface_filters(&mesh, 0.5, 0.5).unwrap();
+    let by_hand = windowed_sinc(
+        &decimate(&mesh, &params(0.5)).unwrap(),
+        &SincParams::slicer(0.5),
+    )
+    .unwrap();
+    assert_eq!(bits(&out), bits(&by_hand));
+    let normals = out.normals().unwrap();
+    // Outward unit normals on a sphere: within 10° of the radial direction.
+    for (p, n) in out.vertices().iter().zip(normals) {
+        assert!(n.dot(&(p - CENTER).normalize()) > 10f64.to_radians().cos());
+    }
+    // Factor 0 for both: the input with normals; bad factors are errors.
+    let same = resecta_meshfilter::slicer_surface_filters(&mesh, 0.0, 0.0).unwrap();
+    assert_eq!(bits(&same), bits(&mesh));
+    assert!(resecta_meshfilter::slicer_surface_filters(&mesh, 0.5, 1.0).is_err());
+    assert!(resecta_meshfilter::slicer_surface_filters(&mesh, Real::NAN, 0.0).is_err());
+}
