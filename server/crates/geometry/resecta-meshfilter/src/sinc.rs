@@ -25,8 +25,8 @@
 //!   fixed (VTK stores stencil sizes in a byte).
 //!
 //! "Fixed" vertices take part in the recurrence with an empty stencil, so — exactly as in VTK —
-//! they end at `f(0)·x = (Σⱼ cⱼ)·x` in the (normalised) frame, within about 10⁻³ of `x` relative
-//! to the bounding-box diagonal, rather than exactly at `x`.
+//! they end at `f(0)·x = (Σⱼ cⱼ)·x` in the (normalised) frame rather than exactly at `x`
+//! (`Σⱼ cⱼ`, the filter's DC gain, is close to but not exactly 1).
 
 use rayon::prelude::*;
 use resecta_geom::{Real, TriMesh, Vec3};
