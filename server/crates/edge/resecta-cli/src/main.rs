@@ -10,6 +10,7 @@ mod error;
 mod info;
 mod output;
 mod phantom;
+mod recon;
 
 use std::process::ExitCode;
 
@@ -30,6 +31,14 @@ enum Command {
     Phantom(phantom::Args),
     /// Run the demo on the embedded default phantom: write files, read them back, check them.
     Demo(demo::Args),
+    /// Surface model of some labels by Poisson reconstruction (PSR) or MCSD.
+    Reconstruct(recon::ReconstructArgs),
+    /// The complete patient model: PSR liver, MCSD tumours and vessels, one mesh each.
+    Models(recon::ModelsArgs),
+    /// Accuracy, polygons, volume and smoothness of any mesh against a label map.
+    Measure(recon::MeasureArgs),
+    /// The Paper I study on one label map: PSR depths × MCSD parameters, tables and Pareto plot.
+    Evaluate(recon::EvaluateArgs),
     /// Bézier surfaces.
     #[command(subcommand)]
     Bezier(bezier::Command),
@@ -44,6 +53,10 @@ fn main() -> ExitCode {
         Command::Info(a) => info::run(&a),
         Command::Phantom(a) => phantom::run(&a),
         Command::Demo(a) => demo::run(&a),
+        Command::Reconstruct(a) => recon::reconstruct(&a),
+        Command::Models(a) => recon::models(&a),
+        Command::Measure(a) => recon::measure_mesh(&a),
+        Command::Evaluate(a) => recon::evaluate(&a),
         Command::Bezier(c) => bezier::run(&c),
         Command::Bench(c) => bench::run(&c),
     };

@@ -29,3 +29,16 @@ pub fn progress(json: bool) -> ProgressBar {
     pb.enable_steady_tick(Duration::from_millis(100));
     pb
 }
+
+/// A bar counting `len` steps on a terminal; hidden when stderr is piped or with `--json`.
+pub fn counter(json: bool, len: u64, unit: &str) -> ProgressBar {
+    if json || !std::io::stderr().is_terminal() {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    let template = format!("{{bar:30}} {{pos}}/{{len}} {unit} {{elapsed:>4}} {{msg}}");
+    if let Ok(style) = ProgressStyle::with_template(&template) {
+        pb.set_style(style);
+    }
+    pb
+}

@@ -20,7 +20,7 @@ pub use edt::{
     distance_transform_with_nearest, signed_distance_transform, signed_distance_transform_where,
 };
 pub use error::GeomError;
-pub use grid::{Grid, Volume, VoxelLimit};
+pub use grid::{Grid, LabelMap, Volume, VoxelLimit};
 pub use math::{Mat3, Mat4, Real, Vec3};
 pub use mesh::{MeshReport, TriMesh};
 pub use pca::Pca;

@@ -1,0 +1,492 @@
+//! `resecta reconstruct`, `models`, `measure` and `evaluate`: surface models (Paper I).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use resecta_geom::{LabelMap, Real, RoleMap, TriMesh, Volume, VoxelLimit};
+use resecta_io::{read_label_map, read_mesh, write_mesh};
+use resecta_poisson::OrientedPoints;
+use resecta_recon::study::{self, StudyConfig};
+use resecta_recon::{McsdParams, Quality, mask, mcsd, measure, patient_models, psr};
+use serde::Serialize;
+
+use crate::error::CliError;
+use crate::output::{print_json, progress};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// Poisson surface reconstruction from the mask's oriented points.
+    Psr,
+    /// Marching cubes, decimation, windowed-sinc smoothing (3D Slicer's method).
+    Mcsd,
+}
+
+/// `--depth 7` or `--depth auto`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthArg {
+    Fixed(u32),
+    Auto,
+}
+
+fn parse_depth(s: &str) -> Result<DepthArg, String> {
+    if s == "auto" {
+        return Ok(DepthArg::Auto);
+    }
+    s.parse::<u32>()
+        .map(DepthArg::Fixed)
+        .map_err(|_| format!("depth must be an integer in 1..=10 or `auto`, got `{s}`"))
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ReconstructArgs {
+    /// Label map (NIfTI, NRRD, .seg.nrrd, MetaImage).
+    pub input: PathBuf,
+    /// Labels forming the object, comma-separated.
+    #[arg(long, value_delimiter = ',', required = true,
+          value_parser = clap::value_parser!(u16).range(1..))]
+    pub labels: Vec<u16>,
+    #[arg(long, value_enum, default_value_t = Method::Psr)]
+    pub method: Method,
+    /// PSR depth (finest grid 2^d cells across the points' bounding cube × 1.1), or `auto` for
+    /// the σ-optimal depth in 5..=8 for this mask.
+    #[arg(long, value_parser = parse_depth, default_value = "7")]
+    pub depth: DepthArg,
+    /// MCSD smoothing factor in [0, 1] (Slicer's; 0 = off).
+    #[arg(long, default_value_t = 0.5)]
+    pub smoothing: Real,
+    /// MCSD decimation: fraction of triangles removed, in [0, 1).
+    #[arg(long, default_value_t = 0.0)]
+    pub decimation: Real,
+    /// Output mesh (.vtp, .vtk, .stl, .ply, .obj), RAS.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write the oriented points (positions and outward normals) as PLY.
+    #[arg(long)]
+    pub points_out: Option<PathBuf>,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct ReconstructSummary {
+    method: Method,
+    labels: Vec<u16>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    depth: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    smoothing: Option<Real>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    decimation: Option<Real>,
+    #[serde(flatten)]
+    quality: Quality,
+    /// Volume of the selected voxels, ml.
+    mask_ml: Real,
+    /// Samples (oriented points) the accuracy is measured against.
+    samples: usize,
+    /// File → mesh file: read, reconstruct, write (metrics excluded), ms.
+    time_ms: Real,
+    /// Reconstruction alone, ms.
+    reconstruct_ms: Real,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    depth_candidates: Vec<study::DepthCandidate>,
+    out: PathBuf,
+}
+
+fn read_labels(path: &Path) -> Result<LabelMap, CliError> {
+    Ok(read_label_map(path, VoxelLimit::default())?)
+}
+
+fn recon_err(e: resecta_recon::ReconError) -> CliError {
+    use resecta_recon::ReconError as E;
+    match e {
+        E::NoLabels
+        | E::LabelsAbsent { .. }
+        | E::EmptyMask
+        | E::InvalidParameter { .. }
+        | E::Poisson(_) => CliError::BadInput(e.to_string()),
+        _ => CliError::Failed(e.to_string()),
+    }
+}
+
+fn ms(since: Instant) -> Real {
+    since.elapsed().as_secs_f64() * 1e3
+}
+
+fn mask_ml(mask: &Volume<bool>) -> Real {
+    mask.data().iter().filter(|&&b| b).count() as Real * mask.grid().voxel_volume_mm3() / 1000.0
+}
+
+/// The oriented points as a mesh without triangles, for writing.
+fn points_mesh(points: &OrientedPoints) -> Result<TriMesh, CliError> {
+    TriMesh::new(points.positions.clone(), Vec::new())
+        .and_then(|m| m.with_normals(points.normals.clone()))
+        .map_err(|e| CliError::Failed(e.to_string()))
+}
+
+pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
+    if args.labels.is_empty() {
+        return Err(CliError::BadInput(
+            "--labels: give at least one label".into(),
+        ));
+    }
+    let pb = progress(args.json);
+    let start = Instant::now();
+    pb.set_message("reading label map");
+    let labels = read_labels(&args.input)?;
+    let selected = mask::select(&labels, &args.labels).map_err(recon_err)?;
+    pb.set_message(match args.method {
+        Method::Psr => "Poisson reconstruction",
+        Method::Mcsd => "marching cubes, decimation, smoothing",
+    });
+    let recon_start = Instant::now();
+    let (mesh, points, depth, candidates) = match args.method {
+        Method::Psr => {
+            let points = psr::points(&selected).map_err(recon_err)?;
+            match args.depth {
+                DepthArg::Fixed(d) => {
+                    let mesh = psr::surface(&points, d).map_err(recon_err)?;
+                    (mesh, Some(points), Some(d), Vec::new())
+                }
+                DepthArg::Auto => {
+                    let auto = study::auto_depth(&points, &[5, 6, 7, 8]).map_err(recon_err)?;
+                    (auto.mesh, Some(points), Some(auto.depth), auto.candidates)
+                }
+            }
+        }
+        Method::Mcsd => {
+            let p = McsdParams {
+                smoothing: args.smoothing,
+                decimation: args.decimation,
+            };
+            (
+                mcsd::reconstruct(&selected, &p).map_err(recon_err)?,
+                None,
+                None,
+                Vec::new(),
+            )
+        }
+    };
+    let reconstruct_ms = ms(recon_start);
+    pb.set_message("writing mesh");
+    write_mesh(&args.out, &mesh)?;
+    let time_ms = ms(start);
+    pb.set_message("measuring");
+    let points = match points {
+        Some(p) => p,
+        None => psr::points(&selected).map_err(recon_err)?,
+    };
+    if let Some(path) = &args.points_out {
+        write_mesh(path, &points_mesh(&points)?)?;
+    }
+    let quality = measure(&mesh, &points.positions).map_err(recon_err)?;
+    pb.finish_and_clear();
+    let summary = ReconstructSummary {
+        method: args.method,
+        labels: args.labels.clone(),
+        depth,
+        smoothing: (args.method == Method::Mcsd).then_some(args.smoothing),
+        decimation: (args.method == Method::Mcsd).then_some(args.decimation),
+        quality,
+        mask_ml: mask_ml(&selected),
+        samples: points.positions.len(),
+        time_ms,
+        reconstruct_ms,
+        depth_candidates: candidates,
+        out: args.out.clone(),
+    };
+    if args.json {
+        return print_json(&summary);
+    }
+    let q = &summary.quality;
+    println!(
+        "{}: {} triangles, {} vertices, mean {:.3} mm, p95 {:.3} mm, {:.2} ml (mask {:.2} ml), {}, {:.0} ms → {}",
+        match args.method {
+            Method::Psr => format!("PSR d={}", summary.depth.unwrap_or(0)),
+            Method::Mcsd => format!("MCSD s={} e={}", args.smoothing, args.decimation),
+        },
+        q.polys,
+        q.points,
+        q.mean_mm,
+        q.p95_mm,
+        q.volume_ml,
+        summary.mask_ml,
+        if q.watertight {
+            "watertight"
+        } else {
+            "NOT watertight"
+        },
+        summary.time_ms,
+        args.out.display()
+    );
+    Ok(())
+}
+
+#[derive(Debug, clap::Args)]
+pub struct MeasureArgs {
+    /// Mesh to measure (.vtp, .vtk, .stl, .ply, .obj), RAS.
+    pub mesh: PathBuf,
+    /// Label map whose oriented points are the reference.
+    #[arg(long)]
+    pub reference: PathBuf,
+    #[arg(long, value_delimiter = ',', required = true,
+          value_parser = clap::value_parser!(u16).range(1..))]
+    pub labels: Vec<u16>,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct MeasureSummary {
+    #[serde(flatten)]
+    quality: Quality,
+    mask_ml: Real,
+    samples: usize,
+}
+
+pub fn measure_mesh(args: &MeasureArgs) -> Result<(), CliError> {
+    if args.labels.is_empty() {
+        return Err(CliError::BadInput(
+            "--labels: give at least one label".into(),
+        ));
+    }
+    let mesh = read_mesh(&args.mesh)?;
+    let labels = read_labels(&args.reference)?;
+    let selected = mask::select(&labels, &args.labels).map_err(recon_err)?;
+    let points = psr::points(&selected).map_err(recon_err)?;
+    let quality = measure(&mesh, &points.positions).map_err(recon_err)?;
+    let summary = MeasureSummary {
+        quality,
+        mask_ml: mask_ml(&selected),
+        samples: points.positions.len(),
+    };
+    if args.json {
+        return print_json(&summary);
+    }
+    let q = &summary.quality;
+    println!(
+        "{} triangles, mean {:.3} mm, p95 {:.3} mm, max {:.3} mm, {:.2} ml (mask {:.2} ml), curvature {:.3e}, {}",
+        q.polys,
+        q.mean_mm,
+        q.p95_mm,
+        q.max_mm,
+        q.volume_ml,
+        summary.mask_ml,
+        q.curvature,
+        if q.watertight {
+            "watertight"
+        } else {
+            "NOT watertight"
+        }
+    );
+    Ok(())
+}
+
+#[derive(Debug, clap::Args)]
+pub struct ModelsArgs {
+    /// Label map.
+    pub input: PathBuf,
+    /// Role map as JSON, e.g. '{"parenchyma":[1],"tumor":[2],"portal":[3],"hepatic":[4]}'.
+    #[arg(long)]
+    pub roles: Option<String>,
+    /// Folder for the meshes (created if missing).
+    #[arg(long)]
+    pub out_dir: PathBuf,
+    /// PSR depth for the parenchyma.
+    #[arg(long, default_value_t = 7)]
+    pub depth: u32,
+    /// Mesh format (file extension).
+    #[arg(long, default_value = "vtp")]
+    pub format: String,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct ModelEntry {
+    name: String,
+    role: String,
+    method: &'static str,
+    voxels: usize,
+    polys: usize,
+    points: usize,
+    volume_ml: Real,
+    watertight: bool,
+    file: PathBuf,
+}
+
+#[derive(Debug, Serialize)]
+struct ModelsSummary {
+    models: Vec<ModelEntry>,
+    time_ms: Real,
+}
+
+pub fn models(args: &ModelsArgs) -> Result<(), CliError> {
+    let roles: RoleMap = match &args.roles {
+        Some(s) => {
+            serde_json::from_str(s).map_err(|e| CliError::BadInput(format!("--roles: {e}")))?
+        }
+        None => RoleMap::default(),
+    };
+    let pb = progress(args.json);
+    let start = Instant::now();
+    pb.set_message("reading label map");
+    let labels = read_labels(&args.input)?;
+    std::fs::create_dir_all(&args.out_dir)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
+    let mut built = |name: &str| pb.set_message(format!("built {name}"));
+    let models = patient_models(
+        &labels,
+        &roles,
+        args.depth,
+        &McsdParams::default(),
+        &mut built,
+    )
+    .map_err(recon_err)?;
+    let mut entries = Vec::new();
+    for m in &models {
+        let file = args.out_dir.join(format!("{}.{}", m.name(), args.format));
+        write_mesh(&file, &m.mesh)?;
+        let report = m.mesh.report();
+        entries.push(ModelEntry {
+            name: m.name(),
+            role: m.role.name().to_owned(),
+            method: m.method,
+            voxels: m.voxels,
+            polys: m.mesh.triangles().len(),
+            points: m.mesh.vertices().len(),
+            volume_ml: m.mesh.signed_volume() / 1000.0,
+            watertight: report.watertight,
+            file,
+        });
+    }
+    pb.finish_and_clear();
+    let summary = ModelsSummary {
+        models: entries,
+        time_ms: ms(start),
+    };
+    if args.json {
+        return print_json(&summary);
+    }
+    for e in &summary.models {
+        println!(
+            "{:<14} {:<5} {:>8} triangles {:>9.2} ml {} → {}",
+            e.name,
+            e.method,
+            e.polys,
+            e.volume_ml,
+            if e.watertight {
+                "watertight"
+            } else {
+                "NOT watertight"
+            },
+            e.file.display()
+        );
+    }
+    println!(
+        "{} models in {:.0} ms",
+        summary.models.len(),
+        summary.time_ms
+    );
+    Ok(())
+}
+
+#[derive(Debug, clap::Args)]
+pub struct EvaluateArgs {
+    /// Label map.
+    pub input: PathBuf,
+    #[arg(long, value_delimiter = ',', required = true,
+          value_parser = clap::value_parser!(u16).range(1..))]
+    pub labels: Vec<u16>,
+    /// Folder for study.md, study.json, pareto.png and pareto.svg.
+    #[arg(long)]
+    pub out_dir: PathBuf,
+    /// A reduced grid (PSR d 5–7; MCSD s ∈ {0, 45, 90} × e ∈ {0, 0.5}), for tests.
+    #[arg(long)]
+    pub quick: bool,
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct EvaluateSummary {
+    models: usize,
+    p_best: Option<String>,
+    c_best: Option<String>,
+    c_sim: Option<String>,
+    m_best: Option<String>,
+    files: Vec<PathBuf>,
+    time_ms: Real,
+}
+
+pub fn evaluate(args: &EvaluateArgs) -> Result<(), CliError> {
+    if args.labels.is_empty() {
+        return Err(CliError::BadInput(
+            "--labels: give at least one label".into(),
+        ));
+    }
+    let config = if args.quick {
+        StudyConfig::quick()
+    } else {
+        StudyConfig::default()
+    };
+    let start = Instant::now();
+    let labels = read_labels(&args.input)?;
+    let selected = mask::select(&labels, &args.labels).map_err(recon_err)?;
+    let bar = crate::output::counter(args.json, config.len() as u64, "models");
+    let mut tick = |name: &str| {
+        bar.set_message(name.to_owned());
+        bar.inc(1);
+    };
+    let run = study::run(&selected, &config, &mut tick).map_err(recon_err)?;
+    bar.finish_and_clear();
+    std::fs::create_dir_all(&args.out_dir)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
+    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, CliError> {
+        let p = args.out_dir.join(name);
+        std::fs::write(&p, bytes).map_err(|e| CliError::Failed(format!("{}: {e}", p.display())))?;
+        Ok(p)
+    };
+    let json =
+        serde_json::to_string_pretty(&run).map_err(|e| CliError::Failed(format!("JSON: {e}")))?;
+    let figure = resecta_plot::pareto_figure(&run.study);
+    let files = vec![
+        write("study.md", run.study.markdown().as_bytes())?,
+        write("study.json", json.as_bytes())?,
+        write(
+            "pareto.svg",
+            figure
+                .to_svg()
+                .map_err(|e| CliError::Failed(e.to_string()))?
+                .as_bytes(),
+        )?,
+        write(
+            "pareto.png",
+            &figure
+                .to_png()
+                .map_err(|e| CliError::Failed(e.to_string()))?,
+        )?,
+    ];
+    let name = |i: Option<usize>| run.study.model(i).map(|m| m.record.label.clone());
+    let summary = EvaluateSummary {
+        models: run.study.models.len(),
+        p_best: name(run.study.p_best),
+        c_best: name(run.study.c_best),
+        c_sim: name(run.study.c_sim),
+        m_best: name(Some(run.study.m_best)),
+        files,
+        time_ms: ms(start),
+    };
+    if args.json {
+        return print_json(&summary);
+    }
+    println!(
+        "{} models; best PSR {}, best MCSD {}, MCSD most similar in smoothness {}; wrote {}",
+        summary.models,
+        summary.p_best.as_deref().unwrap_or("-"),
+        summary.c_best.as_deref().unwrap_or("-"),
+        summary.c_sim.as_deref().unwrap_or("-"),
+        args.out_dir.display()
+    );
+    Ok(())
+}

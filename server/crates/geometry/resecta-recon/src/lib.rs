@@ -1,0 +1,51 @@
+//! Surface models from label maps (thesis ch. 6, Paper I).
+//!
+//! - [`psr`]: Poisson surface reconstruction from the mask's oriented points (parenchyma).
+//! - [`mcsd`]: marching cubes, decimation, windowed-sinc smoothing — 3D Slicer's method
+//!   (tumours, vessels, and the comparison).
+//! - [`models`]: the complete patient model of Fig. 6.9, one mesh per role and component.
+//! - [`quality`]: accuracy against the oriented points, polygons, volume, curvature.
+//! - [`study`]: the Paper I study (PSR depths × MCSD parameters, σ, Pareto front) and the
+//!   per-patient choice of depth.
+//!
+//! Everything is in RAS mm; masks may be oblique and anisotropic.
+
+pub mod mask;
+pub mod mcsd;
+pub mod models;
+pub mod psr;
+pub mod quality;
+pub mod study;
+
+pub use mcsd::McsdParams;
+pub use models::{PatientModel, patient_models};
+pub use psr::PsrModel;
+pub use quality::{Quality, measure};
+
+use resecta_geom::GeomError;
+
+/// What can go wrong building models. Messages name the offending quantity.
+#[derive(Debug, thiserror::Error)]
+pub enum ReconError {
+    #[error("no labels given")]
+    NoLabels,
+    #[error("label(s) {labels:?} do not occur in the label map")]
+    LabelsAbsent { labels: Vec<u16> },
+    #[error("the selected mask is empty")]
+    EmptyMask,
+    #[error("{name} {reason}")]
+    InvalidParameter {
+        name: &'static str,
+        reason: &'static str,
+    },
+    #[error("Poisson reconstruction: {0}")]
+    Poisson(#[from] resecta_poisson::PoissonError),
+    #[error("mesh filter: {0}")]
+    Filter(#[from] resecta_meshfilter::FilterError),
+    #[error("isosurface: {0}")]
+    Isosurface(#[from] resecta_isosurface::IsoError),
+    #[error("metrics: {0}")]
+    Metrics(#[from] resecta_meshmetrics::MetricsError),
+    #[error(transparent)]
+    Geometry(#[from] GeomError),
+}
