@@ -340,7 +340,8 @@ def arrays_polydata(v: np.ndarray, f: np.ndarray):
 
 def mesh_metrics(v: np.ndarray, f: np.ndarray, ref_points: np.ndarray | None = None) -> dict:
     """Python-side metrics: triangle count, enclosed volume (divergence theorem, ml), watertight
-    (every undirected edge in exactly two triangles, once in each direction), and when
+    (every undirected edge in exactly two triangles, once in each direction; counts of boundary
+    and non-manifold edges are returned too), and when
     ``ref_points`` is given the mean / p95 / max unsigned distance (mm) from them to the surface
     (exact point-to-triangle, VTK's static cell locator)."""
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
@@ -348,9 +349,10 @@ def mesh_metrics(v: np.ndarray, f: np.ndarray, ref_points: np.ndarray | None = N
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     directed = np.unique(e, axis=0)
     und, counts = np.unique(np.sort(e, axis=1), axis=0, return_counts=True)
-    watertight = bool(len(directed) == len(e) and np.all(counts == 2) and len(und) * 2 == len(e))
+    watertight = bool(len(directed) == len(e) and np.all(counts == 2))
     out = {"polys": int(len(f)), "points": int(len(v)), "volume_ml": volume_ml,
-           "watertight": watertight}  # fmt: skip
+           "watertight": watertight, "boundary_edges": int((counts == 1).sum()),
+           "nonmanifold_edges": int((counts > 2).sum())}  # fmt: skip
     if ref_points is not None:
         d = point_to_surface(v, f, ref_points)
         out.update(mean_mm=float(d.mean()), p95_mm=float(np.percentile(d, 95)),
