@@ -16,7 +16,6 @@ Run ``python anchors.py`` for the geometry self-check on an oblique sphere phant
 
 from __future__ import annotations
 
-import struct
 import time
 from pathlib import Path
 
@@ -249,11 +248,23 @@ def write_points_ply(path: str | Path, pos: np.ndarray, nrm: np.ndarray) -> None
 
 
 _PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "<i2", "int16": "<i2", "ushort": "<u2", "uint16": "<u2",
-    "int": "<i4", "int32": "<i4", "uint": "<u4", "uint32": "<u4",
-    "float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8",
-}  # fmt: skip
+    "char": "i1",
+    "int8": "i1",
+    "uchar": "u1",
+    "uint8": "u1",
+    "short": "<i2",
+    "int16": "<i2",
+    "ushort": "<u2",
+    "uint16": "<u2",
+    "int": "<i4",
+    "int32": "<i4",
+    "uint": "<u4",
+    "uint32": "<u4",
+    "float": "<f4",
+    "float32": "<f4",
+    "double": "<f8",
+    "float64": "<f8",
+}
 
 
 def read_points_ply(path: str | Path):
@@ -296,9 +307,12 @@ def read_mesh(path: str | Path):
     (only used for meshes this harness or resecta wrote, which are RAS)."""
     p = str(path)
     readers = {
-        ".ply": vtk.vtkPLYReader, ".vtp": vtk.vtkXMLPolyDataReader, ".vtk": vtk.vtkPolyDataReader,
-        ".stl": vtk.vtkSTLReader, ".obj": vtk.vtkOBJReader,
-    }  # fmt: skip
+        ".ply": vtk.vtkPLYReader,
+        ".vtp": vtk.vtkXMLPolyDataReader,
+        ".vtk": vtk.vtkPolyDataReader,
+        ".stl": vtk.vtkSTLReader,
+        ".obj": vtk.vtkOBJReader,
+    }
     r = readers[Path(p).suffix.lower()]()
     r.SetFileName(p)
     r.Update()
@@ -326,9 +340,10 @@ def arrays_polydata(v: np.ndarray, f: np.ndarray):
     offsets = np.arange(0, 3 * len(f) + 1, 3, dtype=np.int64)
     cells.SetData(
         numpy_to_vtk(offsets, deep=True, array_type=vtk.VTK_ID_TYPE),
-        numpy_to_vtk(np.ascontiguousarray(f, dtype=np.int64).ravel(), deep=True,
-                     array_type=vtk.VTK_ID_TYPE),
-    )  # fmt: skip
+        numpy_to_vtk(
+            np.ascontiguousarray(f, dtype=np.int64).ravel(), deep=True, array_type=vtk.VTK_ID_TYPE
+        ),
+    )
     poly = vtk.vtkPolyData()
     poly.SetPoints(pts)
     poly.SetPolys(cells)
@@ -350,13 +365,19 @@ def mesh_metrics(v: np.ndarray, f: np.ndarray, ref_points: np.ndarray | None = N
     directed = np.unique(e, axis=0)
     und, counts = np.unique(np.sort(e, axis=1), axis=0, return_counts=True)
     watertight = bool(len(directed) == len(e) and np.all(counts == 2))
-    out = {"polys": int(len(f)), "points": int(len(v)), "volume_ml": volume_ml,
-           "watertight": watertight, "boundary_edges": int((counts == 1).sum()),
-           "nonmanifold_edges": int((counts > 2).sum())}  # fmt: skip
+    out = {
+        "polys": int(len(f)),
+        "points": int(len(v)),
+        "volume_ml": volume_ml,
+        "watertight": watertight,
+        "boundary_edges": int((counts == 1).sum()),
+        "nonmanifold_edges": int((counts > 2).sum()),
+    }
     if ref_points is not None:
         d = point_to_surface(v, f, ref_points)
-        out.update(mean_mm=float(d.mean()), p95_mm=float(np.percentile(d, 95)),
-                   max_mm=float(d.max()))  # fmt: skip
+        out.update(
+            mean_mm=float(d.mean()), p95_mm=float(np.percentile(d, 95)), max_mm=float(d.max())
+        )
     return out
 
 
@@ -402,7 +423,13 @@ def _self_check() -> None:
     ijk = np.stack(np.meshgrid(*[np.arange(n) for n in dims], indexing="ij"), -1).reshape(-1, 3)
     ras = ijk @ affine[:3, :3].T + affine[:3, 3]
     mask = (np.linalg.norm(ras - centre, axis=1) <= radius).reshape(dims).astype(np.uint8) * 3
-    if mask.sum() < 1000 or mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+    if (
+        mask.sum() < 1000
+        or mask[0].any()
+        or mask[-1].any()
+        or mask[:, 0].any()
+        or mask[:, -1].any()
+    ):
         raise RuntimeError("self-check sphere touches the border")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "sphere.nii.gz"
@@ -417,8 +444,10 @@ def _self_check() -> None:
     m = mesh_metrics(v, f)
     exact = 4.0 / 3.0 * np.pi * radius**3 / 1000.0
     print(f"geometry Slicer vs nibabel: {geo:.2e} mm; convert {t['convert'] * 1e3:.1f} ms")
-    print(f"|r-R| mean {np.abs(r - radius).mean():.3f} max {np.abs(r - radius).max():.3f} mm; "
-          f"volume {m['volume_ml']:.3f} ml vs {exact:.3f}; watertight {m['watertight']}")  # fmt: skip
+    print(
+        f"|r-R| mean {np.abs(r - radius).mean():.3f} max {np.abs(r - radius).max():.3f} mm; "
+        f"volume {m['volume_ml']:.3f} ml vs {exact:.3f}; watertight {m['watertight']}"
+    )
     if np.abs(r - radius).mean() > 0.5 or np.abs(r - radius).max() > 1.5:
         raise RuntimeError("Slicer surface is not on the analytic sphere: wrong IJK→RAS?")
     if abs(m["volume_ml"] / exact - 1.0) > 0.02 or not m["watertight"]:

@@ -38,10 +38,13 @@ REPO = HERE.parents[2]
 SHARED = REPO.parent / "shared" / "test-data" / "liver"
 DEFAULT_INPUTS = [
     ("totalsegmentator-v1-liver", str(SHARED / "totalsegmentator-example/v1_liver.nii.gz"), "1"),
-    ("msd-hepaticvessel-002-liver-pred",
-     str(SHARED / "msd-task08-hepaticvessel/hepaticvessel_002_liver_pred.nii.gz"), "1"),
+    (
+        "msd-hepaticvessel-002-liver-pred",
+        str(SHARED / "msd-task08-hepaticvessel/hepaticvessel_002_liver_pred.nii.gz"),
+        "1",
+    ),
     ("phantom-demo-parenchyma", "phantom", "1"),
-]  # fmt: skip
+]
 METHODS = ["resecta-psr", "resecta-mcsd", "slicer", "open3d-poisson"]
 
 
@@ -68,8 +71,9 @@ class Resecta:
         r = subprocess.run([self.bin, *args], capture_output=True, text=True)
         wall = time.perf_counter() - t0
         if r.returncode != 0:
-            raise RuntimeError(f"resecta {' '.join(args[:2])} failed ({r.returncode}): "
-                               f"{r.stderr.strip()[-500:]}")  # fmt: skip
+            raise RuntimeError(
+                f"resecta {' '.join(args[:2])} failed ({r.returncode}): {r.stderr.strip()[-500:]}"
+            )
         return json.loads(r.stdout), wall
 
     def version(self) -> str:
@@ -124,8 +128,9 @@ def machine() -> dict:
 
 
 def git_commit() -> str:
-    r = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                       capture_output=True, text=True)  # fmt: skip
+    r = subprocess.run(
+        ["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    )
     return r.stdout.strip() or "unknown"
 
 
@@ -142,8 +147,9 @@ def measure(rs: Resecta, mesh: Path, inp: str, labels: str, ref_pts) -> dict:
     out = {"python": anchors.mesh_metrics(v, f, ref_pts)}
     if rs.measure_ok:
         try:
-            m, _ = rs.run_json(["measure", str(mesh), "--reference", inp, "--labels", labels,
-                                "--json"])  # fmt: skip
+            m, _ = rs.run_json(
+                ["measure", str(mesh), "--reference", inp, "--labels", labels, "--json"]
+            )
             out["resecta"] = m
         except (RuntimeError, json.JSONDecodeError) as e:
             out["resecta_error"] = str(e)
@@ -167,8 +173,9 @@ def bench_input(name, inp, labels, rs: Resecta, args, work: Path) -> dict:
     res["mask_volume_ml"] = anchors.mask_volume_ml(inp, label_list)
     res["geometry_check_mm"] = anchors.check_geometry(inp)
     del arr
-    log(f"== {name}: {inp} labels {labels}, dims {res['dims']}, "
-        f"mask {res['mask_volume_ml']:.2f} ml")  # fmt: skip
+    log(
+        f"== {name}: {inp} labels {labels}, dims {res['dims']}, mask {res['mask_volume_ml']:.2f} ml"
+    )
 
     points_ply = wd / "points.ply"
     meshes: dict[str, Path] = {}
@@ -176,16 +183,28 @@ def bench_input(name, inp, labels, rs: Resecta, args, work: Path) -> dict:
     # Ours (whole process, best of N).
     if rs.reconstruct:
         for method, extra in (
-            ("resecta-psr", ["--method", "psr", "--depth", str(args.depth),
-                             "--points-out", str(points_ply)]),
+            (
+                "resecta-psr",
+                ["--method", "psr", "--depth", str(args.depth), "--points-out", str(points_ply)],
+            ),
             ("resecta-mcsd", ["--method", "mcsd", "--smoothing", "0.5", "--decimation", "0"]),
-        ):  # fmt: skip
+        ):
             mesh = wd / f"{method}.vtp"
             runs = []
             try:
                 for _ in range(args.repeats):
-                    js, wall = rs.run_json(["reconstruct", inp, "--labels", labels, *extra,
-                                            "--out", str(mesh), "--json"])  # fmt: skip
+                    js, wall = rs.run_json(
+                        [
+                            "reconstruct",
+                            inp,
+                            "--labels",
+                            labels,
+                            *extra,
+                            "--out",
+                            str(mesh),
+                            "--json",
+                        ]
+                    )
                     runs.append({"process_s": wall, "cli_time_ms": js.get("time_ms"), "cli": js})
             except (RuntimeError, json.JSONDecodeError) as e:
                 res["methods"][method] = {"error": str(e)}
@@ -212,8 +231,10 @@ def bench_input(name, inp, labels, rs: Resecta, args, work: Path) -> dict:
     else:
         pos, nrm = anchors.gradient_points(inp, label_list)
         anchors.write_points_ply(points_ply, pos, nrm)
-        res["reference_points"] = ("TEST ONLY: Python central-difference gradient of the mask, "
-                                   "half-voxel outward shift (resecta --points-out unavailable)")  # fmt: skip
+        res["reference_points"] = (
+            "TEST ONLY: Python central-difference gradient of the mask, "
+            "half-voxel outward shift (resecta --points-out unavailable)"
+        )
     ref_pos, _ = anchors.read_points_ply(points_ply)
     res["reference_point_count"] = int(len(ref_pos))
 
@@ -224,27 +245,29 @@ def bench_input(name, inp, labels, rs: Resecta, args, work: Path) -> dict:
         mesh = wd / "slicer.ply"
         runs = []
         for k in range(args.repeats):
-            _, t = anchors.slicer_closed_surface(inp, label_list[0], 0.5, 0.0,
-                                                 out=mesh if k == 0 else None)  # fmt: skip
+            _, t = anchors.slicer_closed_surface(
+                inp, label_list[0], 0.5, 0.0, out=mesh if k == 0 else None
+            )
             runs.append(t)
         res["methods"]["slicer"] = {
             "time_s": best(runs, "convert"),
             "total_s": best(runs, "total"),
-            "timed_region": "convert: rule.Convert(segment); total: Slicer reader + set-up + convert",
+            "timed_region": "convert: rule.Convert(segment); total: reader + set-up + convert",
             "runs": runs,
             "parameters": anchors.SLICER_DEFAULTS,
         }
         meshes["slicer"] = mesh
-        log(f"  slicer: convert {best(runs, 'convert'):.3f} s, "
-            f"read+convert {best(runs, 'total'):.3f} s")  # fmt: skip
+        log(
+            f"  slicer: convert {best(runs, 'convert'):.3f} s, "
+            f"read+convert {best(runs, 'total'):.3f} s"
+        )
 
     # Open3D (Kazhdan's PoissonRecon inside) on the same oriented points.
     try:
         mesh = wd / "open3d-poisson.ply"
         runs = []
         for k in range(args.repeats):
-            _, t = anchors.open3d_poisson(points_ply, args.depth, 1.1,
-                                          out=mesh if k == 0 else None)  # fmt: skip
+            _, t = anchors.open3d_poisson(points_ply, args.depth, 1.1, out=mesh if k == 0 else None)
             runs.append(t)
         res["methods"]["open3d-poisson"] = {
             "time_s": best(runs, "convert"),
@@ -262,8 +285,10 @@ def bench_input(name, inp, labels, rs: Resecta, args, work: Path) -> dict:
         res["methods"][method]["mesh"] = str(mesh)
         res["methods"][method]["metrics"] = measure(rs, mesh, inp, labels, ref_pos)
         p = primary(res["methods"][method])
-        log(f"  {method}: {p.get('polys')} polys, mean {p.get('mean_mm', float('nan')):.3f} mm, "
-            f"{p.get('volume_ml', float('nan')):.2f} ml, watertight {p.get('watertight')}")  # fmt: skip
+        log(
+            f"  {method}: {p.get('polys')} polys, mean {p.get('mean_mm', float('nan')):.3f} mm, "
+            f"{p.get('volume_ml', float('nan')):.2f} ml, watertight {p.get('watertight')}"
+        )
     res["targets"] = targets(res)
     return res
 
@@ -286,26 +311,35 @@ def targets(res: dict) -> list[dict]:
 
     name = "PSR d=7 faster than Slicer's conversion, mean ≤ 1.0 mm, ≥ 4× fewer polygons"
     if psr and sl:
-        ok = (psr["time_s"] < sl["time_s"] and psr_m["mean_mm"] <= 1.0
-              and psr_m["polys"] * 4 <= sl_m["polys"])  # fmt: skip
-        detail = (f"PSR {psr['time_s']:.3f} s (process) vs Slicer {sl['time_s']:.3f} s convert-only "
-                  f"({sl['total_s']:.3f} s read+convert); mean {psr_m['mean_mm']:.3f} mm; "
-                  f"polygons {psr_m['polys']} vs {sl_m['polys']} "
-                  f"({sl_m['polys'] / max(psr_m['polys'], 1):.2f}× fewer)")  # fmt: skip
+        ok = (
+            psr["time_s"] < sl["time_s"]
+            and psr_m["mean_mm"] <= 1.0
+            and psr_m["polys"] * 4 <= sl_m["polys"]
+        )
+        detail = (
+            f"PSR {psr['time_s']:.3f} s (process) vs Slicer {sl['time_s']:.3f} s convert-only "
+            f"({sl['total_s']:.3f} s read+convert); mean {psr_m['mean_mm']:.3f} mm; "
+            f"polygons {psr_m['polys']} vs {sl_m['polys']} "
+            f"({sl_m['polys'] / max(psr_m['polys'], 1):.2f}× fewer)"
+        )
         out.append({"target": name, "met": ok, "detail": detail})
     else:
         out.append({"target": name, "met": None, "detail": "not run (resecta reconstruct absent)"})
 
-    name = ("MCSD ≥ 2× faster than Slicer at matching polygon count (±10 %) and accuracy "
-            "(mean within 10 % or 0.05 mm)")  # fmt: skip
+    name = (
+        "MCSD ≥ 2× faster than Slicer at matching polygon count (±10 %) and accuracy "
+        "(mean within 10 % or 0.05 mm)"
+    )
     if mcsd and sl:
         match_p = abs(mcsd_m["polys"] / sl_m["polys"] - 1.0) <= 0.10
         match_a = mcsd_m["mean_mm"] <= max(sl_m["mean_mm"] * 1.10, sl_m["mean_mm"] + 0.05)
         ok = mcsd["time_s"] * 2 <= sl["time_s"] and match_p and match_a
-        detail = (f"MCSD {mcsd['time_s']:.3f} s (process) vs Slicer {sl['time_s']:.3f} s "
-                  f"convert-only ({sl['time_s'] / mcsd['time_s']:.2f}×); polygons "
-                  f"{mcsd_m['polys']} vs {sl_m['polys']}; mean {mcsd_m['mean_mm']:.3f} vs "
-                  f"{sl_m['mean_mm']:.3f} mm")  # fmt: skip
+        detail = (
+            f"MCSD {mcsd['time_s']:.3f} s (process) vs Slicer {sl['time_s']:.3f} s "
+            f"convert-only ({sl['time_s'] / mcsd['time_s']:.2f}×); polygons "
+            f"{mcsd_m['polys']} vs {sl_m['polys']}; mean {mcsd_m['mean_mm']:.3f} vs "
+            f"{sl_m['mean_mm']:.3f} mm"
+        )
         out.append({"target": name, "met": ok, "detail": detail})
     else:
         out.append({"target": name, "met": None, "detail": "not run (resecta reconstruct absent)"})
@@ -313,9 +347,11 @@ def targets(res: dict) -> list[dict]:
     name = "PSR ≥ 2× faster than PoissonRecon (Open3D) at equal depth, mean within 10 %"
     if psr and o3:
         ok = psr["time_s"] * 2 <= o3["time_s"] and psr_m["mean_mm"] <= o3_m["mean_mm"] * 1.10
-        detail = (f"PSR {psr['time_s']:.3f} s (whole process) vs Open3D {o3['time_s']:.3f} s "
-                  f"solve-only ({o3['time_s'] / psr['time_s']:.2f}×); mean "
-                  f"{psr_m['mean_mm']:.3f} vs {o3_m['mean_mm']:.3f} mm")  # fmt: skip
+        detail = (
+            f"PSR {psr['time_s']:.3f} s (whole process) vs Open3D {o3['time_s']:.3f} s "
+            f"solve-only ({o3['time_s'] / psr['time_s']:.2f}×); mean "
+            f"{psr_m['mean_mm']:.3f} vs {o3_m['mean_mm']:.3f} mm"
+        )
         out.append({"target": name, "met": ok, "detail": detail})
     else:
         out.append({"target": name, "met": None, "detail": "not run (resecta reconstruct absent)"})
@@ -346,7 +382,8 @@ def write_markdown(path: Path, report: dict) -> None:
         "",
         "Timed regions: **resecta** = the whole `resecta reconstruct` process (read label map → "
         "write mesh); **Slicer** = `vtkBinaryLabelmapToClosedSurfaceConversionRule.Convert` only "
-        "(read+convert in brackets: Slicer's ITK reader + segmentation set-up + convert, in-process); "
+        "(read+convert in brackets: Slicer's ITK reader + segmentation set-up + convert, "
+        "in-process); "
         "**Open3D** = `create_from_point_cloud_poisson` only (read points + solve in brackets), "
         "on the oriented points our PSR writes. Metrics by `resecta measure` against those points "
         "(the Python cross-check where it is unavailable). Meshes are RAS.",
@@ -380,7 +417,10 @@ def write_markdown(path: Path, report: dict) -> None:
             wt = p.get("watertight")
             py = e["metrics"]["python"]
             if not py["watertight"]:
-                wt = f"{wt} ({py['boundary_edges']} boundary, {py['nonmanifold_edges']} non-manifold edges)"
+                wt = (
+                    f"{wt} ({py['boundary_edges']} boundary, "
+                    f"{py['nonmanifold_edges']} non-manifold edges)"
+                )
             lines.append(
                 f"| {method} | {t} | {p.get('polys')} | {fmt(p.get('mean_mm'), '.3f')} | "
                 f"{fmt(p.get('p95_mm'), '.3f')} | {fmt(p.get('max_mm'), '.3f')} | "
@@ -404,7 +444,7 @@ def plot(report: dict, stem: Path) -> None:
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5))
     inputs = report["inputs"]
     width = 0.8 / len(METHODS)
-    markers = dict(zip(METHODS, "o^sD"))
+    markers = dict(zip(METHODS, "o^sD", strict=True))
     for k, method in enumerate(METHODS):
         xs, ys = [], []
         for i, r in enumerate(inputs):
@@ -412,7 +452,8 @@ def plot(report: dict, stem: Path) -> None:
             if "time_s" in e:
                 xs.append(i + (k - (len(METHODS) - 1) / 2) * width)
                 ys.append(e["time_s"])
-        ax1.bar(xs, ys, width, label=method, color=f"C{k}")
+        if ys:
+            ax1.bar(xs, ys, width, label=method, color=f"C{k}")
     ax1.set_xticks(range(len(inputs)), [r["name"] for r in inputs], rotation=12, fontsize=8)
     ax1.set_ylabel("time (s), best of %d" % report["repeats"])
     ax1.set_yscale("log")
@@ -424,8 +465,13 @@ def plot(report: dict, stem: Path) -> None:
             e = r["methods"].get(method, {})
             p = primary(e) if "time_s" in e else {}
             if p.get("mean_mm") is not None:
-                ax2.scatter(p["polys"], p["mean_mm"], marker=markers[method],
-                            color=colors[i % len(colors)], s=50)  # fmt: skip
+                ax2.scatter(
+                    p["polys"],
+                    p["mean_mm"],
+                    marker=markers[method],
+                    color=colors[i % len(colors)],
+                    s=50,
+                )
     for method in METHODS:
         ax2.scatter([], [], marker=markers[method], color="gray", label=method)
     for i, r in enumerate(inputs):
@@ -446,10 +492,15 @@ def plot(report: dict, stem: Path) -> None:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--resecta", default=os.environ.get("RESECTA_BIN",
-                                                        str(REPO / "target/release/resecta")))  # fmt: skip
-    ap.add_argument("--input", action="append", metavar="NAME=PATH:LABELS",
-                    help="label map to run (repeatable); PATH 'phantom' = `resecta phantom` demo")  # fmt: skip
+    ap.add_argument(
+        "--resecta", default=os.environ.get("RESECTA_BIN", str(REPO / "target/release/resecta"))
+    )
+    ap.add_argument(
+        "--input",
+        action="append",
+        metavar="NAME=PATH:LABELS",
+        help="label map to run (repeatable); PATH 'phantom' = `resecta phantom` demo",
+    )
     ap.add_argument("--depth", type=int, default=7)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--work", default="/tmp/resecta-bench-recon", help="meshes and points")
@@ -457,8 +508,10 @@ def main() -> int:
     args = ap.parse_args()
 
     rs = Resecta(args.resecta)
-    log(f"resecta: {rs.bin} ({rs.version()}); reconstruct: {rs.reconstruct}, "
-        f"measure: {rs.measure_ok}")  # fmt: skip
+    log(
+        f"resecta: {rs.bin} ({rs.version()}); reconstruct: {rs.reconstruct}, "
+        f"measure: {rs.measure_ok}"
+    )
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     inputs = DEFAULT_INPUTS
