@@ -86,8 +86,10 @@ struct ReconstructSummary {
     samples: usize,
     /// File → mesh file: read, reconstruct, write (metrics excluded), ms.
     time_ms: Real,
-    /// Reconstruction alone, ms.
+    /// Reading the label map, the reconstruction alone, and writing the mesh, ms.
+    read_ms: Real,
     reconstruct_ms: Real,
+    write_ms: Real,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     depth_candidates: Vec<study::DepthCandidate>,
     out: PathBuf,
@@ -135,6 +137,7 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
     pb.set_message("reading label map");
     let labels = read_labels(&args.input)?;
     let selected = mask::select(&labels, &args.labels).map_err(recon_err)?;
+    let read_ms = ms(start);
     pb.set_message(match args.method {
         Method::Psr => "Poisson reconstruction",
         Method::Mcsd => "marching cubes, decimation, smoothing",
@@ -169,7 +172,9 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
     };
     let reconstruct_ms = ms(recon_start);
     pb.set_message("writing mesh");
+    let write_start = Instant::now();
     write_mesh(&args.out, &mesh)?;
+    let write_ms = ms(write_start);
     let time_ms = ms(start);
     pb.set_message("measuring");
     let points = match points {
@@ -191,7 +196,9 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
         mask_ml: mask_ml(&selected),
         samples: points.positions.len(),
         time_ms,
+        read_ms,
         reconstruct_ms,
+        write_ms,
         depth_candidates: candidates,
         out: args.out.clone(),
     };

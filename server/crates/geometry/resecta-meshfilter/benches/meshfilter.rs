@@ -5,31 +5,14 @@
 use std::hint::black_box;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use resecta_geom::{TriMesh, Vec3, primitives};
 use resecta_meshfilter::{DecimateParams, SincParams, decimate, windowed_sinc};
 
-/// Deterministic value in [-1, 1) from an integer (SplitMix64).
-fn hash_unit(i: u64) -> f64 {
-    let mut z = i.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-}
-
-fn noisy_sphere(subdivisions: u32, radius: f64, noise: f64) -> TriMesh {
-    let s = primitives::icosphere(Vec3::zeros(), radius, subdivisions).unwrap();
-    let v = s
-        .vertices()
-        .iter()
-        .enumerate()
-        .map(|(i, p)| p * (1.0 + noise * hash_unit(i as u64)))
-        .collect();
-    TriMesh::new(v, s.triangles().to_vec()).unwrap()
-}
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::noisy_sphere;
 
 fn bench(c: &mut Criterion) {
-    let mesh = noisy_sphere(7, 50.0, 0.01);
+    let mesh = noisy_sphere(7, 0.01);
     let mut g = c.benchmark_group("meshfilter_327k_triangles");
     g.sample_size(10);
     let sinc = SincParams::slicer(0.5);
@@ -41,7 +24,7 @@ fn bench(c: &mut Criterion) {
         b.iter(|| decimate(black_box(&mesh), &dec).unwrap())
     });
     g.finish();
-    let big = noisy_sphere(8, 50.0, 0.01);
+    let big = noisy_sphere(8, 0.01);
     let mut g = c.benchmark_group("meshfilter_1311k_triangles");
     g.sample_size(10);
     g.bench_function("decimate_0.5", |b| {

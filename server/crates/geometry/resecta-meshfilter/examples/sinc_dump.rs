@@ -10,13 +10,9 @@ use std::path::PathBuf;
 use resecta_geom::{TriMesh, Vec3, primitives};
 use resecta_meshfilter::{SincParams, SincWindow, windowed_sinc};
 
-fn hash_unit(i: u64) -> f64 {
-    let mut z = i.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-}
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::hash_unit;
 
 fn meshes() -> Vec<(&'static str, TriMesh)> {
     let sphere = primitives::icosphere(Vec3::new(3.0, -7.0, 11.0), 50.0, 5).unwrap();

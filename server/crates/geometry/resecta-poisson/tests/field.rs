@@ -38,10 +38,10 @@ fn radius_errors(f: &PoissonField) -> (Real, Real) {
 
 #[test]
 fn iso_surface_matches_the_sphere_at_depths_6_7_8() {
-    // Sphere r = 40 mm on 1 mm voxels; cells 1.38 / 0.69 / 0.34 mm. Measured mean |error|
-    // 0.06 / 0.09 / 0.14 mm and max 0.24 / 0.35 / 0.41 mm (signed mean within ±0.02 mm): the finer
-    // grid follows the voxel staircase more closely.
-    for (depth, mean_tol, max_tol) in [(6, 0.1, 0.4), (7, 0.12, 0.5), (8, 0.2, 0.55)] {
+    // Sphere r = 40 mm on 1 mm voxels; cells 1.38 / 0.69 / 0.34 mm. Measured (screening 4)
+    // mean |error| 0.06 / 0.11 / 0.21 mm and max 0.31 / 0.38 / 0.57 mm: the finer grid follows
+    // the voxel staircase more closely (screening 0.25 gave 0.06 / 0.09 / 0.14 mm).
+    for (depth, mean_tol, max_tol) in [(6, 0.1, 0.4), (7, 0.13, 0.5), (8, 0.25, 0.65)] {
         let (f, _) = field([1.0; 3], Mat3::identity(), depth);
         assert_eq!(f.dims, [(1 << depth) + 1; 3]);
         let (mean, max) = radius_errors(&f);
@@ -113,12 +113,13 @@ fn field_geometry_and_sign() {
     let o = 3 + f.dims[0] * (7 + f.dims[1] * 11);
     assert_eq!(f.value_at(p), Some(f.values[o]));
     assert!(f.value_at(f.origin - Vec3::repeat(0.01)).is_none());
-    // Larger inside; about +½ inside and −½ outside (the indicator jumps by 1).
+    // Larger inside; the indicator jumps by about 1, less where screening pulls the field to
+    // the samples' level on a coarse grid (0.71 at d = 5 with screening 4).
     let inside = f.value_at(centre()).unwrap();
     let outside = f.value_at(f.origin).unwrap();
     assert!(inside > f.iso && outside < f.iso);
     assert!(
-        (inside - outside - 1.0).abs() < 0.1,
+        (0.5..1.1).contains(&(inside - outside)),
         "jump {}",
         inside - outside
     );

@@ -116,29 +116,11 @@ pub fn components(mask: &Volume<bool>) -> Result<Vec<Volume<bool>>, ReconError> 
                 lo[a] = lo[a].min(c);
                 hi[a] = hi[a].max(c + 1);
             }
-            let mut visit = |n: usize| {
+            for n in face_neighbours(v, [nx, ny, nz]) {
                 if data[n] && label[n] == u32::MAX {
                     label[n] = id;
                     stack.push(n);
                 }
-            };
-            if i > 0 {
-                visit(v - 1);
-            }
-            if i + 1 < nx {
-                visit(v + 1);
-            }
-            if j > 0 {
-                visit(v - nx);
-            }
-            if j + 1 < ny {
-                visit(v + nx);
-            }
-            if k > 0 {
-                visit(v - nx * ny);
-            }
-            if k + 1 < nz {
-                visit(v + nx * ny);
             }
         }
         sizes.push((size, start, lo, hi));
@@ -229,34 +211,31 @@ pub fn fill_cavities(mask: &Volume<bool>) -> Result<Volume<bool>, ReconError> {
         }
     }
     while let Some(v) = stack.pop() {
-        let (i, j, k) = (v % nx, (v / nx) % ny, v / (nx * ny));
-        let mut visit = |n: usize| {
+        for n in face_neighbours(v, [nx, ny, nz]) {
             if !data[n] && !outside[n] {
                 outside[n] = true;
                 stack.push(n);
             }
-        };
-        if i > 0 {
-            visit(v - 1);
-        }
-        if i + 1 < nx {
-            visit(v + 1);
-        }
-        if j > 0 {
-            visit(v - nx);
-        }
-        if j + 1 < ny {
-            visit(v + nx);
-        }
-        if k > 0 {
-            visit(v - nx * ny);
-        }
-        if k + 1 < nz {
-            visit(v + nx * ny);
         }
     }
     Ok(Volume::from_vec(
         mask.grid().clone(),
         outside.into_par_iter().map(|o| !o).collect(),
     )?)
+}
+
+/// Offsets of the (up to six) face neighbours of voxel offset `v` in a volume of `dims`.
+fn face_neighbours(v: usize, [nx, ny, nz]: [usize; 3]) -> impl Iterator<Item = usize> {
+    let (i, j, k) = (v % nx, (v / nx) % ny, v / (nx * ny));
+    let plane = nx * ny;
+    [
+        (i > 0).then(|| v - 1),
+        (i + 1 < nx).then(|| v + 1),
+        (j > 0).then(|| v - nx),
+        (j + 1 < ny).then(|| v + nx),
+        (k > 0).then(|| v - plane),
+        (k + 1 < nz).then(|| v + plane),
+    ]
+    .into_iter()
+    .flatten()
 }

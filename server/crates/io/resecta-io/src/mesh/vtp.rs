@@ -665,7 +665,7 @@ impl Writer<'_> {
         let mut body = Vec::new();
         let mut sizes = Vec::with_capacity(blocks.len());
         for b in &blocks {
-            let mut enc = ZlibEncoder::new(Vec::new(), Compression::default());
+            let mut enc = ZlibEncoder::new(Vec::new(), Compression::fast());
             enc.write_all(b)?;
             let c = enc.finish()?;
             sizes.push(c.len());
