@@ -466,7 +466,7 @@ def plot(report: dict, stem: Path) -> None:
     ax1.set_xticks(range(len(inputs)), [r["name"] for r in inputs], rotation=12, fontsize=8)
     ax1.set_ylabel("time (s), best of %d" % report["repeats"])
     ax1.set_yscale("log")
-    ax1.set_title("Time per method (resecta: whole process; anchors: conversion only)", fontsize=9)
+    ax1.set_title("Time per method, mask → mesh in memory (best of 3)", fontsize=9)
     ax1.legend(fontsize=8)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, r in enumerate(inputs):
