@@ -1,0 +1,19 @@
+//! Resection planning (thesis ch. 7, Paper II): plans of Bézier resections, their initialisation
+//! from a tumour and an end point, edits with undo/redo and replay, live safety margins, slice
+//! projections and volumetry, and the `resecta-plan/1` file format.
+
+pub mod anatomy;
+pub mod error;
+pub mod history;
+pub mod init;
+pub mod plan;
+pub mod resection;
+pub mod surface;
+
+pub use anatomy::{Anatomy, Tumour};
+pub use error::PlanError;
+pub use history::{History, LogEntry};
+pub use init::{Initialisation, initialise, plane_from, slicing_plane};
+pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
+pub use resection::{Group, Resection, ResectionKind, Target};
+pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};

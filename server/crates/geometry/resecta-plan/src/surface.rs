@@ -1,0 +1,119 @@
+//! The resection surface sampled for display and analysis: points and unit normals on the
+//! resection's ru×rv grid by the multi-level evaluator (only what an edit invalidates is
+//! recomputed), the triangulated mesh, and slice projections (thesis Sec. 7.3.4).
+
+use resecta_bezier::{
+    ControlNet, MleEvaluator, Outputs, P3, Resolution, SurfaceGrid, eval_point, grid_triangles,
+};
+use resecta_geom::{Plane, Polyline, Real, TriMesh, Vec3, slice};
+use serde::{Deserialize, Serialize};
+
+use crate::error::PlanError;
+use crate::resection::Resection;
+
+/// A resection surface kept up to date across edits.
+#[derive(Debug)]
+pub struct LiveSurface {
+    evaluator: MleEvaluator<Real>,
+    grid: SurfaceGrid<Real>,
+}
+
+fn to_vec3(p: &P3<Real>) -> Vec3 {
+    Vec3::new(p[0], p[1], p[2])
+}
+
+impl LiveSurface {
+    /// Evaluates the resection's surface.
+    pub fn new(r: &Resection) -> Result<Self, PlanError> {
+        let res = Resolution::new(r.resolution[0], r.resolution[1])?;
+        let mut evaluator = MleEvaluator::new(r.net()?, res);
+        let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+        evaluator.evaluate_into(&mut grid)?;
+        Ok(Self { evaluator, grid })
+    }
+
+    /// Re-evaluates after an edit; reuses buffers and the basis tables when the grid size and
+    /// resolution are unchanged.
+    pub fn update(&mut self, r: &Resection) -> Result<(), PlanError> {
+        let res = Resolution::new(r.resolution[0], r.resolution[1])?;
+        if self.evaluator.net().dims() != (r.grid[0], r.grid[1]) {
+            self.evaluator.set_net(r.net()?);
+        } else {
+            self.evaluator.set_control_points(&r.control_points)?;
+        }
+        if self.evaluator.resolution() != res {
+            self.evaluator.set_resolution(res);
+            self.grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+        }
+        self.evaluator.evaluate_into(&mut self.grid)?;
+        Ok(())
+    }
+
+    /// [ru, rv].
+    pub fn resolution(&self) -> [usize; 2] {
+        let r = self.grid.resolution();
+        [r.ru(), r.rv()]
+    }
+    pub fn net(&self) -> &ControlNet<Real> {
+        self.evaluator.net()
+    }
+    /// Sample points, index `a·rv + b`.
+    pub fn points(&self) -> Vec<Vec3> {
+        self.grid.points().iter().map(to_vec3).collect()
+    }
+    /// Unit normals (∂S/∂u × ∂S/∂v direction), same indexing.
+    pub fn normals(&self) -> Vec<Vec3> {
+        self.grid
+            .normals()
+            .map(|n| n.iter().map(to_vec3).collect())
+            .unwrap_or_default()
+    }
+    /// Raw sample buffers (points, normals).
+    pub fn grid(&self) -> &SurfaceGrid<Real> {
+        &self.grid
+    }
+    /// The surface at any (u, v) ∈ [0, 1]².
+    pub fn point_at(&self, u: Real, v: Real) -> Vec3 {
+        to_vec3(&eval_point(self.evaluator.net(), u, v).point)
+    }
+
+    /// The triangulated surface with its normals.
+    pub fn mesh(&self) -> Result<TriMesh, PlanError> {
+        let [ru, rv] = self.resolution();
+        Ok(TriMesh::new(self.points(), grid_triangles(ru, rv))?.with_normals(self.normals())?)
+    }
+}
+
+/// Positions (RAS mm) of the axial (S), coronal (A) and sagittal (R) planes to intersect.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+pub struct SlicePositions {
+    pub axial: Option<Real>,
+    pub coronal: Option<Real>,
+    pub sagittal: Option<Real>,
+}
+
+/// The surface's intersections with the slice planes, as polylines in RAS.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SliceProjections {
+    pub axial: Vec<Polyline>,
+    pub coronal: Vec<Polyline>,
+    pub sagittal: Vec<Polyline>,
+}
+
+/// Intersects `mesh` with the requested axis planes.
+pub fn slice_projections(
+    mesh: &TriMesh,
+    at: &SlicePositions,
+) -> Result<SliceProjections, PlanError> {
+    let cut = |pos: Option<Real>, normal: Vec3| -> Result<Vec<Polyline>, PlanError> {
+        match pos {
+            None => Ok(Vec::new()),
+            Some(p) => Ok(slice(mesh, &Plane::new(normal * p, normal)?)),
+        }
+    };
+    Ok(SliceProjections {
+        axial: cut(at.axial, Vec3::z())?,
+        coronal: cut(at.coronal, Vec3::y())?,
+        sagittal: cut(at.sagittal, Vec3::x())?,
+    })
+}
