@@ -101,7 +101,7 @@ impl History {
             .truncate(self.applied / CHECKPOINT_EVERY + 1);
         self.events.push(event.clone());
         self.applied += 1;
-        if self.applied % CHECKPOINT_EVERY == 0 {
+        if self.applied.is_multiple_of(CHECKPOINT_EVERY) {
             self.checkpoints.push(next.clone());
         }
         self.current = next;
