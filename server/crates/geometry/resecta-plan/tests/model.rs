@@ -409,3 +409,32 @@ fn initialisation_refuses_degenerate_input() {
     assert!(initialise(&liver, &mid, [1, 4]).is_err());
     assert!(initialise(&liver, &mid, [4, 4]).is_ok());
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+    /// Mutated plan files: a typed error or a valid plan that round-trips; never a panic.
+    #[test]
+    fn mutated_plan_files_never_panic(
+        edits in prop::collection::vec((0usize..400, any::<u8>()), 1..6),
+        cut in 0usize..400,
+    ) {
+        let mut p = plan_with(planar("r1"));
+        p.apply(&PlanEvent::SetTarget {
+            name: "r1".into(),
+            target: resecta_plan::Target { labels: vec![2], points: vec![[1.0, 2.0, 3.0]] },
+        }).unwrap();
+        let mut bytes = p.to_json().unwrap().into_bytes();
+        for (at, b) in edits {
+            let k = at % bytes.len();
+            bytes[k] = b;
+        }
+        bytes.truncate(bytes.len().max(cut) - cut.min(bytes.len() / 2));
+        let Ok(text) = String::from_utf8(bytes) else { return Ok(()) };
+        if let Ok(plan) = Plan::from_json(&text) {
+            for r in &plan.resections {
+                prop_assert!(r.validate().is_ok());
+            }
+            prop_assert_eq!(Plan::from_json(&plan.to_json().unwrap()).unwrap(), plan);
+        }
+    }
+}
