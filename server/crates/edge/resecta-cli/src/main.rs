@@ -10,6 +10,7 @@ mod error;
 mod info;
 mod output;
 mod phantom;
+mod plan;
 mod recon;
 
 use std::process::ExitCode;
@@ -39,6 +40,8 @@ enum Command {
     Measure(recon::MeasureArgs),
     /// The Paper I study on one label map: PSR depths × MCSD parameters, tables and Pareto plot.
     Evaluate(recon::EvaluateArgs),
+    /// Evaluate a resection plan (margins, verdicts, volumes), or `plan init` a new one.
+    Plan(plan::PlanArgs),
     /// Bézier surfaces.
     #[command(subcommand)]
     Bezier(bezier::Command),
@@ -57,6 +60,7 @@ fn main() -> ExitCode {
         Command::Models(a) => recon::models(&a),
         Command::Measure(a) => recon::measure_mesh(&a),
         Command::Evaluate(a) => recon::evaluate(&a),
+        Command::Plan(a) => plan::run(&a),
         Command::Bezier(c) => bezier::run(&c),
         Command::Bench(c) => bench::run(&c),
     };

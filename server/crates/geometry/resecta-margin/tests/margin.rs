@@ -204,7 +204,7 @@ fn outside_the_liver_does_not_count() {
         all_min < min,
         "an outside vertex is nearer but must not count"
     );
-    assert!(margins.class.iter().any(|&c| c == MarginClass::Outside));
+    assert!(margins.class.contains(&MarginClass::Outside));
     assert!(!v.violation);
     // Nothing inside: no minimum.
     let none = vec![-1.0; pts.len()];
