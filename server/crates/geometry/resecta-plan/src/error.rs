@@ -38,7 +38,7 @@ pub enum PlanError {
     TumourOutsideLiver(u16),
     #[error("no tumour component contains or lies within 5 mm of the target point {0:?}")]
     NoTumourAtPoint([f64; 3]),
-    #[error("the end point coincides with the tumour centroid: the slicing plane is undefined")]
+    #[error("the end point is within 1 mm of the tumour centroid: the slicing plane is undefined")]
     EndPointAtCentroid,
     #[error("the slicing plane misses the liver")]
     PlaneMissesLiver,
@@ -48,6 +48,10 @@ pub enum PlanError {
     Recon(#[from] resecta_recon::ReconError),
     #[error("Bézier surface: {0}")]
     Bezier(#[from] resecta_bezier::BezierError),
+    #[error("margins: {0}")]
+    Margin(#[from] resecta_margin::MarginError),
+    #[error("volumetry: {0}")]
+    Volumetry(#[from] resecta_volumetry::VolumetryError),
     #[error("geometry: {0}")]
     Geometry(#[from] GeomError),
 }

@@ -11,12 +11,15 @@ use crate::resection::{MAX_COORDINATE_MM, arr, check_point};
 /// Contours shorter than this (mm) do not define a resection.
 const MIN_CONTOUR_MM: Real = 1.0;
 
+/// End points closer than this (mm) to the tumour centroid do not define a direction.
+pub const MIN_END_DISTANCE_MM: Real = 1.0;
+
 /// Eq. 7.5: the plane through (c + p_e)/2 with normal p_e − c.
 pub fn slicing_plane(tumour_centroid: Vec3, end_point: Vec3) -> Result<Plane, PlanError> {
     check_point(|| "end point".into(), arr(end_point))?;
     check_point(|| "tumour centroid".into(), arr(tumour_centroid))?;
     let n = end_point - tumour_centroid;
-    if n.norm() <= 1e-6 * (1.0 + end_point.norm()) {
+    if n.norm() < MIN_END_DISTANCE_MM {
         return Err(PlanError::EndPointAtCentroid);
     }
     Ok(Plane::new((tumour_centroid + end_point) / 2.0, n)?)

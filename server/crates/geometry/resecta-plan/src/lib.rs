@@ -3,6 +3,7 @@
 //! projections and volumetry, and the `resecta-plan/1` file format.
 
 pub mod anatomy;
+pub mod engine;
 pub mod error;
 pub mod history;
 pub mod init;
@@ -11,9 +12,14 @@ pub mod resection;
 pub mod surface;
 
 pub use anatomy::{Anatomy, Tumour};
+pub use engine::{
+    DEFAULT_FLR_THRESHOLD_PCT, Planner, ResectionState, ResectionVolume, TargetModel, VolumeReport,
+};
 pub use error::PlanError;
 pub use history::{History, LogEntry};
 pub use init::{Initialisation, initialise, plane_from, slicing_plane};
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
+pub use resecta_margin::{MarginClass, Verdict};
+pub use resecta_volumetry::IncompleteCut;
 pub use resection::{Group, Resection, ResectionKind, Target};
 pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};

@@ -1,0 +1,432 @@
+//! The planner: one patient's anatomy, a plan with its history, and for every resection the
+//! live surface with per-vertex margins, inside flags and the global verdict; volumetry on
+//! demand. This is the operation core the CLI and the server drive.
+
+use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use rayon::prelude::*;
+use resecta_bezier::ControlNet;
+use resecta_geom::{Plane, Real, TriMesh, Vec3, Volume};
+use resecta_margin::{
+    MarginClass, MarginField, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict,
+};
+use resecta_volumetry::{IncompleteCut, LiverVoxels, MultiCut, Volumetry, VolumetryError};
+use serde::Serialize;
+
+use crate::anatomy::Anatomy;
+use crate::error::PlanError;
+use crate::history::History;
+use crate::init::{Initialisation, initialise, slicing_plane};
+use crate::plan::{Plan, PlanEvent};
+use crate::resection::{Resection, Target, arr};
+use crate::surface::LiveSurface;
+
+/// Spacing (mm) of the margin field's nearest-triangle hints (coarser for huge regions).
+const HINT_SPACING_MM: Real = 2.0;
+
+fn hint_spacing(lo: Vec3, hi: Vec3) -> Real {
+    let cells = (hi - lo).iter().map(|e| e.max(1.0)).product::<Real>();
+    let max = (resecta_margin::MAX_NODES / 2) as Real;
+    HINT_SPACING_MM.max((cells / max).cbrt() * 1.01)
+}
+/// The hint region extends this far (mm) beyond the liver.
+const HINT_PAD_MM: Real = 20.0;
+/// Default future-liver-remnant warning threshold (% of the total functional liver).
+pub const DEFAULT_FLR_THRESHOLD_PCT: Real = 30.0;
+
+/// The target tumours of a resection, ready for margin queries.
+#[derive(Debug)]
+pub struct TargetModel {
+    /// Indices into [`Anatomy::tumours`].
+    pub tumours: Vec<usize>,
+    /// Centroid of every selected tumour: the resected side holds them.
+    pub centroids: Vec<Vec3>,
+    pub field: MarginField,
+}
+
+/// A resection's current surface and margin analysis.
+#[derive(Debug)]
+pub struct ResectionState {
+    pub surface: LiveSurface,
+    pub target: Arc<TargetModel>,
+    /// Inside level of the liver envelope per vertex (> 0 inside).
+    pub inside: Vec<Real>,
+    pub margins: SurfaceMargins,
+    pub verdict: Verdict,
+}
+
+impl ResectionState {
+    /// The surface mesh with `margin_mm` and `margin_class` scalars per vertex.
+    pub fn mesh(&self) -> Result<TriMesh, PlanError> {
+        let classes = self
+            .margins
+            .class
+            .iter()
+            .map(|&c| Real::from(c as u8))
+            .collect();
+        Ok(self
+            .surface
+            .mesh()?
+            .with_scalars("margin_mm", self.margins.distance.clone())?
+            .with_scalars("margin_class", classes)?)
+    }
+}
+
+struct Oracle<'a> {
+    surface: &'a LiveSurface,
+    anatomy: &'a Anatomy,
+}
+
+impl SurfaceOracle for Oracle<'_> {
+    fn point(&self, u: Real, v: Real) -> Vec3 {
+        self.surface.point_at(u, v)
+    }
+    fn inside(&self, p: &Vec3) -> Real {
+        self.anatomy.inside_level(p)
+    }
+}
+
+/// Volumes of a plan (ml and %).
+#[derive(Debug, Clone, Serialize)]
+pub struct VolumeReport {
+    pub total_ml: Real,
+    /// `None` when some resection does not cut through the liver completely.
+    pub remnant_ml: Option<Real>,
+    pub remnant_pct: Option<Real>,
+    pub resected_ml: Option<Real>,
+    pub flr_threshold_pct: Real,
+    /// Remnant below the threshold.
+    pub flr_warning: Option<bool>,
+    pub complete: bool,
+    pub resections: Vec<ResectionVolume>,
+}
+
+/// One resection's volume.
+#[derive(Debug, Clone, Serialize)]
+pub struct ResectionVolume {
+    pub name: String,
+    pub resected_ml: Option<Real>,
+    pub resected_pct: Option<Real>,
+    pub complete_cut: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub incomplete: Option<IncompleteCut>,
+}
+
+/// One patient's planning session (without the network).
+#[derive(Debug)]
+pub struct Planner {
+    anatomy: Arc<Anatomy>,
+    history: History,
+    states: BTreeMap<String, ResectionState>,
+    targets: BTreeMap<Vec<usize>, Arc<TargetModel>>,
+    volumetry: Option<Volumetry>,
+    hint_region: (Vec3, Vec3),
+    pub flr_threshold_pct: Real,
+}
+
+impl Planner {
+    /// A planner for `plan` (roles must match the anatomy's) on `anatomy`.
+    pub fn new(anatomy: Arc<Anatomy>, plan: Plan) -> Result<Self, PlanError> {
+        let (lo, hi) = anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
+        let pad = Vec3::repeat(HINT_PAD_MM);
+        let mut planner = Self {
+            anatomy,
+            history: History::new(plan),
+            states: BTreeMap::new(),
+            targets: BTreeMap::new(),
+            volumetry: None,
+            hint_region: (lo - pad, hi + pad),
+            flr_threshold_pct: DEFAULT_FLR_THRESHOLD_PCT,
+        };
+        planner.refresh_all()?;
+        Ok(planner)
+    }
+
+    /// Continues a persisted session: the base plan and its log.
+    pub fn resume(anatomy: Arc<Anatomy>, history: History) -> Result<Self, PlanError> {
+        let mut planner = Self::new(anatomy, history.base().clone())?;
+        planner.history = history;
+        planner.states.clear();
+        planner.refresh_all()?;
+        Ok(planner)
+    }
+
+    pub fn anatomy(&self) -> &Anatomy {
+        &self.anatomy
+    }
+    pub fn plan(&self) -> &Plan {
+        self.history.plan()
+    }
+    pub fn history(&self) -> &History {
+        &self.history
+    }
+    /// The live state of a resection.
+    pub fn state(&self, name: &str) -> Result<&ResectionState, PlanError> {
+        self.states
+            .get(name)
+            .ok_or_else(|| PlanError::UnknownResection(name.to_owned()))
+    }
+    /// Every resection's state, by name.
+    pub fn states(&self) -> &BTreeMap<String, ResectionState> {
+        &self.states
+    }
+
+    /// Computes the initial resection for a target and an end point (Algorithms 1–2) without
+    /// changing the plan.
+    pub fn initial_resection(
+        &mut self,
+        name: &str,
+        target: &Target,
+        end_point: Vec3,
+        grid: [usize; 2],
+    ) -> Result<(Resection, Initialisation), PlanError> {
+        let model = self.target_model(target)?;
+        let centroid = self
+            .anatomy
+            .centroid(&model.tumours)
+            .ok_or(PlanError::NoTumour)?;
+        self.initial_on_plane(name, target, &slicing_plane(centroid, end_point)?, grid)
+    }
+
+    /// The initial resection on a given plane (scripted use: a point and a normal).
+    pub fn initial_on_plane(
+        &mut self,
+        name: &str,
+        target: &Target,
+        plane: &Plane,
+        grid: [usize; 2],
+    ) -> Result<(Resection, Initialisation), PlanError> {
+        self.target_model(target)?;
+        let init = initialise(self.anatomy.parenchyma(), plane, grid)?;
+        let mut r = Resection::new(name, grid, init.control_points.clone());
+        r.target = target.clone();
+        r.validate()?;
+        Ok((r, init))
+    }
+
+    /// Applies an edit and updates the affected resection. On error nothing changes.
+    pub fn edit(&mut self, event: PlanEvent) -> Result<&Plan, PlanError> {
+        let name = event.resection_name().to_owned();
+        let mut trial = self.history.clone();
+        trial.edit(event)?;
+        self.commit(trial, &[name])
+    }
+
+    /// Takes back the last edit.
+    pub fn undo(&mut self) -> Result<&Plan, PlanError> {
+        let mut trial = self.history.clone();
+        trial.undo()?;
+        let names = self.changed_names(trial.plan());
+        self.commit(trial, &names)
+    }
+
+    /// Restores the last undone edit.
+    pub fn redo(&mut self) -> Result<&Plan, PlanError> {
+        let mut trial = self.history.clone();
+        trial.redo()?;
+        let names = self.changed_names(trial.plan());
+        self.commit(trial, &names)
+    }
+
+    fn changed_names(&self, next: &Plan) -> Vec<String> {
+        let now = self.history.plan();
+        let mut names: Vec<String> = next
+            .resections
+            .iter()
+            .filter(|r| now.resection(&r.name).ok() != Some(r))
+            .map(|r| r.name.clone())
+            .collect();
+        names.extend(
+            now.resections
+                .iter()
+                .filter(|r| next.resection(&r.name).is_err())
+                .map(|r| r.name.clone()),
+        );
+        names
+    }
+
+    /// Recomputes the named resections for `next`; installs `next` only if all succeed (on
+    /// failure the states are rebuilt for the unchanged plan).
+    fn commit(&mut self, next: History, names: &[String]) -> Result<&Plan, PlanError> {
+        let mut fresh = Vec::new();
+        for name in names {
+            let Ok(r) = next.plan().resection(name) else {
+                continue;
+            };
+            let prev = self.states.remove(name);
+            match self.compute(r, prev) {
+                Ok(s) => fresh.push((name.clone(), s)),
+                Err(e) => {
+                    self.refresh_all()?;
+                    return Err(e);
+                }
+            }
+        }
+        for name in names {
+            self.states.remove(name);
+        }
+        self.states.extend(fresh);
+        self.history = next;
+        Ok(self.history.plan())
+    }
+
+    fn refresh_all(&mut self) -> Result<(), PlanError> {
+        let plan = self.history.plan().clone();
+        let mut states = BTreeMap::new();
+        for r in &plan.resections {
+            let prev = self.states.remove(&r.name);
+            states.insert(r.name.clone(), self.compute(r, prev)?);
+        }
+        self.states = states;
+        Ok(())
+    }
+
+    fn target_model(&mut self, target: &Target) -> Result<Arc<TargetModel>, PlanError> {
+        let tumours = self.anatomy.select(target)?;
+        if let Some(m) = self.targets.get(&tumours) {
+            return Ok(Arc::clone(m));
+        }
+        let mesh = self.anatomy.tumour_mesh(&tumours)?;
+        let (lo, hi) = self.hint_region;
+        let field = MarginField::new(&mesh, lo, hi, hint_spacing(lo, hi))?;
+        let centroids = tumours
+            .iter()
+            .map(|&k| self.anatomy.tumours()[k].centroid)
+            .collect();
+        let model = Arc::new(TargetModel {
+            tumours: tumours.clone(),
+            centroids,
+            field,
+        });
+        self.targets.insert(tumours, Arc::clone(&model));
+        Ok(model)
+    }
+
+    /// Surface, inside levels, margins and verdict of one resection (reusing `prev`'s buffers).
+    fn compute(
+        &mut self,
+        r: &Resection,
+        prev: Option<ResectionState>,
+    ) -> Result<ResectionState, PlanError> {
+        let target = self.target_model(&r.target)?;
+        let surface = match prev {
+            Some(mut s) => {
+                s.surface.update(r)?;
+                s.surface
+            }
+            None => LiveSurface::new(r)?,
+        };
+        let points = surface.points();
+        let anatomy = &self.anatomy;
+        let inside: Vec<Real> = points.par_iter().map(|p| anatomy.inside_level(p)).collect();
+        let settings = MarginSettings {
+            margin_mm: r.margin_mm,
+            band_mm: r.band_mm,
+        };
+        let [ru, rv] = surface.resolution();
+        let oracle = Oracle {
+            surface: &surface,
+            anatomy,
+        };
+        let (margins, verdict) =
+            resecta_margin::evaluate(&target.field, ru, rv, &points, &inside, &settings, &oracle)
+                .map_err(|e| PlanError::resection(&r.name, format!("margins: {e}")))?;
+        Ok(ResectionState {
+            surface,
+            target,
+            inside,
+            margins,
+            verdict,
+        })
+    }
+
+    fn volumetry_engine(&mut self) -> Result<&mut Volumetry, PlanError> {
+        if self.volumetry.is_none() {
+            let liver = LiverVoxels::new(self.anatomy.functional())?;
+            self.volumetry = Some(Volumetry::new(liver));
+        }
+        self.volumetry.as_mut().ok_or(PlanError::EmptyLiver)
+    }
+
+    /// Runs `f` on the volumetry engine with every resection's net and tumour points.
+    fn run_cuts<T>(
+        &mut self,
+        f: impl FnOnce(&mut Volumetry, &[(&ControlNet<Real>, &[Vec3])]) -> Result<T, VolumetryError>,
+    ) -> Result<T, PlanError> {
+        let inputs: Vec<(ControlNet<Real>, Vec<Vec3>)> = self
+            .plan()
+            .resections
+            .iter()
+            .map(|r| Ok((r.net()?, self.state(&r.name)?.target.centroids.clone())))
+            .collect::<Result<_, PlanError>>()?;
+        let engine = self.volumetry_engine()?;
+        let cuts: Vec<(&ControlNet<Real>, &[Vec3])> =
+            inputs.iter().map(|(n, p)| (n, p.as_slice())).collect();
+        Ok(f(engine, &cuts)?)
+    }
+
+    /// Resected and remnant volumes of every resection and of the plan.
+    pub fn volumes(&mut self) -> Result<VolumeReport, PlanError> {
+        let names: Vec<String> = self
+            .plan()
+            .resections
+            .iter()
+            .map(|r| r.name.clone())
+            .collect();
+        let threshold = self.flr_threshold_pct;
+        let multi = self.run_cuts(|v, cuts| v.cuts(cuts))?;
+        Ok(volume_report(&names, &multi, threshold))
+    }
+
+    /// The resected regions as a label map on the liver grid: 0 outside the functional liver,
+    /// 1 remnant, 2 + i resected by resection i.
+    pub fn resected_labels(&mut self) -> Result<Volume<u8>, PlanError> {
+        self.run_cuts(|v, cuts| v.resected_labels(cuts))
+    }
+}
+
+fn ml(mm3: Real) -> Real {
+    mm3 / 1000.0
+}
+
+fn volume_report(names: &[String], multi: &MultiCut, threshold: Real) -> VolumeReport {
+    let total = multi.total_mm3;
+    let pct = |v: Real| if total > 0.0 { 100.0 * v / total } else { 0.0 };
+    let resections = names
+        .iter()
+        .zip(&multi.cuts)
+        .map(|(name, c)| ResectionVolume {
+            name: name.clone(),
+            resected_ml: c.complete.then(|| ml(c.resected_mm3)),
+            resected_pct: c.complete.then(|| pct(c.resected_mm3)),
+            complete_cut: c.complete,
+            incomplete: c.incomplete.clone(),
+        })
+        .collect();
+    let ok = multi.complete;
+    VolumeReport {
+        total_ml: ml(total),
+        remnant_ml: ok.then(|| ml(multi.remnant_mm3)),
+        remnant_pct: ok.then(|| pct(multi.remnant_mm3)),
+        resected_ml: ok.then(|| ml(multi.resected_mm3)),
+        flr_threshold_pct: threshold,
+        flr_warning: ok.then(|| pct(multi.remnant_mm3) < threshold),
+        complete: ok,
+        resections,
+    }
+}
+
+/// A point as `[x, y, z]` (for reports).
+pub fn point(p: &Vec3) -> [Real; 3] {
+    arr(*p)
+}
+
+/// Counts of vertices per class (outside, safe, warning, violation).
+pub fn class_counts(classes: &[MarginClass]) -> [usize; 4] {
+    let mut c = [0usize; 4];
+    for &k in classes {
+        c[k as usize] += 1;
+    }
+    c
+}

@@ -1,0 +1,331 @@
+//! The planner on an ellipsoid-liver phantom: analytic cap volumes, margins to a spherical
+//! tumour, incomplete cuts, undo/redo identity and bad input.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::f64::consts::PI;
+use std::sync::{Arc, OnceLock};
+
+use resecta_geom::{Real, Role, RoleMap, Vec3};
+use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
+use resecta_plan::{
+    Anatomy, Group, Plan, PlanError, PlanEvent, Planner, Resection, SlicePositions, Target,
+    slice_projections,
+};
+
+const RADII: [Real; 3] = [60.0, 45.0, 40.0];
+const TUMOUR: [Real; 3] = [25.0, 0.0, 0.0];
+const TUMOUR_R: Real = 10.0;
+
+fn spec() -> PhantomSpec {
+    PhantomSpec {
+        grid: GridSpec::centred(
+            [132, 100, 66],
+            [1.0, 1.0, 1.3],
+            [0.0, 0.0, 0.0],
+            Orientation::EulerDeg([4.0, -3.0, 7.0]),
+        ),
+        liver: vec![EllipsoidSpec {
+            center: [0.0, 0.0, 0.0],
+            radii: RADII,
+            rotation: Orientation::default(),
+        }],
+        tumors: vec![SphereSpec {
+            center: TUMOUR,
+            radius: TUMOUR_R,
+        }],
+        vessels: vec![],
+        roles: RoleMap::default(),
+        max_voxels: None,
+        truth_tolerance_mm: 0.05,
+    }
+}
+
+fn anatomy() -> Arc<Anatomy> {
+    static A: OnceLock<Arc<Anatomy>> = OnceLock::new();
+    A.get_or_init(|| {
+        let p = generate(&spec()).unwrap();
+        Arc::new(Anatomy::new(&p.labels, &spec().roles).unwrap())
+    })
+    .clone()
+}
+
+/// A planar 4×4 resection on x = `x0`, spanning `half` mm either side in y and z.
+fn plane_x(name: &str, x0: Real, half: Real) -> Resection {
+    let pts = (0..16)
+        .map(|k| {
+            let (i, j) = ((k / 4) as Real / 3.0, (k % 4) as Real / 3.0);
+            [x0, -half + 2.0 * half * i, -half + 2.0 * half * j]
+        })
+        .collect();
+    Resection::new(name, [4, 4], pts)
+}
+
+fn planner_with(r: Resection) -> Planner {
+    let mut plan = Plan::new(spec().roles);
+    plan.apply(&PlanEvent::AddResection { resection: r })
+        .unwrap();
+    Planner::new(anatomy(), plan).unwrap()
+}
+
+/// Volume of {x > x0} of the ellipsoid.
+fn cap(x0: Real) -> Real {
+    let [a, b, c] = RADII;
+    let h = x0 / a;
+    a * b * c * PI * (1.0 - h).powi(2) * (2.0 + h) / 3.0
+}
+
+#[test]
+fn planar_cut_resects_the_ellipsoidal_cap_without_the_tumour() {
+    let x0 = 2.0;
+    let mut p = planner_with(plane_x("r1", x0, 70.0));
+    let v = p.volumes().unwrap();
+    let r = &v.resections[0];
+    assert!(r.complete_cut, "{r:?}");
+    let truth = cap(x0) - 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
+    let got = r.resected_ml.unwrap() * 1000.0;
+    let err = (got - truth) / truth;
+    assert!(
+        err.abs() < 0.005,
+        "resected {got} vs {truth} ({:.3} %)",
+        err * 100.0
+    );
+    let total_truth =
+        4.0 / 3.0 * PI * RADII.iter().product::<Real>() - 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
+    assert!((v.total_ml * 1000.0 - total_truth).abs() < 0.005 * total_truth);
+    let remnant = v.remnant_ml.unwrap();
+    assert!((remnant + got / 1000.0 - v.total_ml).abs() < 1e-9);
+    assert!((v.remnant_pct.unwrap() - 100.0 * remnant / v.total_ml).abs() < 1e-9);
+    assert_eq!(v.flr_warning, Some(false));
+}
+
+#[test]
+fn margin_to_the_spherical_tumour_and_its_location() {
+    // Plane x = 2, tumour centre at x = 25, radius 10: the nearest point of the tumour is 13 mm
+    // away, at (2, 0, 0) on the surface. With a 15 mm margin the violating disc has radius
+    // √(25² − 23²). Tolerances cover the voxelised (1–1.3 mm) tumour model.
+    let mut r = plane_x("r1", 2.0, 70.0);
+    r.margin_mm = 15.0;
+    r.band_mm = 3.0;
+    r.resolution = [120, 120];
+    let p = planner_with(r);
+    let v = &p.state("r1").unwrap().verdict;
+    let min = v.min_margin_mm.unwrap();
+    assert!((min - 13.0).abs() < 0.4, "min margin {min}");
+    let at = v.point.unwrap();
+    assert!((at - Vec3::new(2.0, 0.0, 0.0)).norm() < 1.5, "{at:?}");
+    let [u, w] = v.uv.unwrap();
+    assert!((u - 0.5).abs() < 0.02 && (w - 0.5).abs() < 0.02, "{u} {w}");
+    assert!(v.violation);
+    let area = PI * (25.0f64.powi(2) - 23.0f64.powi(2));
+    assert!(
+        (v.violating_area_mm2 - area).abs() < 0.2 * area,
+        "{} vs {area}",
+        v.violating_area_mm2
+    );
+    // Warning band: distances in [15, 18) → disc radius √(28² − 23²) minus the violating disc.
+    let warn = PI * (28.0f64.powi(2) - 23.0f64.powi(2)) - area;
+    assert!(
+        (v.warning_area_mm2 - warn).abs() < 0.1 * warn,
+        "{}",
+        v.warning_area_mm2
+    );
+    // Inside area: the ellipse section of the liver at x = 2.
+    let [a, b, c] = RADII;
+    let section = PI * b * c * (1.0 - (2.0 / a).powi(2));
+    assert!(
+        (v.inside_area_mm2 - section).abs() < 0.02 * section,
+        "{}",
+        v.inside_area_mm2
+    );
+    let classes = &p.state("r1").unwrap().margins.class;
+    assert!(classes.iter().any(|&c| c as u8 == 0) && classes.iter().any(|&c| c as u8 == 3));
+}
+
+#[test]
+fn a_patch_whose_edge_is_inside_the_liver_is_an_incomplete_cut() {
+    let mut p = planner_with(plane_x("r1", 2.0, 20.0));
+    let v = p.volumes().unwrap();
+    assert!(!v.complete);
+    assert!(!v.resections[0].complete_cut);
+    assert_eq!(v.resections[0].resected_ml, None);
+    assert_eq!(v.remnant_ml, None);
+    // A surface beside the liver misses it altogether.
+    let mut q = planner_with(plane_x("r1", 80.0, 70.0));
+    assert!(!q.volumes().unwrap().resections[0].complete_cut);
+}
+
+#[test]
+fn two_resections_add_up_and_the_remnant_warning_fires() {
+    let mut plan = Plan::new(spec().roles);
+    plan.apply(&PlanEvent::AddResection {
+        resection: plane_x("a", 2.0, 70.0),
+    })
+    .unwrap();
+    // A second cut on the other side, targeting the same tumour (its side is the tumour's).
+    let mut b = plane_x("b", -30.0, 70.0);
+    b.target = Target::default();
+    plan.apply(&PlanEvent::AddResection { resection: b })
+        .unwrap();
+    let mut p = Planner::new(anatomy(), plan).unwrap();
+    let v = p.volumes().unwrap();
+    assert!(v.complete);
+    // Union = {x > −30} minus the tumour; remnant = {x < −30}.
+    let remnant_truth = 4.0 / 3.0 * PI * RADII.iter().product::<Real>() - cap(-30.0);
+    let got = v.remnant_ml.unwrap() * 1000.0;
+    assert!(
+        (got - remnant_truth).abs() < 0.005 * remnant_truth,
+        "{got} vs {remnant_truth}"
+    );
+    assert_eq!(v.flr_warning, Some(true));
+}
+
+#[test]
+fn undo_and_redo_reproduce_identical_surfaces_and_margins() {
+    let mut p = planner_with(plane_x("r1", 2.0, 70.0));
+    let snapshot = |p: &Planner| {
+        let s = p.state("r1").unwrap();
+        (
+            s.surface.points(),
+            s.margins.distance.clone(),
+            s.verdict.clone(),
+        )
+    };
+    let before = snapshot(&p);
+    p.edit(PlanEvent::MoveGroup {
+        name: "r1".into(),
+        group: Group::Inner,
+        delta: [6.0, 0.0, 0.0],
+    })
+    .unwrap();
+    let bent = snapshot(&p);
+    assert_ne!(bent.0, before.0);
+    // Bending towards the tumour reduces the margin.
+    assert!(bent.2.min_margin_mm.unwrap() < before.2.min_margin_mm.unwrap());
+    p.edit(PlanEvent::Rotate {
+        name: "r1".into(),
+        axis: [0.0, 0.0, 1.0],
+        angle_deg: 10.0,
+        centre: None,
+    })
+    .unwrap();
+    p.undo().unwrap();
+    assert_eq!(snapshot(&p), bent);
+    p.undo().unwrap();
+    assert_eq!(snapshot(&p), before);
+    p.redo().unwrap();
+    assert_eq!(snapshot(&p), bent);
+    // A failing edit changes nothing.
+    let e = p.edit(PlanEvent::SetControlPoint {
+        name: "r1".into(),
+        i: 1,
+        j: 1,
+        point: [f64::NAN, 0.0, 0.0],
+    });
+    assert!(e.is_err());
+    assert_eq!(snapshot(&p), bent);
+    // Replaying the log on a fresh planner gives the same state.
+    let replayed =
+        resecta_plan::History::replay(p.history().base().clone(), p.history().log()).unwrap();
+    let q = Planner::resume(anatomy(), replayed).unwrap();
+    assert_eq!(snapshot(&q), bent);
+}
+
+#[test]
+fn initial_resection_lies_between_tumour_and_end_point() {
+    let mut p = Planner::new(anatomy(), Plan::new(spec().roles)).unwrap();
+    let end = Vec3::new(-15.0, 0.0, 0.0);
+    let (r, init) = p
+        .initial_resection("r1", &Target::default(), end, [4, 4])
+        .unwrap();
+    // Plane x = 5 (midpoint of the tumour centroid x = 25 and x = −15): the liver section is
+    // an ellipse with semi-axes 45·√(1 − (5/60)²), 40·√(…); its perimeter-weighted variances
+    // make l_i = 4√e_i exceed the section's diameters.
+    let s = (1.0 - (5.0f64 / 60.0).powi(2)).sqrt();
+    assert!(
+        (init.plane_point[0] - 5.0).abs() < 0.2,
+        "{:?}",
+        init.plane_point
+    );
+    assert!(init.lengths[0] > 2.0 * 45.0 * s && init.lengths[1] > 2.0 * 40.0 * s);
+    assert!(init.lengths[0] < 3.0 * 45.0 * s);
+    for q in &r.control_points {
+        assert!((q[0] - init.plane_point[0]).abs() < 0.5, "{q:?}");
+    }
+    p.edit(PlanEvent::AddResection { resection: r }).unwrap();
+    let v = p.volumes().unwrap();
+    assert!(v.complete, "{v:?}");
+    let got = v.resections[0].resected_ml.unwrap() * 1000.0;
+    let x0 = init.plane_point[0];
+    let truth = cap(x0) - 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
+    assert!((got - truth).abs() < 0.01 * truth, "{got} vs {truth}");
+    // Bad input: end point at the centroid, or a plane beside the liver.
+    let c = p.anatomy().tumours()[0].centroid;
+    assert!(matches!(
+        p.initial_resection("r2", &Target::default(), c, [4, 4]),
+        Err(PlanError::EndPointAtCentroid)
+    ));
+    assert!(matches!(
+        p.initial_resection(
+            "r2",
+            &Target::default(),
+            c + Vec3::new(0.0, 0.0, 200.0),
+            [4, 4]
+        ),
+        Err(PlanError::PlaneMissesLiver)
+    ));
+}
+
+#[test]
+fn slice_projections_of_a_planar_resection_are_lines_on_both_planes() {
+    let p = planner_with(plane_x("r1", 2.0, 70.0));
+    let mesh = p.state("r1").unwrap().surface.mesh().unwrap();
+    let s = slice_projections(
+        &mesh,
+        &SlicePositions {
+            axial: Some(10.0),
+            coronal: Some(-5.0),
+            sagittal: Some(30.0),
+        },
+    )
+    .unwrap();
+    assert_eq!(s.axial.len(), 1);
+    assert_eq!(s.coronal.len(), 1);
+    assert!(s.sagittal.is_empty(), "the plane x = 2 never meets x = 30");
+    for q in &s.axial[0].points {
+        assert!((q.z - 10.0).abs() < 1e-9 && (q.x - 2.0).abs() < 1e-9);
+    }
+    let len: Real = s.coronal[0].length();
+    assert!((len - 140.0).abs() < 1e-6, "{len}");
+}
+
+#[test]
+fn bad_anatomy_and_targets_are_refused() {
+    let mut p = generate(&spec()).unwrap();
+    let roles = spec().roles;
+    let tumour = roles.labels(Role::Tumor)[0];
+    // A tumour blob away from the liver.
+    let dims = p.labels.grid().dims();
+    for k in 0..3 {
+        for j in 0..3 {
+            for i in 0..3 {
+                p.labels.set([i + 1, j + 1, k + 1], tumour);
+            }
+        }
+    }
+    assert!(dims[0] > 5);
+    assert!(matches!(
+        Anatomy::new(&p.labels, &roles),
+        Err(PlanError::TumourOutsideLiver(_))
+    ));
+    // A role map whose tumour label is absent.
+    let q = generate(&spec()).unwrap();
+    let mut json = serde_json::to_value(&roles).unwrap();
+    json["tumor"] = serde_json::json!([9]);
+    let absent: RoleMap = serde_json::from_value(json).unwrap();
+    let a = Arc::new(Anatomy::new(&q.labels, &absent).unwrap());
+    let mut planner = Planner::new(a, Plan::new(absent)).unwrap();
+    assert!(matches!(
+        planner.initial_resection("r", &Target::default(), Vec3::zeros(), [4, 4]),
+        Err(PlanError::LabelAbsent(9))
+    ));
+}
