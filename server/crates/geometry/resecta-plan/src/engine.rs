@@ -207,26 +207,24 @@ impl Planner {
 
     /// Applies an edit and updates the affected resection. On error nothing changes.
     pub fn edit(&mut self, event: PlanEvent) -> Result<&Plan, PlanError> {
-        let name = event.resection_name().to_owned();
-        let mut trial = self.history.clone();
-        trial.edit(event)?;
-        self.commit(trial, &[name])
+        let mut next = self.plan().clone();
+        next.apply(&event)?;
+        let names = [event.resection_name().to_owned()];
+        self.commit(&next, &names, |h| h.edit(event).map(|_| ()))
     }
 
     /// Takes back the last edit.
     pub fn undo(&mut self) -> Result<&Plan, PlanError> {
-        let mut trial = self.history.clone();
-        trial.undo()?;
-        let names = self.changed_names(trial.plan());
-        self.commit(trial, &names)
+        let next = self.history.undo_preview()?;
+        let names = self.changed_names(&next);
+        self.commit(&next, &names, |h| h.undo().map(|_| ()))
     }
 
     /// Restores the last undone edit.
     pub fn redo(&mut self) -> Result<&Plan, PlanError> {
-        let mut trial = self.history.clone();
-        trial.redo()?;
-        let names = self.changed_names(trial.plan());
-        self.commit(trial, &names)
+        let next = self.history.redo_preview()?;
+        let names = self.changed_names(&next);
+        self.commit(&next, &names, |h| h.redo().map(|_| ()))
     }
 
     fn changed_names(&self, next: &Plan) -> Vec<String> {
@@ -246,28 +244,40 @@ impl Planner {
         names
     }
 
-    /// Recomputes the named resections for `next`; installs `next` only if all succeed (on
-    /// failure the states are rebuilt for the unchanged plan).
-    fn commit(&mut self, next: History, names: &[String]) -> Result<&Plan, PlanError> {
+    /// Recomputes the named resections for `next`, then records the step in the history; on
+    /// any failure the plan is unchanged (the states are rebuilt for it).
+    fn commit(
+        &mut self,
+        next: &Plan,
+        names: &[String],
+        record: impl FnOnce(&mut History) -> Result<(), PlanError>,
+    ) -> Result<&Plan, PlanError> {
         let mut fresh = Vec::new();
+        let mut outcome = Ok(());
         for name in names {
-            let Ok(r) = next.plan().resection(name) else {
+            let Ok(r) = next.resection(name) else {
                 continue;
             };
             let prev = self.states.remove(name);
             match self.compute(r, prev) {
                 Ok(s) => fresh.push((name.clone(), s)),
                 Err(e) => {
-                    self.refresh_all()?;
-                    return Err(e);
+                    outcome = Err(e);
+                    break;
                 }
             }
+        }
+        if outcome.is_ok() {
+            outcome = record(&mut self.history);
+        }
+        if let Err(e) = outcome {
+            self.refresh_all()?;
+            return Err(e);
         }
         for name in names {
             self.states.remove(name);
         }
         self.states.extend(fresh);
-        self.history = next;
         Ok(self.history.plan())
     }
 

@@ -109,6 +109,25 @@ impl History {
         Ok(&self.current)
     }
 
+    /// The plan an [`Self::undo`] would give, without changing anything.
+    pub fn undo_preview(&self) -> Result<Plan, PlanError> {
+        if self.applied == 0 {
+            return Err(PlanError::NothingToUndo);
+        }
+        self.state(self.applied - 1)
+    }
+
+    /// The plan a [`Self::redo`] would give, without changing anything.
+    pub fn redo_preview(&self) -> Result<Plan, PlanError> {
+        let event = self
+            .events
+            .get(self.applied)
+            .ok_or(PlanError::NothingToRedo)?;
+        let mut next = self.current.clone();
+        next.apply(event)?;
+        Ok(next)
+    }
+
     /// Takes back the last edit in effect.
     pub fn undo(&mut self) -> Result<&Plan, PlanError> {
         if self.applied == 0 {
