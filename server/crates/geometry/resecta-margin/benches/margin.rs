@@ -1,5 +1,6 @@
-//! Distances from resection-surface samples to a ~20 k-triangle tumour: the hint field against
-//! plain BVH queries, the whole evaluation (margins + classes + verdict), and set-up.
+//! Distances from resection-surface samples (5–80 mm away) to tumours of 1.3–20 k triangles:
+//! hinted batch queries against plain BVH queries, and the whole evaluation (margins + classes
+//! + verdict).
 #![allow(clippy::unwrap_used)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -32,13 +33,16 @@ fn surface() -> Surf {
 }
 
 fn bench(c: &mut Criterion) {
-    let tumour = icosphere(Vec3::new(20.0, 5.0, 0.0), 15.0, 5).unwrap(); // 20 480 triangles
-    let (lo, hi) = (Vec3::repeat(-100.0), Vec3::repeat(100.0));
-    c.bench_function("setup_200mm_cube_2mm", |b| {
-        b.iter(|| MarginField::new(&tumour, lo, hi, 2.0).unwrap())
-    });
-    let field = MarginField::new(&tumour, lo, hi, 2.0).unwrap();
-    let bvh = MeshBvh::new(&tumour).unwrap();
+    // Tumours of 1 280, 5 120 and 20 480 triangles (radius 15 mm).
+    for level in [3u32, 4, 5] {
+        let tumour = icosphere(Vec3::new(20.0, 5.0, 0.0), 15.0, level).unwrap();
+        run(c, &tumour, &format!("{}tri", tumour.triangles().len()));
+    }
+}
+
+fn run(c: &mut Criterion, tumour: &resecta_geom::TriMesh, tag: &str) {
+    let field = MarginField::new(tumour).unwrap();
+    let bvh = MeshBvh::new(tumour).unwrap();
     let surf = surface();
     for res in [40usize, 200] {
         let mut e = MleEvaluator::new(surf.0.clone(), Resolution::new(res, res).unwrap());
@@ -50,17 +54,17 @@ fn bench(c: &mut Criterion) {
             .collect();
         let inside: Vec<Real> = pts.iter().map(|p| surf.inside(p)).collect();
         let mut out = vec![field.nearest(&pts[0]); pts.len()];
-        c.bench_function(&format!("field_nearest_{res}x{res}"), |b| {
+        c.bench_function(&format!("field_nearest_{res}x{res}_{tag}"), |b| {
             b.iter(|| field.nearest_into(&pts, &mut out).unwrap())
         });
-        c.bench_function(&format!("bvh_closest_{res}x{res}"), |b| {
+        c.bench_function(&format!("bvh_closest_{res}x{res}_{tag}"), |b| {
             b.iter(|| bvh.closest_points(&pts))
         });
         let s = MarginSettings {
             margin_mm: 10.0,
             band_mm: 5.0,
         };
-        c.bench_function(&format!("evaluate_{res}x{res}"), |b| {
+        c.bench_function(&format!("evaluate_{res}x{res}_{tag}"), |b| {
             b.iter(|| evaluate(&field, res, res, &pts, &inside, &s, &surf).unwrap())
         });
     }

@@ -8,12 +8,6 @@ use thiserror::Error;
 pub enum MarginError {
     #[error("the tumour mesh has no triangles")]
     EmptyMesh,
-    #[error("hint spacing must be finite and > 0 mm, got {0}")]
-    Spacing(f64),
-    #[error("region {min:?}..{max:?} must be finite with min ≤ max")]
-    Region { min: [f64; 3], max: [f64; 3] },
-    #[error("the hint grid would exceed {max} nodes: use a coarser spacing or a smaller region")]
-    TooManyNodes { max: usize },
     #[error("{what} has {got} values, expected {expected}")]
     Length {
         what: &'static str,

@@ -1,23 +1,18 @@
-//! Exact nearest-point queries to the tumour surface, fast because every query starts with a
-//! tight upper bound.
+//! Exact nearest-point queries to the tumour surface: a BVH search, started in a batch with
+//! the exact distance to the previous point's nearest triangle as its bound (neighbouring
+//! surface samples are close, so the bound is tight). Results equal a brute-force search over
+//! all triangles.
 //!
-//! A BVH search for the closest triangle visits every node whose box lies within the best
-//! distance found so far; far from a convex tumour many triangles lie within a small slack of
-//! the true distance, so an unbounded search is slow. At set-up a grid of nodes over the region
-//! of interest stores each node's nearest triangle (computed row by row, each node bounded by
-//! its predecessor's triangle). A query takes the exact distance to the hint triangles of its
-//! cell's 8 corners (and of the previous query in a batch) as the bound — typically within a
-//! few hundredths of a millimetre of the answer — and the bounded BVH search then returns the
-//! exact closest point. Results equal a brute-force search over all triangles.
+//! The cost of an exact query grows with the number of triangles lying within a small slack of
+//! the answer (a far point sees a wide cap of a convex tumour at almost the same distance), so
+//! it is proportional to the tumour model's tessellation: the planner uses MCSD models
+//! decimated as Paper I recommends (see docs/planning.md).
 
 use rayon::prelude::*;
 use resecta_geom::bvh::closest_point_on_triangle;
 use resecta_geom::{MeshBvh, Real, TriMesh, Vec3};
 
 use crate::error::MarginError;
-
-/// Most hint nodes (≈ 8 M: 32 MB of hints).
-pub const MAX_NODES: usize = 8 << 20;
 
 /// The nearest point of the tumour surface to a query point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -42,82 +37,20 @@ impl Nearest {
 pub struct MarginField {
     bvh: MeshBvh,
     corners: Vec<[Vec3; 3]>,
-    origin: Vec3,
-    spacing: Real,
-    dims: [usize; 3],
-    hints: Vec<u32>,
 }
 
 impl MarginField {
-    /// Builds the BVH and the hint grid over the box `region_min..region_max` at `spacing_mm`.
-    pub fn new(
-        tumours: &TriMesh,
-        region_min: Vec3,
-        region_max: Vec3,
-        spacing_mm: Real,
-    ) -> Result<Self, MarginError> {
+    /// Builds the BVH of the tumour mesh.
+    pub fn new(tumours: &TriMesh) -> Result<Self, MarginError> {
         if tumours.triangles().is_empty() {
             return Err(MarginError::EmptyMesh);
         }
-        if !(spacing_mm.is_finite() && spacing_mm > 0.0) {
-            return Err(MarginError::Spacing(spacing_mm));
-        }
-        let finite = region_min
-            .iter()
-            .chain(region_max.iter())
-            .all(|c| c.is_finite());
-        if !finite || (0..3).any(|a| region_max[a] < region_min[a]) {
-            return Err(MarginError::Region {
-                min: region_min.into(),
-                max: region_max.into(),
-            });
-        }
-        let mut dims = [0usize; 3];
-        let mut nodes: u128 = 1;
-        for a in 0..3 {
-            let cells = ((region_max[a] - region_min[a]) / spacing_mm).ceil();
-            if cells > MAX_NODES as Real {
-                return Err(MarginError::TooManyNodes { max: MAX_NODES });
-            }
-            dims[a] = cells as usize + 2;
-            nodes *= dims[a] as u128;
-        }
-        if nodes > MAX_NODES as u128 {
-            return Err(MarginError::TooManyNodes { max: MAX_NODES });
-        }
-        let bvh = MeshBvh::new(tumours)?;
-        let corners: Vec<[Vec3; 3]> = (0..tumours.triangles().len())
-            .map(|t| tumours.corners(t))
-            .collect();
-        let mut field = Self {
-            bvh,
-            corners,
-            origin: region_min,
-            spacing: spacing_mm,
-            dims,
-            hints: Vec::new(),
-        };
-        let [nx, ny, nz] = dims;
-        let rows: Vec<Vec<u32>> = (0..ny * nz)
-            .into_par_iter()
-            .map(|row| {
-                let (j, k) = (row % ny, row / ny);
-                let mut out = Vec::with_capacity(nx);
-                let mut prev = Nearest::NONE;
-                for i in 0..nx {
-                    let p = field.node(i, j, k);
-                    prev = field.bounded(&p, field.bound(&p, &[prev.triangle]));
-                    out.push(prev.triangle);
-                }
-                out
-            })
-            .collect();
-        field.hints = rows.concat();
-        Ok(field)
-    }
-
-    fn node(&self, i: usize, j: usize, k: usize) -> Vec3 {
-        self.origin + Vec3::new(i as Real, j as Real, k as Real) * self.spacing
+        Ok(Self {
+            bvh: MeshBvh::new(tumours)?,
+            corners: (0..tumours.triangles().len())
+                .map(|t| tumours.corners(t))
+                .collect(),
+        })
     }
 
     /// Exact distance to the best of the given triangles (an upper bound on the answer).
@@ -160,45 +93,16 @@ impl MarginField {
         }
     }
 
-    /// Hint triangles of the cell holding `p` (empty outside the region).
-    fn cell_hints(&self, p: &Vec3, out: &mut Vec<u32>) {
-        out.clear();
-        let g = (p - self.origin) / self.spacing;
-        let [nx, ny, nz] = self.dims;
-        let inside = (0..3).all(|a| g[a] >= 0.0 && g[a] <= (self.dims[a] - 1) as Real);
-        if !inside {
-            return;
-        }
-        let base = [0, 1, 2].map(|a| (g[a].floor() as usize).min(self.dims[a] - 2));
-        for c in 0..8 {
-            let (i, j, k) = (
-                base[0] + (c & 1),
-                base[1] + ((c >> 1) & 1),
-                base[2] + (c >> 2),
-            );
-            if i < nx && j < ny && k < nz {
-                let h = self.hints[i + nx * (j + ny * k)];
-                if !out.contains(&h) {
-                    out.push(h);
-                }
-            }
-        }
-    }
-
-    fn query(&self, p: &Vec3, extra: u32, scratch: &mut Vec<u32>) -> Nearest {
+    fn query(&self, p: &Vec3, hint: u32) -> Nearest {
         if !p.iter().all(|c| c.is_finite()) {
             return Nearest::NONE;
         }
-        self.cell_hints(p, scratch);
-        if extra != u32::MAX && !scratch.contains(&extra) {
-            scratch.push(extra);
-        }
-        self.bounded(p, self.bound(p, scratch))
+        self.bounded(p, self.bound(p, &[hint]))
     }
 
     /// The exact nearest point of the tumour surface to `p` (distance ∞ for a non-finite `p`).
     pub fn nearest(&self, p: &Vec3) -> Nearest {
-        self.query(p, u32::MAX, &mut Vec::with_capacity(9))
+        self.query(p, u32::MAX)
     }
 
     /// [`Self::nearest`] for many points, in parallel chunks; within a chunk each point also
@@ -216,20 +120,15 @@ impl MarginField {
             .par_chunks(CHUNK)
             .zip(out.par_chunks_mut(CHUNK))
             .for_each(|(ps, os)| {
-                let mut scratch = Vec::with_capacity(9);
                 let mut prev = u32::MAX;
                 for (p, o) in ps.iter().zip(os.iter_mut()) {
-                    *o = self.query(p, prev, &mut scratch);
+                    *o = self.query(p, prev);
                     prev = o.triangle;
                 }
             });
         Ok(())
     }
 
-    /// Hint grid nodes per axis.
-    pub fn dims(&self) -> [usize; 3] {
-        self.dims
-    }
     /// Triangles of the tumour mesh.
     pub fn triangles(&self) -> usize {
         self.corners.len()

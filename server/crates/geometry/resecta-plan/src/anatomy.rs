@@ -9,6 +9,15 @@ use resecta_recon::{McsdParams, mask, mcsd};
 use crate::error::PlanError;
 use crate::resection::Target;
 
+/// Tumour models for margins: MCSD with 3D Slicer's smoothing and 80 % decimation (Paper I's
+/// study puts decimated MCSD on the accuracy/polygon Pareto front). An exact margin query costs in
+/// proportion to the triangles near the answer, so 5× fewer triangles make the live path ~5×
+/// faster while the model stays within a fraction of a voxel of the undecimated one.
+pub const TUMOUR_MODEL: McsdParams = McsdParams {
+    smoothing: 0.5,
+    decimation: 0.8,
+};
+
 /// A target point picks the tumour component containing it or the nearest within this (mm).
 pub const TARGET_POINT_SNAP_MM: Real = 5.0;
 
@@ -20,7 +29,7 @@ pub struct Tumour {
     pub centroid: Vec3,
     pub voxels: usize,
     pub volume_mm3: Real,
-    /// Surface model (MCSD with 3D Slicer's default smoothing), RAS.
+    /// Surface model ([`TUMOUR_MODEL`]), RAS.
     pub mesh: TriMesh,
     /// Voxel centres (RAS), for target-point picking.
     centres: Vec<Vec3>,
@@ -271,7 +280,7 @@ fn tumour(
     }
     let voxels = centres.len();
     let centroid = centres.iter().sum::<Vec3>() / voxels.max(1) as Real;
-    let mesh = mcsd::reconstruct(comp, &McsdParams::default())?;
+    let mesh = mcsd::reconstruct(comp, &TUMOUR_MODEL)?;
     Ok(Tumour {
         label,
         centroid,

@@ -22,16 +22,6 @@ use crate::plan::{Plan, PlanEvent};
 use crate::resection::{Resection, Target, arr};
 use crate::surface::LiveSurface;
 
-/// Spacing (mm) of the margin field's nearest-triangle hints (coarser for huge regions).
-const HINT_SPACING_MM: Real = 2.0;
-
-fn hint_spacing(lo: Vec3, hi: Vec3) -> Real {
-    let cells = (hi - lo).iter().map(|e| e.max(1.0)).product::<Real>();
-    let max = (resecta_margin::MAX_NODES / 2) as Real;
-    HINT_SPACING_MM.max((cells / max).cbrt() * 1.01)
-}
-/// The hint region extends this far (mm) beyond the liver.
-const HINT_PAD_MM: Real = 20.0;
 /// Default future-liver-remnant warning threshold (% of the total functional liver).
 pub const DEFAULT_FLR_THRESHOLD_PCT: Real = 30.0;
 
@@ -121,22 +111,19 @@ pub struct Planner {
     states: BTreeMap<String, ResectionState>,
     targets: BTreeMap<Vec<usize>, Arc<TargetModel>>,
     volumetry: Option<Volumetry>,
-    hint_region: (Vec3, Vec3),
     pub flr_threshold_pct: Real,
 }
 
 impl Planner {
     /// A planner for `plan` (roles must match the anatomy's) on `anatomy`.
     pub fn new(anatomy: Arc<Anatomy>, plan: Plan) -> Result<Self, PlanError> {
-        let (lo, hi) = anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
-        let pad = Vec3::repeat(HINT_PAD_MM);
+        anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
         let mut planner = Self {
             anatomy,
             history: History::new(plan),
             states: BTreeMap::new(),
             targets: BTreeMap::new(),
             volumetry: None,
-            hint_region: (lo - pad, hi + pad),
             flr_threshold_pct: DEFAULT_FLR_THRESHOLD_PCT,
         };
         planner.refresh_all()?;
@@ -298,8 +285,7 @@ impl Planner {
             return Ok(Arc::clone(m));
         }
         let mesh = self.anatomy.tumour_mesh(&tumours)?;
-        let (lo, hi) = self.hint_region;
-        let field = MarginField::new(&mesh, lo, hi, hint_spacing(lo, hi))?;
+        let field = MarginField::new(&mesh)?;
         let centroids = tumours
             .iter()
             .map(|&k| self.anatomy.tumours()[k].centroid)
