@@ -9,5 +9,5 @@ pub mod field;
 pub mod verdict;
 
 pub use error::MarginError;
-pub use field::{MarginField, Nearest};
+pub use field::{MarginField, Nearest, TOLERANCE_MM};
 pub use verdict::{MarginClass, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict, evaluate};

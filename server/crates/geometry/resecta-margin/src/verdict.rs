@@ -109,17 +109,19 @@ pub fn evaluate(
             });
         }
     }
-    let mut nearest = vec![
-        Nearest {
-            distance: 0.0,
-            point: Vec3::zeros(),
-            triangle: 0
-        };
-        n
-    ];
-    field.nearest_into(points, &mut nearest)?;
-    let distance: Vec<Real> = nearest.iter().map(|q| q.distance).collect();
+    let mut nearest = vec![field.nearest(&Vec3::from_element(Real::NAN)); n];
+    field.nearest_grid_into(rv, points, &mut nearest)?;
     let (m, w) = (settings.margin_mm, settings.margin_mm + settings.band_mm);
+    // Exact answers where a class boundary lies between a distance and its lower bound.
+    let uncertain: Vec<usize> = (0..n)
+        .filter(|&k| {
+            [m, w]
+                .iter()
+                .any(|&t| nearest[k].lower < t && t <= nearest[k].distance)
+        })
+        .collect();
+    field.make_exact(points, &mut nearest, &uncertain);
+    let distance: Vec<Real> = nearest.iter().map(|q| q.distance).collect();
     let class = distance
         .iter()
         .zip(inside)
@@ -144,7 +146,8 @@ pub fn evaluate(
             (k / rv) as Real / (ru - 1) as Real,
             (k % rv) as Real / (rv - 1) as Real,
         ];
-        let (uv, p, d) = refine(field, oracle, start, distance[k], points[k], [ru, rv]);
+        let (uv, p, q) = refine(field, oracle, start, nearest[k], points[k], [ru, rv]);
+        let d = field.exact_from(&p, q).distance;
         verdict.min_margin_mm = Some(d);
         verdict.point = Some(p);
         verdict.uv = Some(uv);
@@ -159,18 +162,21 @@ fn refine(
     field: &MarginField,
     oracle: &dyn SurfaceOracle,
     start: [Real; 2],
-    d0: Real,
+    q0: Nearest,
     p0: Vec3,
     [ru, rv]: [usize; 2],
-) -> ([Real; 2], Vec3, Real) {
-    let f = |uv: [Real; 2]| -> (Real, Vec3) {
+) -> ([Real; 2], Vec3, Nearest) {
+    let hint = q0.triangle;
+    let eval = |uv: [Real; 2]| -> (Nearest, Vec3) {
         let p = oracle.point(uv[0], uv[1]);
         if oracle.inside(&p) > 0.0 {
-            (field.nearest(&p).distance, p)
+            (field.nearest_hinted(&p, hint), p)
         } else {
-            (Real::INFINITY, p)
+            (field.nearest(&Vec3::from_element(Real::NAN)), p)
         }
     };
+    let mut best_q = q0;
+    let d0 = q0.distance;
     let clamp = |x: Real| x.clamp(0.0, 1.0);
     let (mut best, mut best_p, mut best_d) = (start, p0, d0);
     let mut h = [1.0 / (ru - 1) as Real, 1.0 / (rv - 1) as Real];
@@ -184,14 +190,15 @@ fn refine(
                     clamp(c[0] + (a as Real - 1.0) * h[0]),
                     clamp(c[1] + (b as Real - 1.0) * h[1]),
                 ];
-                let (d, p) = if a == 1 && b == 1 {
-                    (best_d, best_p)
+                let (q, p) = if a == 1 && b == 1 {
+                    (best_q, best_p)
                 } else {
-                    f(uv)
+                    eval(uv)
                 };
+                let d = q.distance;
                 *val = d;
-                if d < best_d && moved.as_ref().is_none_or(|&(md, _, _)| d < md) {
-                    moved = Some((d, uv, p));
+                if d < best_d && moved.as_ref().is_none_or(|&(md, _, _, _)| d < md) {
+                    moved = Some((d, uv, p, q));
                 }
             }
         }
@@ -207,18 +214,19 @@ fn refine(
                 let su = (-(hvv * gu - huv * gv) / det).clamp(-1.0, 1.0);
                 let sv = (-(huu * gv - huv * gu) / det).clamp(-1.0, 1.0);
                 let uv = [clamp(c[0] + su * h[0]), clamp(c[1] + sv * h[1])];
-                let (d, p) = f(uv);
-                if d < best_d && moved.as_ref().is_none_or(|&(md, _, _)| d < md) {
-                    moved = Some((d, uv, p));
+                let (q, p) = eval(uv);
+                let d = q.distance;
+                if d < best_d && moved.as_ref().is_none_or(|&(md, _, _, _)| d < md) {
+                    moved = Some((d, uv, p, q));
                 }
             }
         }
-        if let Some((d, uv, p)) = moved {
-            (best, best_p, best_d) = (uv, p, d);
+        if let Some((d, uv, p, q)) = moved {
+            (best, best_p, best_d, best_q) = (uv, p, d, q);
         }
         h = [h[0] / 4.0, h[1] / 4.0];
     }
-    (best, best_p, best_d)
+    (best, best_p, best_q)
 }
 
 /// A polygon vertex with the three linear fields clipped against: inside, d − margin,

@@ -10,7 +10,7 @@ use resecta_geom::bvh::closest_point_on_triangle;
 use resecta_geom::primitives::{ellipsoid, icosphere, inscribed_radius};
 use resecta_geom::{Mat3, Real, TriMesh, Vec3};
 use resecta_margin::{
-    MarginClass, MarginError, MarginField, MarginSettings, SurfaceOracle, evaluate,
+    MarginClass, MarginError, MarginField, MarginSettings, SurfaceOracle, TOLERANCE_MM, evaluate,
 };
 
 fn brute(mesh: &TriMesh, p: &Vec3) -> Real {
@@ -53,9 +53,35 @@ proptest! {
         field.nearest_into(&points, &mut out).unwrap();
         for (p, q) in points.iter().zip(&out) {
             let want = brute(mesh, p);
-            prop_assert!((q.distance - want).abs() <= 1e-9, "{p:?}: {} vs {want}", q.distance);
+            // Batch answers: within the tolerance above exact, with a true lower bound.
+            prop_assert!(q.distance >= want - 1e-9 && q.distance <= want + TOLERANCE_MM + 1e-9,
+                "{p:?}: {} vs {want}", q.distance);
+            prop_assert!(q.lower <= want + 1e-9 && q.lower >= q.distance - TOLERANCE_MM - 1e-9);
             prop_assert!(((p - q.point).norm() - q.distance).abs() < 1e-9);
-            prop_assert_eq!(field.nearest(p).distance, q.distance);
+            // Single answers are exact.
+            prop_assert!((field.nearest(p).distance - want).abs() <= 1e-9);
+            prop_assert!((field.exact_from(p, *q).distance - want).abs() <= 1e-9);
+        }
+    }
+
+    /// Coherent batches (samples along a curve, as on a resection surface) take the fast path.
+    #[test]
+    fn coherent_batches_are_within_tolerance(
+        which in 0usize..3,
+        start in prop::array::uniform3(-60.0..60.0f64),
+        step in prop::array::uniform3(-1.5..1.5f64),
+    ) {
+        let mesh = &meshes()[which];
+        let field = MarginField::new(mesh).unwrap();
+        let points: Vec<Vec3> = (0..80)
+            .map(|k| Vec3::from(start) + Vec3::from(step) * k as Real + Vec3::new(0.0, (k as Real * 0.2).sin() * 5.0, 0.0))
+            .collect();
+        let mut out = vec![field.nearest(&Vec3::zeros()); points.len()];
+        field.nearest_into(&points, &mut out).unwrap();
+        for (p, q) in points.iter().zip(&out) {
+            let want = brute(mesh, p);
+            prop_assert!(q.distance >= want - 1e-9 && q.distance <= want + TOLERANCE_MM + 1e-9);
+            prop_assert!(q.lower <= want + 1e-9);
         }
     }
 }
