@@ -66,7 +66,7 @@ impl SupportMap {
     const RES: usize = 96;
 
     fn corner(face: usize, s: Real, t: Real) -> Vec3 {
-        let (axis, sign) = (face / 2, if face % 2 == 0 { 1.0 } else { -1.0 });
+        let (axis, sign) = (face / 2, if face.is_multiple_of(2) { 1.0 } else { -1.0 });
         let mut c = Vec3::zeros();
         c[axis] = sign;
         c[(axis + 1) % 3] = s;
@@ -99,7 +99,7 @@ impl SupportMap {
     fn bound(&self, n: &Vec3) -> Real {
         let axis = n.iamax();
         let major = n[axis].abs();
-        if !(major > 0.0) {
+        if major.is_nan() || major <= 0.0 {
             return Real::INFINITY;
         }
         let face = 2 * axis + usize::from(n[axis] < 0.0);
