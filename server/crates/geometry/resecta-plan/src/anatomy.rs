@@ -9,14 +9,35 @@ use resecta_recon::{McsdParams, mask, mcsd};
 use crate::error::PlanError;
 use crate::resection::Target;
 
-/// Tumour models for margins: MCSD with 3D Slicer's smoothing and 80 % decimation (Paper I's
-/// study puts decimated MCSD on the accuracy/polygon Pareto front). An exact margin query costs in
-/// proportion to the triangles near the answer, so 5× fewer triangles make the live path ~5×
-/// faster while the model stays within a fraction of a voxel of the undecimated one.
-pub const TUMOUR_MODEL: McsdParams = McsdParams {
-    smoothing: 0.5,
-    decimation: 0.8,
-};
+/// Tumour models for margins: MCSD with 3D Slicer's smoothing; models of more than this many
+/// triangles are decimated down towards it (at most 80 %, Paper I's Pareto front), because an
+/// exact margin query costs in proportion to the triangles near the answer. A decimated model is
+/// kept only if it stays watertight and within 1 % of the undecimated model's volume (QEM can
+/// collapse small coarse meshes).
+pub const TUMOUR_MODEL_TRIANGLES: usize = 4000;
+
+/// The tumour's surface model (see [`TUMOUR_MODEL_TRIANGLES`]).
+pub fn tumour_model(mask: &Volume<bool>) -> Result<TriMesh, PlanError> {
+    let full = mcsd::reconstruct(mask, &McsdParams::default())?;
+    let n = full.triangles().len();
+    if n <= TUMOUR_MODEL_TRIANGLES {
+        return Ok(full);
+    }
+    let decimation = (1.0 - TUMOUR_MODEL_TRIANGLES as Real / n as Real).min(0.8);
+    let reduced = mcsd::reconstruct(
+        mask,
+        &McsdParams {
+            smoothing: 0.5,
+            decimation,
+        },
+    )?;
+    let (v0, v1) = (full.enclosed_volume(), reduced.enclosed_volume());
+    if reduced.report().watertight && (v1 - v0).abs() <= 0.01 * v0.abs() {
+        Ok(reduced)
+    } else {
+        Ok(full)
+    }
+}
 
 /// A target point picks the tumour component containing it or the nearest within this (mm).
 pub const TARGET_POINT_SNAP_MM: Real = 5.0;
@@ -29,7 +50,7 @@ pub struct Tumour {
     pub centroid: Vec3,
     pub voxels: usize,
     pub volume_mm3: Real,
-    /// Surface model ([`TUMOUR_MODEL`]), RAS.
+    /// Surface model ([`tumour_model`]), RAS.
     pub mesh: TriMesh,
     /// Voxel centres (RAS), for target-point picking.
     centres: Vec<Vec3>,
@@ -280,7 +301,7 @@ fn tumour(
     }
     let voxels = centres.len();
     let centroid = centres.iter().sum::<Vec3>() / voxels.max(1) as Real;
-    let mesh = mcsd::reconstruct(comp, &TUMOUR_MODEL)?;
+    let mesh = tumour_model(comp)?;
     Ok(Tumour {
         label,
         centroid,

@@ -331,3 +331,23 @@ fn bad_anatomy_and_targets_are_refused() {
         Err(PlanError::LabelAbsent(9))
     ));
 }
+
+#[test]
+fn tumour_models_keep_their_volume_also_when_small_and_coarse() {
+    // The small phantom: an 8 mm tumour on 2×2×3 mm voxels (QEM at 80 % would collapse it).
+    let s = PhantomSpec::small();
+    let p = generate(&s).unwrap();
+    let a = Anatomy::new(&p.labels, &s.roles).unwrap();
+    let t = &a.tumours()[0];
+    let v = t.mesh.enclosed_volume();
+    assert!(t.mesh.report().watertight);
+    assert!(
+        (v - t.volume_mm3).abs() < 0.25 * t.volume_mm3,
+        "{v} vs {}",
+        t.volume_mm3
+    );
+    // The large tumour of the test phantom: ≤ the model budget or decimated without losing volume.
+    let big = &anatomy().tumours()[0];
+    let ball = 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
+    assert!((big.mesh.enclosed_volume() - ball).abs() < 0.05 * ball);
+}
