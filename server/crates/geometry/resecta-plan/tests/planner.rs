@@ -347,7 +347,8 @@ fn tumour_models_keep_their_volume_also_when_small_and_coarse() {
         t.volume_mm3
     );
     // The large tumour of the test phantom: ≤ the model budget or decimated without losing volume.
-    let big = &anatomy().tumours()[0];
+    let whole = anatomy();
+    let big = &whole.tumours()[0];
     let ball = 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
     assert!((big.mesh.enclosed_volume() - ball).abs() < 0.05 * ball);
 }
