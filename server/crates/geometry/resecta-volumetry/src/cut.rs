@@ -2,8 +2,9 @@
 //!
 //! 1. The surface is sampled with spacing δ ≤ the smallest voxel spacing (points and unit
 //!    normals), estimated from the control polygon's lengths.
-//! 2. **Band**: every liver voxel whose centre lies within `r = w_max/2 + δ` of a sample (w_max:
-//!    the voxel's largest extent along any direction) keeps its nearest sample. Its signed offset
+//! 2. **Band**: every liver voxel in a sample's slab-disc (within `hs` of its tangent plane, hs
+//!    above half the voxel's largest extent w_max and above its longest edge, and within 0.75 δ of
+//!    it laterally) keeps its nearest such sample. Its signed offset
 //!    `s = σ·n·(c − S)` from that sample's tangent plane (σ orients the tumour side negative)
 //!    gives the voxel's fraction on the tumour side, `f = clamp(½ − s/w(n), 0, 1)` with
 //!    `w(n) = |n·a| + |n·b| + |n·c|` the voxel's extent along n — exact when the plane is
@@ -262,8 +263,13 @@ impl Volumetry {
         })
     }
 
-    /// Marks the band: per liver voxel within r of a sample, the nearest sample's offset and
-    /// extent. Returns the band voxels with their tumour-side fractions.
+    /// Marks the band: every liver voxel in a sample's slab-disc — within `hs` of its tangent
+    /// plane and `ρ` of it laterally — keeps the nearest such sample's offset and extent.
+    /// Returns the band voxels with their tumour-side fractions.
+    ///
+    /// `hs` exceeds both half the largest voxel extent (so two face neighbours never lie outside
+    /// the band on opposite sides: the barrier is watertight) and the longest voxel edge (so a
+    /// band voxel's non-band neighbours lie on its own side: the side flags are right).
     fn splat(&mut self, s: &Samples, sigma: Real) -> Vec<(u32, f32)> {
         self.epoch = self.epoch.wrapping_add(1);
         if self.epoch == 0 {
@@ -275,39 +281,57 @@ impl Volumetry {
         let lin = l.grid().linear();
         let edges = [0, 1, 2].map(|a| lin.column(a).into_owned());
         let w_max = edges.iter().map(|e| e.norm()).sum::<Real>();
-        let r = w_max / 2.0 + s.delta;
-        let r2 = r * r;
-        // Index-space half-extent of a world ball of radius r.
-        let half = [0, 1, 2].map(|a| (r * l.to_index.row(a).norm()).ceil() as i64);
+        let a_max = edges.iter().map(|e| e.norm()).fold(0.0, Real::max);
+        let min_sp = l
+            .grid()
+            .spacing()
+            .iter()
+            .copied()
+            .fold(Real::INFINITY, Real::min);
+        let hs = (0.5 * w_max).max(a_max) + 0.05 * min_sp;
+        // Lateral radius: every point of the surface lies within δ/√2 of a grid sample.
+        let rho = 0.75 * s.delta;
+        let inv = l.to_index;
+        let inv_rows = [0, 1, 2].map(|a| inv.row(a).norm());
         let bd = l.bdims();
         let mut touched = Vec::new();
-        for (k, (p, n)) in s.points.iter().zip(&s.normals).enumerate() {
-            let _ = k;
+        for (p, n) in s.points.iter().zip(&s.normals) {
             let g = l.to_box(p);
-            let c = [g.x.round() as i64, g.y.round() as i64, g.z.round() as i64];
             let w = edges.iter().map(|e| n.dot(e).abs()).sum::<Real>();
-            for dz in -half[2]..=half[2] {
-                let z = c[2] + dz;
-                if z < 0 || z >= bd[2] as i64 {
-                    continue;
-                }
-                for dy in -half[1]..=half[1] {
-                    let y = c[1] + dy;
-                    if y < 0 || y >= bd[1] as i64 {
-                        continue;
-                    }
-                    let row = bd[0] * (y as usize + bd[1] * z as usize);
-                    let x_lo = (c[0] - half[0]).max(0);
-                    let x_hi = (c[0] + half[0]).min(bd[0] as i64 - 1);
-                    for x in x_lo..=x_hi {
-                        let v = l.index[row + x as usize];
+            // Offsets in index steps: s(Δg) = n_idx·Δg; iterate the two outer axes over the
+            // slab-disc's extent and solve |s| ≤ hs for the axis along which s changes fastest.
+            let n_idx = lin.transpose() * n;
+            let n_inv = inv * n;
+            let m = n_idx.iamax();
+            if n_idx[m].abs() < 1e-12 {
+                continue;
+            }
+            let (o1, o2) = ((m + 1) % 3, (m + 2) % 3);
+            let range = |o: usize| {
+                let e = hs * n_inv[o].abs() + rho * inv_rows[o];
+                let lo = ((g[o] - e).ceil() as i64).max(0);
+                let hi = ((g[o] + e).floor() as i64).min(bd[o] as i64 - 1);
+                lo..=hi
+            };
+            for a in range(o1) {
+                for b in range(o2) {
+                    let rest = n_idx[o1] * (a as Real - g[o1]) + n_idx[o2] * (b as Real - g[o2]);
+                    let (t0, t1) = ((-hs - rest) / n_idx[m], (hs - rest) / n_idx[m]);
+                    let lo = ((t0.min(t1) + g[m]).ceil() as i64).max(0);
+                    let hi = ((t0.max(t1) + g[m]).floor() as i64).min(bd[m] as i64 - 1);
+                    for c in lo..=hi {
+                        let mut ijk = [0usize; 3];
+                        ijk[m] = c as usize;
+                        ijk[o1] = a as usize;
+                        ijk[o2] = b as usize;
+                        let v = l.index[ijk[0] + bd[0] * (ijk[1] + bd[1] * ijk[2])];
                         if v == u32::MAX {
                             continue;
                         }
-                        let centre = l.centre([x as usize, y as usize, z as usize]);
-                        let d = centre - p;
+                        let d = l.centre(ijk) - p;
+                        let off = n.dot(&d);
                         let d2 = d.norm_squared();
-                        if d2 > r2 {
+                        if d2 - off * off > rho * rho {
                             continue;
                         }
                         let vi = v as usize;
@@ -319,7 +343,7 @@ impl Volumetry {
                             continue;
                         }
                         self.best_d2[vi] = d2f;
-                        self.offset[vi] = (sigma * n.dot(&d)) as f32;
+                        self.offset[vi] = (sigma * off) as f32;
                         self.extent[vi] = w as f32;
                     }
                 }
