@@ -1,74 +1,190 @@
-//! Distances from resection-surface samples (5–80 mm away) to tumours of 1.3–20 k triangles:
-//! hinted batch queries against plain BVH queries, and the whole evaluation (margins + classes
-//! + verdict).
-#![allow(clippy::unwrap_used)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+//! Live margins on 2 threads: a gently curved bicubic surface 5–40 mm from a 20 480-triangle
+//! bumpy tumour, at 40×40 and 200×200 samples.
+//! - `nearest/<grid>/{field_grid, field_grid_1thread, field_into, bvh}`: exact distances of all
+//!   samples by `MarginField::distances_grid_into` (4×4 blocks; also on one thread),
+//!   `MarginField::nearest_into` (consecutive runs) and plain `MeshBvh::closest_points`;
+//! - `evaluate/<grid>`: `evaluate_into` (distances, classes, areas, refined verdict);
+//! - `edit/<grid>`: one control-point edit end to end — MLE surface update, inside levels of an
+//!   ellipsoidal liver, `evaluate_into`;
+//! - `setup/200mm_2mm`: `MarginField::new` over a 200 mm cube at 2 mm (101³ hint nodes).
 
-use criterion::{Criterion, criterion_group, criterion_main};
-use resecta_bezier::{ControlNet, MleEvaluator, Outputs, Resolution, eval_point};
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use resecta_bezier::{ControlNet, MleEvaluator, Resolution, basis_at, binomial_row};
 use resecta_geom::primitives::icosphere;
-use resecta_geom::{MeshBvh, Real, Vec3};
-use resecta_margin::{MarginField, MarginSettings, SurfaceOracle, evaluate};
+use resecta_geom::{MeshBvh, TriMesh, Vec3};
+use resecta_margin::{
+    MarginField, MarginSettings, Nearest, SurfaceMargins, SurfaceOracle, evaluate_into,
+};
 
-struct Surf(ControlNet<Real>);
-
-impl SurfaceOracle for Surf {
-    fn point(&self, u: Real, v: Real) -> Vec3 {
-        let p = eval_point(&self.0, u, v).point;
-        Vec3::new(p[0], p[1], p[2])
-    }
-    fn inside(&self, p: &Vec3) -> Real {
-        90.0 - p.norm()
-    }
-}
-
-fn surface() -> Surf {
-    // A gently bent 4×4 net 5–40 mm from the tumour.
-    Surf(
-        ControlNet::from_fn(4, 4, |i, j| {
-            let (s, t) = (i as Real / 3.0 - 0.5, j as Real / 3.0 - 0.5);
-            [-5.0 - 30.0 * (s * s + t * t), 160.0 * s, 160.0 * t]
+/// A 20 480-triangle tumour of mean radius 15 mm with ±8 % bumps, at the origin.
+fn tumour() -> TriMesh {
+    let s = icosphere(Vec3::zeros(), 1.0, 5).unwrap();
+    let v = s
+        .vertices()
+        .iter()
+        .map(|u| {
+            let (th, ph) = (u.z.acos(), u.y.atan2(u.x));
+            u * 15.0 * (1.0 + 0.08 * (3.0 * th).sin() * (2.0 * ph).cos())
         })
-        .unwrap(),
-    )
+        .collect();
+    TriMesh::new(v, s.triangles().to_vec()).unwrap()
 }
 
-fn bench(c: &mut Criterion) {
-    // Tumours of 1 280, 5 120 and 20 480 triangles (radius 15 mm).
-    for level in [3u32, 4, 5] {
-        let tumour = icosphere(Vec3::new(20.0, 5.0, 0.0), 15.0, level).unwrap();
-        run(c, &tumour, &format!("{}tri", tumour.triangles().len()));
+/// Bicubic net over [−30, 30]² tilted and bowed: 5 mm above the tumour at the centre, ~40 mm
+/// at the far corner.
+fn net() -> ControlNet<f64> {
+    ControlNet::from_fn(4, 4, |i, j| {
+        let (x, y) = (-30.0 + 20.0 * i as f64, -30.0 + 20.0 * j as f64);
+        [x, y, 20.0 + 0.1 * x + (x * x + y * y) / 120.0]
+    })
+    .unwrap()
+}
+
+/// The surface (cubic Bernstein sums) and an ellipsoidal liver that the surface leaves at
+/// x ≲ −25 mm.
+struct Oracle {
+    net: ControlNet<f64>,
+}
+
+impl Oracle {
+    fn inside_level(p: &Vec3) -> f64 {
+        let q = (p - Vec3::new(10.0, 0.0, 20.0)).component_div(&Vec3::new(35.0, 60.0, 50.0));
+        1.0 - q.norm_squared()
     }
 }
 
-fn run(c: &mut Criterion, tumour: &resecta_geom::TriMesh, tag: &str) {
-    let field = MarginField::new(tumour).unwrap();
-    let bvh = MeshBvh::new(tumour).unwrap();
-    let surf = surface();
-    for res in [40usize, 200] {
-        let mut e = MleEvaluator::new(surf.0.clone(), Resolution::new(res, res).unwrap());
-        let pts: Vec<Vec3> = e
-            .evaluate(Outputs::Points)
-            .points()
-            .iter()
-            .map(|p| Vec3::new(p[0], p[1], p[2]))
-            .collect();
-        let inside: Vec<Real> = pts.iter().map(|p| surf.inside(p)).collect();
-        let mut out = vec![field.nearest(&pts[0]); pts.len()];
-        c.bench_function(&format!("field_nearest_{res}x{res}_{tag}"), |b| {
-            b.iter(|| field.nearest_into(&pts, &mut out).unwrap())
-        });
-        c.bench_function(&format!("bvh_closest_{res}x{res}_{tag}"), |b| {
-            b.iter(|| bvh.closest_points(&pts))
-        });
-        let s = MarginSettings {
-            margin_mm: 10.0,
-            band_mm: 5.0,
-        };
-        c.bench_function(&format!("evaluate_{res}x{res}_{tag}"), |b| {
-            b.iter(|| evaluate(&field, res, res, &pts, &inside, &s, &surf).unwrap())
-        });
+impl SurfaceOracle for Oracle {
+    fn point(&self, u: f64, v: f64) -> Vec3 {
+        let binoms = binomial_row(4);
+        let (mut bu, mut bv) = ([0.0; 4], [0.0; 4]);
+        basis_at(&binoms, u, &mut bu);
+        basis_at(&binoms, v, &mut bv);
+        let mut s = Vec3::zeros();
+        for (i, wu) in bu.iter().enumerate() {
+            for (j, wv) in bv.iter().enumerate() {
+                s += Vec3::from(self.net.points()[i * 4 + j]) * (wu * wv);
+            }
+        }
+        s
+    }
+    fn inside(&self, p: &Vec3) -> f64 {
+        Self::inside_level(p)
     }
 }
 
-criterion_group!(benches, bench);
-criterion_main!(benches);
+fn benches(c: &mut Criterion) {
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let mesh = tumour();
+    let (lo, hi) = (Vec3::repeat(-100.0), Vec3::repeat(100.0));
+    let field = MarginField::new(&mesh, lo, hi, 2.0).unwrap();
+    let bvh = MeshBvh::new(&mesh).unwrap();
+    let settings = MarginSettings {
+        margin_mm: 10.0,
+        band_mm: 5.0,
+    };
+    for n in [40usize, 200] {
+        let res = Resolution::new(n, n).unwrap();
+        let mut mle = MleEvaluator::new(net(), res);
+        let mut raw = vec![[0.0; 3]; res.len()];
+        mle.evaluate_points_into(&mut raw).unwrap();
+        let points: Vec<Vec3> = raw.iter().map(|p| Vec3::from(*p)).collect();
+        let inside: Vec<f64> = points.iter().map(Oracle::inside_level).collect();
+        let oracle = Oracle { net: net() };
+        let grid = format!("{n}x{n}");
+
+        let mut group = c.benchmark_group(format!("nearest/{grid}"));
+        group.sample_size(if n > 40 { 20 } else { 100 });
+        let mut dist = vec![0.0; points.len()];
+        group.bench_function(BenchmarkId::from_parameter("field_grid"), |b| {
+            pool.install(|| b.iter(|| field.distances_grid_into(n, n, &points, &mut dist).unwrap()))
+        });
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        group.bench_function(BenchmarkId::from_parameter("field_grid_1thread"), |b| {
+            one.install(|| b.iter(|| field.distances_grid_into(n, n, &points, &mut dist).unwrap()))
+        });
+        let mut near = vec![Nearest::NONE; points.len()];
+        group.bench_function(BenchmarkId::from_parameter("field_into"), |b| {
+            pool.install(|| b.iter(|| field.nearest_into(&points, &mut near).unwrap()))
+        });
+        group.sample_size(10);
+        group.bench_function(BenchmarkId::from_parameter("bvh"), |b| {
+            pool.install(|| b.iter(|| bvh.closest_points(&points)))
+        });
+        group.finish();
+
+        let mut margins = SurfaceMargins::default();
+        let mut group = c.benchmark_group("evaluate");
+        group.sample_size(if n > 40 { 20 } else { 100 });
+        group.bench_function(BenchmarkId::from_parameter(&grid), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    evaluate_into(
+                        &field,
+                        n,
+                        n,
+                        &points,
+                        &inside,
+                        &settings,
+                        &oracle,
+                        &mut margins,
+                    )
+                    .unwrap()
+                })
+            })
+        });
+        group.finish();
+
+        // One edit: move an inner control point up and down alternately.
+        let mut group = c.benchmark_group("edit");
+        group.sample_size(if n > 40 { 20 } else { 100 });
+        let mut edit_oracle = Oracle { net: net() };
+        let mut live_points = points.clone();
+        let mut live_inside = inside.clone();
+        let mut flip = false;
+        group.bench_function(BenchmarkId::from_parameter(&grid), |b| {
+            pool.install(|| {
+                b.iter(|| {
+                    flip = !flip;
+                    let mut p = net().get(1, 2).unwrap();
+                    p[2] += if flip { 3.0 } else { -3.0 };
+                    mle.set_control_point(1, 2, p).unwrap();
+                    edit_oracle.net.set(1, 2, p).unwrap();
+                    mle.evaluate_points_into(&mut raw).unwrap();
+                    for ((q, s), r) in live_points.iter_mut().zip(&mut live_inside).zip(&raw) {
+                        *q = Vec3::from(*r);
+                        *s = Oracle::inside_level(q);
+                    }
+                    evaluate_into(
+                        &field,
+                        n,
+                        n,
+                        &live_points,
+                        &live_inside,
+                        &settings,
+                        &edit_oracle,
+                        &mut margins,
+                    )
+                    .unwrap()
+                })
+            })
+        });
+        group.finish();
+    }
+
+    let mut group = c.benchmark_group("setup");
+    group.sample_size(10);
+    group.bench_function(BenchmarkId::from_parameter("200mm_2mm"), |b| {
+        pool.install(|| b.iter(|| MarginField::new(&mesh, lo, hi, 2.0).unwrap()))
+    });
+    group.finish();
+}
+
+criterion_group!(margin, benches);
+criterion_main!(margin);

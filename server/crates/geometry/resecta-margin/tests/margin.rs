@@ -1,289 +1,672 @@
-//! Exactness against brute force and analytic spheres, the verdict on a plane beside a
-//! spherical tumour, and bad input.
+//! Margins against brute force and analytic answers.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::f64::consts::PI;
 
 use proptest::prelude::*;
-use resecta_bezier::{ControlNet, MleEvaluator, Outputs, Resolution, eval_point};
+use resecta_bezier::{ControlNet, eval_point};
 use resecta_geom::bvh::closest_point_on_triangle;
 use resecta_geom::primitives::{ellipsoid, icosphere, inscribed_radius};
-use resecta_geom::{Mat3, Real, TriMesh, Vec3};
+use resecta_geom::{Mat3, TriMesh, Vec3};
 use resecta_margin::{
-    MarginClass, MarginError, MarginField, MarginSettings, SurfaceOracle, TOLERANCE_MM, evaluate,
+    MarginClass, MarginError, MarginField, MarginSettings, Nearest, SurfaceMargins, SurfaceOracle,
+    TOLERANCE_MM, Verdict, evaluate, evaluate_into,
 };
 
-fn brute(mesh: &TriMesh, p: &Vec3) -> Real {
-    (0..mesh.triangles().len())
-        .map(|t| (p - closest_point_on_triangle(p, &mesh.corners(t)).point).norm())
-        .fold(Real::INFINITY, Real::min)
+/// Deterministic xorshift generator.
+struct Rng(u64);
+
+impl Rng {
+    fn unit(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn point(&mut self, lo: &Vec3, hi: &Vec3) -> Vec3 {
+        Vec3::new(
+            lo.x + (hi.x - lo.x) * self.unit(),
+            lo.y + (hi.y - lo.y) * self.unit(),
+            lo.z + (hi.z - lo.z) * self.unit(),
+        )
+    }
+    fn direction(&mut self) -> Vec3 {
+        loop {
+            let v = self.point(&Vec3::repeat(-1.0), &Vec3::repeat(1.0));
+            let n = v.norm();
+            if n > 0.1 && n <= 1.0 {
+                return v / n;
+            }
+        }
+    }
 }
 
-fn meshes() -> Vec<TriMesh> {
-    let two = TriMesh::concat(&[
-        icosphere(Vec3::new(-12.0, 0.0, 0.0), 8.0, 3).unwrap(),
-        icosphere(Vec3::new(12.0, 0.0, 0.0), 8.0, 3).unwrap(),
-    ])
-    .unwrap();
-    vec![
+fn brute_force(mesh: &TriMesh, p: &Vec3) -> f64 {
+    (0..mesh.triangles().len())
+        .map(|t| (closest_point_on_triangle(p, &mesh.corners(t)).point - p).norm())
+        .fold(f64::INFINITY, f64::min)
+}
+
+fn field_around(mesh: &TriMesh, pad: f64, spacing: f64) -> MarginField {
+    let (lo, hi) = mesh.bounds().unwrap();
+    MarginField::new(
+        mesh,
+        lo - Vec3::repeat(pad),
+        hi + Vec3::repeat(pad),
+        spacing,
+    )
+    .unwrap()
+}
+
+/// Checks every query path against a brute force: `nearest`, `nearest_into`, `distances_into`
+/// and `distances_grid_into` (the points read as a 4-row grid).
+fn check_against_brute_force(mesh: &TriMesh, field: &MarginField, points: &[Vec3]) {
+    let mut near = vec![Nearest::NONE; points.len()];
+    field.nearest_into(points, &mut near).unwrap();
+    let mut dist = vec![0.0; points.len()];
+    field.distances_into(points, &mut dist).unwrap();
+    // The points read as grids of 4, 3 and 1 rows (whole and partial 4×4 blocks).
+    let grids: Vec<(usize, Vec<f64>)> = [4, 3, 1]
+        .iter()
+        .map(|&rows| {
+            let cols = points.len() / rows;
+            let mut grid = vec![0.0; rows * cols];
+            field
+                .distances_grid_into(rows, cols, &points[..rows * cols], &mut grid)
+                .unwrap();
+            (rows * cols, grid)
+        })
+        .collect();
+    // Within a tolerance: never below the exact distance, at most the tolerance above.
+    let tol = 0.05;
+    let mut within = vec![0.0; points.len()];
+    // Odd samples exact (a negative or NaN tolerance means exact), even ones within `tol`.
+    let tolerance = |k: usize| [tol, -1.0, tol, f64::NAN][k % 4];
+    field
+        .distances_grid_within(1, points.len(), points, tolerance, &mut within)
+        .unwrap();
+    for (k, p) in points.iter().enumerate() {
+        let excess = within[k] - brute_force(mesh, p);
+        let allowed = if k % 2 == 0 { tol } else { 0.0 };
+        assert!(
+            (-1e-9..=allowed + 1e-9).contains(&excess),
+            "{p:?}: {excess}"
+        );
+    }
+    for (k, p) in points.iter().enumerate() {
+        let d = brute_force(mesh, p);
+        let one = field.nearest(p);
+        assert!(
+            (one.distance - d).abs() <= 1e-9,
+            "{p:?}: {} vs {d}",
+            one.distance
+        );
+        assert!(((one.point - p).norm() - one.distance).abs() <= 1e-12);
+        let on = closest_point_on_triangle(p, &mesh.corners(one.triangle as usize)).point;
+        assert!((on - one.point).norm() <= 1e-12);
+        assert!((near[k].distance - d).abs() <= 1e-9);
+        assert!((dist[k] - d).abs() <= 1e-9);
+        for (len, grid) in &grids {
+            if k < *len {
+                assert!((grid[k] - d).abs() <= 1e-9);
+            }
+        }
+    }
+}
+
+#[test]
+fn nearest_equals_brute_force() {
+    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let rotation = rotation(0.3, -0.7, 1.1);
+    let meshes = [
         icosphere(Vec3::new(1.0, 2.0, 3.0), 10.0, 3).unwrap(),
         ellipsoid(
-            Vec3::zeros(),
-            Vec3::new(15.0, 9.0, 6.0),
-            Mat3::identity(),
+            Vec3::new(-2.0, 1.0, 0.5),
+            Vec3::new(12.0, 7.0, 4.0),
+            rotation,
             3,
         )
         .unwrap(),
-        two,
-    ]
+        TriMesh::concat(&[
+            icosphere(Vec3::new(-10.0, 0.0, 0.0), 7.0, 3).unwrap(),
+            icosphere(Vec3::new(10.0, 0.0, 0.0), 7.0, 3).unwrap(),
+        ])
+        .unwrap(),
+    ];
+    for (m, mesh) in meshes.iter().enumerate() {
+        let field = field_around(mesh, 15.0, 2.0);
+        let (lo, hi) = mesh.bounds().unwrap();
+        let (rlo, rhi) = (lo - Vec3::repeat(15.0), hi + Vec3::repeat(15.0));
+        // Inside the region, near the surface, outside the region, far beyond reach.
+        let mut points: Vec<Vec3> = (0..240).map(|_| rng.point(&rlo, &rhi)).collect();
+        points.extend(
+            mesh.vertices()
+                .iter()
+                .step_by(7)
+                .take(80)
+                .map(|v| v + rng.direction() * 1e-6 * rng.unit()),
+        );
+        points.extend((0..40).map(|_| rng.point(&(rlo * 4.0), &(rhi * 4.0))));
+        points.extend((0..8).map(|_| rng.direction() * 3000.0));
+        if m == 2 {
+            // The medial plane between the two spheres.
+            points.extend(
+                (0..40).map(|_| Vec3::new(0.0, 16.0 * rng.unit() - 8.0, 16.0 * rng.unit() - 8.0)),
+            );
+        }
+        check_against_brute_force(mesh, &field, &points);
+    }
+}
+
+/// Rotation by Euler angles (z·y·x).
+fn rotation(a: f64, b: f64, c: f64) -> Mat3 {
+    let rx = Mat3::new(1.0, 0.0, 0.0, 0.0, c.cos(), -c.sin(), 0.0, c.sin(), c.cos());
+    let ry = Mat3::new(b.cos(), 0.0, b.sin(), 0.0, 1.0, 0.0, -b.sin(), 0.0, b.cos());
+    let rz = Mat3::new(a.cos(), -a.sin(), 0.0, a.sin(), a.cos(), 0.0, 0.0, 0.0, 1.0);
+    rz * ry * rx
+}
+
+#[test]
+fn non_finite_queries_have_no_answer() {
+    let mesh = icosphere(Vec3::zeros(), 5.0, 2).unwrap();
+    let field = field_around(&mesh, 5.0, 2.0);
+    let bad = Vec3::new(f64::NAN, 0.0, 0.0);
+    let n = field.nearest(&bad);
+    assert!(n.distance.is_nan() && n.triangle == u32::MAX);
+    let points = [
+        Vec3::new(9.0, 0.0, 0.0),
+        bad,
+        Vec3::new(0.0, 0.0, f64::INFINITY),
+    ];
+    let mut out = [Nearest::NONE; 3];
+    field.nearest_into(&points, &mut out).unwrap();
+    assert!((out[0].distance - brute_force(&mesh, &points[0])).abs() <= 1e-9);
+    assert!(out[1].distance.is_nan() && out[2].distance.is_nan());
 }
 
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(24))]
-    /// Near and far, inside and outside, the answer equals brute force.
-    #[test]
-    fn nearest_equals_brute_force(
-        which in 0usize..3,
-        pts in prop::collection::vec(prop::array::uniform3(-70.0..70.0f64), 1..24),
-    ) {
-        let mesh = &meshes()[which];
-        let field = MarginField::new(mesh).unwrap();
-        let points: Vec<Vec3> = pts.iter().map(|p| Vec3::from(*p)).collect();
-        let mut out = vec![field.nearest(&Vec3::zeros()); points.len()];
-        field.nearest_into(&points, &mut out).unwrap();
-        for (p, q) in points.iter().zip(&out) {
-            let want = brute(mesh, p);
-            // Batch answers: within the tolerance above exact, with a true lower bound.
-            prop_assert!(q.distance >= want - 1e-9 && q.distance <= want + TOLERANCE_MM + 1e-9,
-                "{p:?}: {} vs {want}", q.distance);
-            prop_assert!(q.lower <= want + 1e-9 && q.lower >= q.distance - TOLERANCE_MM - 1e-9);
-            prop_assert!(((p - q.point).norm() - q.distance).abs() < 1e-9);
-            // Single answers are exact.
-            prop_assert!((field.nearest(p).distance - want).abs() <= 1e-9);
-            prop_assert!((field.exact_from(p, *q).distance - want).abs() <= 1e-9);
-        }
-    }
 
-    /// Coherent batches (samples along a curve, as on a resection surface) take the fast path.
+    /// Triangle soups with slivers, needles, repeated and collinear corners.
     #[test]
-    fn coherent_batches_are_within_tolerance(
-        which in 0usize..3,
-        start in prop::array::uniform3(-60.0..60.0f64),
-        step in prop::array::uniform3(-1.5..1.5f64),
-    ) {
-        let mesh = &meshes()[which];
-        let field = MarginField::new(mesh).unwrap();
-        let points: Vec<Vec3> = (0..80)
-            .map(|k| Vec3::from(start) + Vec3::from(step) * k as Real + Vec3::new(0.0, (k as Real * 0.2).sin() * 5.0, 0.0))
-            .collect();
-        let mut out = vec![field.nearest(&Vec3::zeros()); points.len()];
-        field.nearest_into(&points, &mut out).unwrap();
-        for (p, q) in points.iter().zip(&out) {
-            let want = brute(mesh, p);
-            prop_assert!(q.distance >= want - 1e-9 && q.distance <= want + TOLERANCE_MM + 1e-9);
-            prop_assert!(q.lower <= want + 1e-9);
+    fn soups_equal_brute_force(seed in any::<u64>()) {
+        let mut rng = Rng(seed | 1);
+        let mut v = Vec::new();
+        let mut t = Vec::new();
+        let box_lo = Vec3::repeat(-8.0);
+        let box_hi = Vec3::repeat(8.0);
+        for i in 0..120u32 {
+            let a = rng.point(&box_lo, &box_hi);
+            let size = [2.0, 1e-3, 1e-7][i as usize % 3];
+            let b = a + rng.direction() * size;
+            let c = match i % 5 {
+                0 => a + (b - a) * rng.unit(),
+                1 => b,
+                _ => a + rng.direction() * size * rng.unit(),
+            };
+            let k = v.len() as u32;
+            v.extend([a, b, c]);
+            t.push([k, k + 1, k + 2]);
         }
+        let mesh = TriMesh::new(v, t).unwrap();
+        let field = field_around(&mesh, 4.0, 1.5);
+        let points: Vec<Vec3> = (0..64)
+            .map(|_| rng.point(&Vec3::repeat(-14.0), &Vec3::repeat(14.0)))
+            .collect();
+        check_against_brute_force(&mesh, &field, &points);
     }
 }
 
 #[test]
-fn distances_to_a_sphere_are_within_the_tessellation_bound() {
-    let c = Vec3::new(3.0, -4.0, 5.0);
-    let r = 12.0;
+fn icosphere_distances_within_chord_error() {
+    let (c, r) = (Vec3::new(4.0, -3.0, 2.0), 15.0);
     let mesh = icosphere(c, r, 5).unwrap();
     let r_in = inscribed_radius(&mesh, &c).unwrap();
     assert!(r - r_in < 0.01);
-    let field = MarginField::new(&mesh).unwrap();
-    for k in 0..200 {
-        let t = k as Real * 0.7;
-        let dir = Vec3::new(t.sin() * (2.0 * t).cos(), t.cos(), (3.0 * t).sin()).normalize();
-        let p = c + dir * (r + 0.1 * k as Real);
-        let d = field.nearest(&p).distance;
-        let (lo, hi) = ((p - c).norm() - r, (p - c).norm() - r_in);
-        assert!(d >= lo - 1e-9 && d <= hi + 1e-9, "{d} not in [{lo}, {hi}]");
+    let field = field_around(&mesh, 45.0, 2.0);
+    let mut rng = Rng(7);
+    let points: Vec<Vec3> = (0..2000)
+        .map(|_| c + rng.direction() * (r + 0.5 + 39.5 * rng.unit()))
+        .collect();
+    let mut d = vec![0.0; points.len()];
+    field.distances_into(&points, &mut d).unwrap();
+    for (p, d) in points.iter().zip(&d) {
+        // The mesh lies between the spheres of radii r_in and r about c.
+        let q = (p - c).norm();
+        assert!(*d >= q - r - 1e-9 && *d <= q - r_in + 1e-9, "{d} for {q}");
     }
 }
 
-/// A planar 4×4 patch x = x0, y, z ∈ [−half, half]; the liver is a ball of radius 60.
-struct Patch {
-    net: ControlNet<Real>,
+/// A planar 4×4 Bézier net over [−30, 30]² at height `z`, with a spherical liver.
+struct Plane {
+    net: ControlNet<f64>,
+    liver_centre: Vec3,
+    liver_radius: f64,
 }
 
-impl Patch {
-    fn new(x0: Real, half: Real) -> Self {
-        let net = ControlNet::planar(
-            4,
-            4,
-            [x0, -half, -half],
-            [0.0, 2.0 * half, 0.0],
-            [0.0, 0.0, 2.0 * half],
-        )
-        .unwrap();
-        Self { net }
+impl Plane {
+    fn new(z: f64, liver_centre: Vec3, liver_radius: f64) -> Self {
+        let net = ControlNet::planar(4, 4, [-30.0, -30.0, z], [60.0, 0.0, 0.0], [0.0, 60.0, 0.0])
+            .unwrap();
+        Self {
+            net,
+            liver_centre,
+            liver_radius,
+        }
     }
-    fn sample(&self, res: usize) -> Vec<Vec3> {
-        let mut e = MleEvaluator::new(self.net.clone(), Resolution::new(res, res).unwrap());
-        e.evaluate(Outputs::Points)
-            .points()
-            .iter()
-            .map(|p| Vec3::new(p[0], p[1], p[2]))
-            .collect()
+
+    /// Samples, inside levels.
+    fn sample(&self, n: usize) -> (Vec<Vec3>, Vec<f64>) {
+        let mut points = Vec::with_capacity(n * n);
+        for i in 0..n {
+            for j in 0..n {
+                let (u, v) = (i as f64 / (n - 1) as f64, j as f64 / (n - 1) as f64);
+                points.push(self.point(u, v));
+            }
+        }
+        let inside = points.iter().map(|p| self.inside(p)).collect();
+        (points, inside)
     }
 }
 
-impl SurfaceOracle for Patch {
-    fn point(&self, u: Real, v: Real) -> Vec3 {
-        let p = eval_point(&self.net, u, v).point;
-        Vec3::new(p[0], p[1], p[2])
+impl SurfaceOracle for Plane {
+    fn point(&self, u: f64, v: f64) -> Vec3 {
+        Vec3::from(eval_point(&self.net, u, v).point)
     }
-    fn inside(&self, p: &Vec3) -> Real {
-        60.0 - p.norm()
+    fn inside(&self, p: &Vec3) -> f64 {
+        self.liver_radius - (p - self.liver_centre).norm()
     }
+}
+
+/// Tumour sphere off the grid lines, plane at height 16.
+const TUMOUR: [f64; 3] = [3.3, -2.7, 0.0];
+const R: f64 = 10.0;
+const D: f64 = 16.0;
+
+fn tumour() -> (TriMesh, f64) {
+    let c = Vec3::from(TUMOUR);
+    let mesh = icosphere(c, R, 5).unwrap();
+    let r_in = inscribed_radius(&mesh, &c).unwrap();
+    (mesh, r_in)
+}
+
+fn run(
+    field: &MarginField,
+    plane: &Plane,
+    n: usize,
+    settings: &MarginSettings,
+) -> (SurfaceMargins, Verdict) {
+    let (points, inside) = plane.sample(n);
+    evaluate(field, n, n, &points, &inside, settings, plane).unwrap()
 }
 
 #[test]
-fn plane_beside_a_sphere_gives_the_exact_minimum_and_areas() {
-    // Tumour: sphere of radius R at (d, 3, −2) with the plane x = 0: min margin d − R at the
-    // foot (0, 3, −2), i.e. u = (3 + 40)/80, v = (−2 + 40)/80 on an 80 mm patch.
-    let (d, big_r, m, band) = (25.0, 10.0, 18.0, 4.0);
-    let centre = Vec3::new(d, 3.0, -2.0);
-    let mesh = icosphere(centre, big_r, 6).unwrap();
-    let r_in = inscribed_radius(&mesh, &centre).unwrap();
-    let field = MarginField::new(&mesh).unwrap();
-    let patch = Patch::new(0.0, 40.0);
+fn plane_over_sphere_minimum_and_areas() {
+    let (mesh, r_in) = tumour();
+    let field = MarginField::new(
+        &mesh,
+        Vec3::new(-32.0, -32.0, -12.0),
+        Vec3::new(32.0, 32.0, 20.0),
+        2.0,
+    )
+    .unwrap();
+    let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 100.0);
     let settings = MarginSettings {
-        margin_mm: m,
-        band_mm: band,
+        margin_mm: 10.0,
+        band_mm: 3.0,
     };
-    let mut last_err = Real::INFINITY;
-    for res in [40usize, 100, 200] {
-        let pts = patch.sample(res);
-        let inside: Vec<Real> = pts.iter().map(|p| patch.inside(p)).collect();
-        let (margins, v) = evaluate(&field, res, res, &pts, &inside, &settings, &patch).unwrap();
-        let min = v.min_margin_mm.unwrap();
-        // The exact answer for the tessellated sphere lies in [d − R, d − r_in].
-        assert!(
-            min >= d - big_r - 1e-9 && min <= d - r_in + 0.01,
-            "{res}: {min}"
-        );
-        let [u, w] = v.uv.unwrap();
-        assert!(
-            (u - 0.5375).abs() < 2e-3 && (w - 0.475).abs() < 2e-3,
-            "{res}: {u} {w}"
-        );
-        assert!((v.point.unwrap() - Vec3::new(0.0, 3.0, -2.0)).norm() < 0.2);
-        assert!(v.violation);
-        // Violating disc: radius √((R + m)² − d²); warning ring out to √((R + m + band)² − d²).
-        let area = PI * ((big_r + m).powi(2) - d * d);
-        let warn = PI * ((big_r + m + band).powi(2) - d * d) - area;
-        let err = (v.violating_area_mm2 - area).abs() / area;
-        if res == 200 {
-            assert!(err < 0.01, "violating {} vs {area}", v.violating_area_mm2);
-            assert!(
-                (v.warning_area_mm2 - warn).abs() / warn < 0.01,
-                "warning {}",
-                v.warning_area_mm2
-            );
-        }
-        assert!(err <= last_err + 1e-3, "area error grows with resolution");
-        last_err = err;
-        // Inside area: the 80×80 patch lies wholly within the ball of radius 60.
-        assert!((v.inside_area_mm2 - 6400.0).abs() < 1e-6);
-        let viol = margins
-            .class
+    let foot = Vec3::new(TUMOUR[0], TUMOUR[1], D);
+    let disk = |radius: f64| PI * (radius * radius - D * D);
+    let mut area_errors = Vec::new();
+    for n in [40, 200] {
+        let (margins, verdict) = run(&field, &plane, n, &settings);
+        // Minimum: d − R at the foot, between the spheres bounding the mesh.
+        let min = verdict.min_margin_mm.unwrap();
+        assert!(min >= D - R - 1e-9 && min <= D - r_in + 1e-6, "{n}: {min}");
+        assert!((min - (D - R)).abs() <= 0.01);
+        let vertex_min = margins
+            .distance
             .iter()
-            .filter(|&&c| c == MarginClass::Violation)
-            .count();
-        assert!(viol > 0 && margins.class.iter().all(|&c| c != MarginClass::Outside));
+            .copied()
+            .fold(f64::INFINITY, f64::min);
+        assert!(min <= vertex_min);
+        let point = verdict.point.unwrap();
+        assert!((point - foot).norm() <= 0.5, "{n}: {point:?}");
+        let [u, v] = verdict.uv.unwrap();
+        assert!((Vec3::from(eval_point(&plane.net, u, v).point) - point).norm() <= 1e-9);
+        assert!(verdict.violation);
+        // Areas: violating disk of radius √((R+m)² − d²), warning annulus, whole patch inside.
+        let violating = disk(R + settings.margin_mm);
+        let warning = disk(R + settings.margin_mm + settings.band_mm) - violating;
+        let err = (verdict.violating_area_mm2 - violating).abs() / violating;
+        area_errors.push(err);
+        let werr = (verdict.warning_area_mm2 - warning).abs() / warning;
+        assert!((verdict.inside_area_mm2 - 3600.0).abs() <= 1e-6 * 3600.0);
+        if n == 200 {
+            assert!(
+                err <= 1e-3,
+                "violating area {} vs {violating}",
+                verdict.violating_area_mm2
+            );
+            assert!(
+                werr <= 1e-3,
+                "warning area {} vs {warning}",
+                verdict.warning_area_mm2
+            );
+        } else {
+            assert!(err <= 1e-2 && werr <= 1e-2, "{err} {werr}");
+        }
+        // Per-vertex distances are within TOLERANCE_MM above a brute force; classes are those
+        // of the exact distances (checked on every vertex near a threshold and a sample).
+        for k in 0..n * n {
+            let near = [10.0, 13.0]
+                .iter()
+                .any(|t| (margins.distance[k] - t).abs() < 2.0 * TOLERANCE_MM);
+            if !near && k % 97 != 0 {
+                continue;
+            }
+            let p = plane.point(
+                (k / n) as f64 / (n - 1) as f64,
+                (k % n) as f64 / (n - 1) as f64,
+            );
+            let exact = brute_force(&mesh, &p);
+            let excess = margins.distance[k] - exact;
+            assert!((-1e-9..=TOLERANCE_MM + 1e-9).contains(&excess), "{excess}");
+            let expected = if exact < 10.0 {
+                MarginClass::Violation
+            } else if exact < 13.0 {
+                MarginClass::Warning
+            } else {
+                MarginClass::Safe
+            };
+            assert_eq!(margins.class[k], expected);
+        }
+        for (d, c) in margins.distance.iter().zip(&margins.class) {
+            let expected = if *d < 10.0 {
+                MarginClass::Violation
+            } else if *d < 13.0 {
+                MarginClass::Warning
+            } else {
+                MarginClass::Safe
+            };
+            assert_eq!(*c, expected);
+        }
     }
+    assert!(area_errors[1] < area_errors[0], "{area_errors:?}");
+}
+
+/// Area of the intersection of two disks of radius `r` whose centres are `s` apart.
+fn lens(r: f64, s: f64) -> f64 {
+    2.0 * r * r * (s / (2.0 * r)).acos() - 0.5 * s * (4.0 * r * r - s * s).sqrt()
 }
 
 #[test]
 fn outside_the_liver_does_not_count() {
-    // The tumour sits at the patch's corner region, which is outside the liver ball: the
-    // minimum comes from the inside part only.
-    let centre = Vec3::new(12.0, 70.0, 70.0);
-    let mesh = icosphere(centre, 5.0, 3).unwrap();
-    let field = MarginField::new(&mesh).unwrap();
-    let patch = Patch::new(0.0, 80.0);
-    let pts = patch.sample(60);
-    let inside: Vec<Real> = pts.iter().map(|p| patch.inside(p)).collect();
+    let (mesh, r_in) = tumour();
+    let field = MarginField::new(
+        &mesh,
+        Vec3::new(-32.0, -32.0, -12.0),
+        Vec3::new(32.0, 32.0, 20.0),
+        2.0,
+    )
+    .unwrap();
+    // The liver meets the plane in a disk of radius 12 about (−15, 0) that misses the foot.
+    let liver = Vec3::new(-15.0, 0.0, D);
+    let plane = Plane::new(D, liver, 12.0);
     let settings = MarginSettings {
         margin_mm: 10.0,
         band_mm: 0.0,
     };
-    let (margins, v) = evaluate(&field, 60, 60, &pts, &inside, &settings, &patch).unwrap();
-    let min = v.min_margin_mm.unwrap();
-    let p = v.point.unwrap();
-    assert!(patch.inside(&p) > 0.0);
-    // Nearest inside point: on the circle of radius 60 towards the tumour's (y, z).
-    let dir = Vec3::new(0.0, 1.0, 1.0).normalize();
-    let want = (dir * 60.0 - centre).norm() - 5.0;
-    assert!((min - want).abs() < 0.05, "{min} vs {want}");
-    let all_min = margins
-        .distance
-        .iter()
-        .copied()
-        .fold(Real::INFINITY, Real::min);
-    assert!(
-        all_min < min,
-        "an outside vertex is nearer but must not count"
-    );
-    assert!(margins.class.contains(&MarginClass::Outside));
-    assert!(!v.violation);
-    // Nothing inside: no minimum.
-    let none = vec![-1.0; pts.len()];
-    let (_, v) = evaluate(&field, 60, 60, &pts, &none, &settings, &patch).unwrap();
-    assert_eq!(v.min_margin_mm, None);
-    assert_eq!(v.inside_area_mm2, 0.0);
+    let foot = Vec3::new(TUMOUR[0], TUMOUR[1], D);
+    let gap = (foot - liver).norm();
+    // Nearest liver point to the foot, and the sphere distance there.
+    let lateral = gap - 12.0;
+    let expected = (D * D + lateral * lateral).sqrt() - R;
+    for n in [40, 200] {
+        let (points, inside) = plane.sample(n);
+        let (margins, verdict) =
+            evaluate(&field, n, n, &points, &inside, &settings, &plane).unwrap();
+        for (k, c) in margins.class.iter().enumerate() {
+            assert_eq!(*c == MarginClass::Outside, inside[k] <= 0.0);
+        }
+        let min = verdict.min_margin_mm.unwrap();
+        let bound_in = (D * D + lateral * lateral).sqrt() - r_in;
+        assert!(
+            min >= expected - 1e-9 && min <= bound_in + 1e-3,
+            "{n}: {min} vs {expected}"
+        );
+        let p = verdict.point.unwrap();
+        assert!(
+            plane.inside(&p) > 0.0 && plane.inside(&p) < 0.01,
+            "{n}: {p:?}"
+        );
+        // Violating part: the lens of the two radius-12 disks; inside part: the liver disk.
+        let violating = lens(12.0, gap);
+        let inside_area = PI * 144.0;
+        let tol = if n == 200 { 2e-3 } else { 2e-2 };
+        assert!(
+            (verdict.violating_area_mm2 - violating).abs() <= tol * violating,
+            "{n}: {} vs {violating}",
+            verdict.violating_area_mm2
+        );
+        assert!((verdict.inside_area_mm2 - inside_area).abs() <= tol * inside_area);
+        assert_eq!(verdict.warning_area_mm2, 0.0);
+    }
+    // Nothing inside: no minimum, no violation.
+    let away = Plane::new(D, Vec3::new(0.0, 0.0, 500.0), 10.0);
+    let (points, inside) = away.sample(40);
+    let (margins, verdict) = evaluate(&field, 40, 40, &points, &inside, &settings, &away).unwrap();
+    assert!(margins.class.iter().all(|c| *c == MarginClass::Outside));
+    assert_eq!(verdict.min_margin_mm, None);
+    assert!(!verdict.violation && verdict.inside_area_mm2 == 0.0);
 }
 
 #[test]
-fn bad_input_is_refused() {
+fn results_do_not_depend_on_threads_and_serialise() {
+    let (mesh, _) = tumour();
+    let field = MarginField::new(
+        &mesh,
+        Vec3::new(-32.0, -32.0, -12.0),
+        Vec3::new(32.0, 32.0, 20.0),
+        2.0,
+    )
+    .unwrap();
+    let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
+    let settings = MarginSettings {
+        margin_mm: 10.0,
+        band_mm: 2.0,
+    };
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let two = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    let a = one.install(|| run(&field, &plane, 57, &settings));
+    let b = two.install(|| run(&field, &plane, 57, &settings));
+    assert_eq!(a, b);
+    // Reused buffers give the same.
+    let (points, inside) = plane.sample(57);
+    let mut reused = SurfaceMargins {
+        distance: vec![1.0; 7],
+        class: vec![MarginClass::Safe; 3],
+    };
+    let v = evaluate_into(
+        &field,
+        57,
+        57,
+        &points,
+        &inside,
+        &settings,
+        &plane,
+        &mut reused,
+    )
+    .unwrap();
+    assert_eq!((reused, v), a);
+    let json = serde_json::to_value(&a.1).unwrap();
+    assert_eq!(json["violation"], true);
+    assert_eq!(json["point"].as_array().unwrap().len(), 3);
+    assert_eq!(
+        serde_json::to_value(MarginClass::Violation).unwrap(),
+        "Violation"
+    );
+    assert_eq!(MarginClass::Violation as u8, 3);
+}
+
+#[test]
+fn bad_input_is_an_error() {
     let mesh = icosphere(Vec3::zeros(), 5.0, 1).unwrap();
-    let empty = TriMesh::new(vec![], vec![]).unwrap();
+    let (lo, hi) = (Vec3::repeat(-10.0), Vec3::repeat(10.0));
+    let new = |m: &TriMesh, lo: Vec3, hi: Vec3, s: f64| MarginField::new(m, lo, hi, s).err();
+    assert_eq!(
+        new(&TriMesh::default(), lo, hi, 1.0),
+        Some(MarginError::EmptyMesh)
+    );
+    let nan = Vec3::new(0.0, f64::NAN, 0.0);
     assert!(matches!(
-        MarginField::new(&empty),
-        Err(MarginError::EmptyMesh)
+        new(&mesh, nan, hi, 1.0),
+        Some(MarginError::NonFiniteRegion { name: "min", .. })
     ));
-    let nan = Vec3::new(Real::NAN, 0.0, 0.0);
-    let field = MarginField::new(&mesh).unwrap();
-    assert!(field.nearest(&nan).distance.is_infinite());
-    let patch = Patch::new(0.0, 5.0);
-    let pts = patch.sample(4);
-    let ins = vec![1.0; 16];
+    assert!(matches!(
+        new(&mesh, lo, nan, 1.0),
+        Some(MarginError::NonFiniteRegion { name: "max", .. })
+    ));
+    assert!(matches!(
+        new(&mesh, hi, lo, 1.0),
+        Some(MarginError::InvertedRegion { .. })
+    ));
+    for s in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        assert!(matches!(
+            new(&mesh, lo, hi, s),
+            Some(MarginError::BadSpacing(_))
+        ));
+    }
+    // 10 m at 0.1 mm would be 10¹⁵ nodes: refused before allocating.
+    let huge = Vec3::repeat(1e4);
+    assert!(matches!(
+        new(&mesh, -huge, huge, 0.1),
+        Some(MarginError::TooManyNodes { .. })
+    ));
+    assert!(matches!(
+        new(&mesh, lo, hi, 1e-300),
+        Some(MarginError::TooManyNodes { .. })
+    ));
+    // A flat region is fine (one cell along z).
+    let flat = MarginField::new(&mesh, lo, Vec3::new(10.0, 10.0, -10.0), 1.0).unwrap();
+    assert_eq!(flat.dims(), [21, 21, 2]);
+
+    let field = new_field(&mesh);
+    let points = vec![Vec3::zeros(); 6];
+    let mut short = vec![Nearest::NONE; 5];
+    assert!(matches!(
+        field.nearest_into(&points, &mut short),
+        Err(MarginError::LengthMismatch {
+            expected: 6,
+            got: 5,
+            ..
+        })
+    ));
+    let mut short = vec![0.0; 5];
+    assert!(field.distances_into(&points, &mut short).is_err());
+    assert!(
+        field
+            .distances_grid_into(2, 3, &points, &mut short)
+            .is_err()
+    );
+    assert!(
+        field
+            .distances_grid_into(2, 2, &points, &mut [0.0; 4])
+            .is_err()
+    );
+
+    let plane = Plane::new(8.0, Vec3::zeros(), 50.0);
+    let (pts, inside) = plane.sample(4);
     let ok = MarginSettings {
         margin_mm: 1.0,
-        band_mm: 0.0,
+        band_mm: 1.0,
     };
+    let eval = |ru, rv, p: &[Vec3], s: &[f64], set: &MarginSettings| {
+        evaluate(&field, ru, rv, p, s, set, &plane).err()
+    };
+    assert!(eval(4, 4, &pts, &inside, &ok).is_none());
     assert!(matches!(
-        evaluate(&field, 4, 5, &pts, &ins, &ok, &patch),
-        Err(MarginError::Length { .. })
+        eval(4, 3, &pts, &inside, &ok),
+        Some(MarginError::LengthMismatch { .. })
     ));
     assert!(matches!(
-        evaluate(&field, 4, 4, &pts, &ins[..3], &ok, &patch),
-        Err(MarginError::Length { .. })
+        eval(4, 4, &pts, &inside[1..], &ok),
+        Some(MarginError::LengthMismatch { .. })
     ));
+    assert_eq!(
+        eval(1, 16, &pts, &inside, &ok),
+        Some(MarginError::GridTooSmall { ru: 1, rv: 16 })
+    );
     assert!(matches!(
-        evaluate(&field, 1, 16, &pts, &ins, &ok, &patch),
-        Err(MarginError::Grid { .. })
+        eval(usize::MAX, 3, &pts, &inside, &ok),
+        Some(MarginError::GridTooSmall { .. })
     ));
-    for (m, b) in [
-        (0.0, 0.0),
-        (-1.0, 0.0),
-        (Real::NAN, 0.0),
-        (1.0, -0.5),
-        (1.0, Real::INFINITY),
-    ] {
+    for m in [0.0, -1.0, f64::NAN, f64::INFINITY] {
         let s = MarginSettings {
             margin_mm: m,
+            band_mm: 1.0,
+        };
+        assert!(matches!(
+            eval(4, 4, &pts, &inside, &s),
+            Some(MarginError::BadMargin(_))
+        ));
+    }
+    for b in [-1e-9, f64::NAN, f64::INFINITY] {
+        let s = MarginSettings {
+            margin_mm: 1.0,
             band_mm: b,
         };
         assert!(matches!(
-            evaluate(&field, 4, 4, &pts, &ins, &s, &patch),
-            Err(MarginError::Setting { .. })
+            eval(4, 4, &pts, &inside, &s),
+            Some(MarginError::BadBand(_))
         ));
     }
-    let mut out = vec![field.nearest(&Vec3::zeros()); 3];
-    assert!(field.nearest_into(&pts, &mut out).is_err());
+    // Messages name the quantity.
+    assert!(MarginError::BadBand(-1.0).to_string().contains("band"));
+    assert!(MarginError::BadSpacing(0.0).to_string().contains("spacing"));
+}
+
+fn new_field(mesh: &TriMesh) -> MarginField {
+    field_around(mesh, 5.0, 1.0)
+}
+
+#[test]
+fn minimum_between_samples_beats_a_vertex_minimum_elsewhere() {
+    // 40×40 samples are 60/39 mm apart. Sphere A touches 6.02 mm under a sample; sphere B comes
+    // to 6.00 mm under the middle of a cell, where the nearest samples read ≈ 6.037 mm. The best
+    // sample lies over A, the true minimum over B.
+    let h = 60.0 / 39.0;
+    let foot_a = Vec3::new(-30.0 + 26.0 * h, -30.0 + 19.0 * h, D);
+    let foot_b = Vec3::new(-30.0 + 12.5 * h, -30.0 + 19.5 * h, D);
+    let a = icosphere(foot_a - Vec3::new(0.0, 0.0, 6.02 + R), R, 5).unwrap();
+    let b = icosphere(foot_b - Vec3::new(0.0, 0.0, 6.0 + R), R, 5).unwrap();
+    let r_in = inscribed_radius(&b, &(foot_b - Vec3::new(0.0, 0.0, 6.0 + R))).unwrap();
+    let mesh = TriMesh::concat(&[a, b]).unwrap();
+    let field = MarginField::new(
+        &mesh,
+        Vec3::new(-32.0, -32.0, -20.0),
+        Vec3::new(32.0, 32.0, 20.0),
+        2.0,
+    )
+    .unwrap();
+    let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 100.0);
+    let settings = MarginSettings {
+        margin_mm: 5.0,
+        band_mm: 0.0,
+    };
+    let (margins, verdict) = run(&field, &plane, 40, &settings);
+    let best_vertex = (0..margins.distance.len())
+        .min_by(|&i, &j| margins.distance[i].total_cmp(&margins.distance[j]))
+        .unwrap();
+    assert_eq!(best_vertex, 26 * 40 + 19);
+    let min = verdict.min_margin_mm.unwrap();
+    assert!(min >= 6.0 - 1e-9 && min <= 6.0 + (R - r_in) + 1e-3, "{min}");
+    assert!((verdict.point.unwrap() - foot_b).norm() <= 0.5);
+    assert!(!verdict.violation && verdict.violating_area_mm2 == 0.0);
 }

@@ -7,6 +7,7 @@ use resecta_geom::{LabelMap, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_recon::{McsdParams, mask, mcsd};
 
 use crate::error::PlanError;
+use crate::inside::InsideField;
 use crate::resection::Target;
 
 /// Tumour models for margins: MCSD with 3D Slicer's smoothing; models of more than this many
@@ -62,6 +63,8 @@ pub struct Anatomy {
     roles: RoleMap,
     /// Parenchyma, tumours, vessels inside the liver and enclosed cavities.
     envelope: Volume<bool>,
+    /// The envelope bricked for inside levels.
+    inside: InsideField,
     /// Voxels that count in volumetry: envelope voxels whose label is parenchyma or vessel.
     functional: Volume<bool>,
     parenchyma: TriMesh,
@@ -111,6 +114,7 @@ impl Anatomy {
         }
         Ok(Self {
             roles: roles.clone(),
+            inside: InsideField::new(&envelope),
             envelope,
             functional,
             parenchyma,
@@ -214,54 +218,13 @@ impl Anatomy {
     /// Inside level of the liver envelope at `p`: trilinear interpolation of the mask (0/1)
     /// minus ½, so > 0 inside and ≤ 0 outside (−½ beyond the grid).
     pub fn inside_level(&self, p: &Vec3) -> Real {
-        trilinear(&self.envelope, p) - 0.5
+        self.inside.level(p) - 0.5
     }
 
     /// World bounds (min, max) of the envelope's voxel centres, or `None` when empty.
     pub fn liver_bounds(&self) -> Option<(Vec3, Vec3)> {
-        let grid = self.envelope.grid();
-        let [nx, ny, _] = grid.dims();
-        let mut lo = Vec3::repeat(Real::INFINITY);
-        let mut hi = Vec3::repeat(Real::NEG_INFINITY);
-        for (v, _) in self.envelope.data().iter().enumerate().filter(|(_, b)| **b) {
-            let c = grid.voxel_center([v % nx, (v / nx) % ny, v / (nx * ny)]);
-            lo = lo.inf(&c);
-            hi = hi.sup(&c);
-        }
-        lo.x.is_finite().then_some((lo, hi))
+        self.inside.bounds()
     }
-}
-
-/// Trilinear interpolation of a mask (as 0/1) at world point `p`; 0 outside the grid.
-pub fn trilinear(mask: &Volume<bool>, p: &Vec3) -> Real {
-    let grid = mask.grid();
-    let g = grid.world_to_index(*p);
-    let dims = grid.dims();
-    if !g.iter().all(|c| c.is_finite()) {
-        return 0.0;
-    }
-    let base = [g.x.floor(), g.y.floor(), g.z.floor()];
-    let frac = [g.x - base[0], g.y - base[1], g.z - base[2]];
-    let mut value = 0.0;
-    for corner in 0..8usize {
-        let mut w = 1.0;
-        let mut ijk = [0usize; 3];
-        let mut inside = true;
-        for a in 0..3 {
-            let up = (corner >> a) & 1 == 1;
-            let c = base[a] + Real::from(u8::from(up));
-            w *= if up { frac[a] } else { 1.0 - frac[a] };
-            if c < 0.0 || c >= dims[a] as Real {
-                inside = false;
-            } else {
-                ijk[a] = c as usize;
-            }
-        }
-        if inside && w > 0.0 && mask.get(ijk).unwrap_or(false) {
-            value += w;
-        }
-    }
-    value
 }
 
 fn tumour(

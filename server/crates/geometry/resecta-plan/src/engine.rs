@@ -25,6 +25,17 @@ use crate::surface::LiveSurface;
 /// Default future-liver-remnant warning threshold (% of the total functional liver).
 pub const DEFAULT_FLR_THRESHOLD_PCT: Real = 30.0;
 
+/// Spacing of the margin field's nearest-triangle hints (mm), coarser only for livers so large
+/// that the grid would exceed [`HINT_NODES`] nodes.
+const HINT_SPACING_MM: Real = 2.0;
+const HINT_NODES: Real = 4.0e6;
+/// Hints cover the liver's bounding box grown by this (mm); farther queries stay exact, only slower.
+const HINT_PAD_MM: Real = 10.0;
+
+/// Below this many vertices inside levels are computed on the calling thread (waking the pool
+/// costs more than the ~25 ns lookups).
+const PARALLEL_INSIDE: usize = 10_000;
+
 /// The target tumours of a resection, ready for margin queries.
 #[derive(Debug)]
 pub struct TargetModel {
@@ -285,7 +296,12 @@ impl Planner {
             return Ok(Arc::clone(m));
         }
         let mesh = self.anatomy.tumour_mesh(&tumours)?;
-        let field = MarginField::new(&mesh)?;
+        let (lo, hi) = self.anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
+        let pad = Vec3::repeat(HINT_PAD_MM);
+        let (lo, hi) = (lo - pad, hi + pad);
+        let extent = hi - lo;
+        let spacing = HINT_SPACING_MM.max((extent.x * extent.y * extent.z / HINT_NODES).cbrt());
+        let field = MarginField::new(&mesh, lo, hi, spacing)?;
         let centroids = tumours
             .iter()
             .map(|&k| self.anatomy.tumours()[k].centroid)
@@ -306,16 +322,24 @@ impl Planner {
         prev: Option<ResectionState>,
     ) -> Result<ResectionState, PlanError> {
         let target = self.target_model(&r.target)?;
-        let surface = match prev {
+        let (surface, mut inside, mut margins) = match prev {
             Some(mut s) => {
                 s.surface.update(r)?;
-                s.surface
+                (s.surface, s.inside, s.margins)
             }
-            None => LiveSurface::new(r)?,
+            None => (LiveSurface::new(r)?, Vec::new(), SurfaceMargins::default()),
         };
         let points = surface.points();
         let anatomy = &self.anatomy;
-        let inside: Vec<Real> = points.par_iter().map(|p| anatomy.inside_level(p)).collect();
+        if points.len() < PARALLEL_INSIDE {
+            inside.clear();
+            inside.extend(points.iter().map(|p| anatomy.inside_level(p)));
+        } else {
+            points
+                .par_iter()
+                .map(|p| anatomy.inside_level(p))
+                .collect_into_vec(&mut inside);
+        }
         let settings = MarginSettings {
             margin_mm: r.margin_mm,
             band_mm: r.band_mm,
@@ -325,9 +349,17 @@ impl Planner {
             surface: &surface,
             anatomy,
         };
-        let (margins, verdict) =
-            resecta_margin::evaluate(&target.field, ru, rv, &points, &inside, &settings, &oracle)
-                .map_err(|e| PlanError::resection(&r.name, format!("margins: {e}")))?;
+        let verdict = resecta_margin::evaluate_into(
+            &target.field,
+            ru,
+            rv,
+            &points,
+            &inside,
+            &settings,
+            &oracle,
+            &mut margins,
+        )
+        .map_err(|e| PlanError::resection(&r.name, format!("margins: {e}")))?;
         Ok(ResectionState {
             surface,
             target,

@@ -7,6 +7,7 @@ pub mod engine;
 pub mod error;
 pub mod history;
 pub mod init;
+mod inside;
 pub mod plan;
 pub mod resection;
 pub mod surface;
