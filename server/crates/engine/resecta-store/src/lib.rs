@@ -21,13 +21,24 @@ pub use memory::MemoryStore;
 pub use sqlite::{DB_FILE, SCHEMA_VERSION, SqliteStore};
 
 /// One session's metadata. `id` is opaque and server-made; `display_name` is the client's label
-/// (possibly a patient identifier: it never appears in errors).
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// (possibly a patient identifier: it never appears in errors, and `Debug` shows only its length).
+#[derive(Clone, PartialEq, Eq)]
 pub struct SessionRecord {
     pub id: String,
     pub display_name: String,
     pub created_ms: i64,
     pub last_access_ms: i64,
+}
+
+impl std::fmt::Debug for SessionRecord {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SessionRecord")
+            .field("id", &self.id)
+            .field("display_name_bytes", &self.display_name.len())
+            .field("created_ms", &self.created_ms)
+            .field("last_access_ms", &self.last_access_ms)
+            .finish()
+    }
 }
 
 /// A named blob: free-form metadata (JSON by convention) and bytes. The bytes are stored

@@ -23,10 +23,20 @@ struct Session {
 }
 
 /// Sessions in memory (blobs compressed as on disk); lost when dropped.
-#[derive(Debug, Default)]
+#[derive(Default)]
 pub struct MemoryStore {
     opts: StoreOptions,
     sessions: Mutex<BTreeMap<String, Session>>,
+}
+
+// Contents may be patient data: Debug shows the options and the session count only.
+impl std::fmt::Debug for MemoryStore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("MemoryStore")
+            .field("opts", &self.opts)
+            .field("sessions", &self.lock().len())
+            .finish()
+    }
 }
 
 impl MemoryStore {

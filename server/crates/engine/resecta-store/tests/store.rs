@@ -797,4 +797,16 @@ fn errors_name_quantities_not_contents() {
         assert!(!format!("{e:?}").contains("Ola"), "{e:?}");
     }
     assert!(!format!("{secret:?}").contains("Ola"));
+    assert!(!format!("{r:?}").contains("Ola"));
+    s.put_blob(
+        "p1",
+        "m",
+        &Blob {
+            meta_json: "Ola".into(),
+            data: b"Ola".to_vec(),
+        },
+    )
+    .unwrap();
+    s.append("p1", 0, &strings(["Ola"])).unwrap();
+    assert!(!format!("{s:?}").contains("Ola"), "{s:?}");
 }
