@@ -136,7 +136,7 @@ fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
             .map_err(db)?;
         if tables != 0 {
             return Err(StoreError::Corrupt {
-                detail: format!("{DB_FILE} holds tables but no resecta schema version"),
+                detail: "holds tables but no resecta schema version".into(),
             });
         }
         tx.execute_batch(SCHEMA).map_err(db)?;
@@ -166,12 +166,20 @@ fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
 impl SqliteStore {
     /// Opens (creating if needed) the store in `dir`.
     pub fn open(dir: &Path, opts: StoreOptions) -> Result<Self, StoreError> {
-        std::fs::create_dir_all(dir).map_err(|e| {
-            StoreError::Backend(format!(
-                "cannot create data directory {}: {e}",
-                dir.display()
-            ))
-        })?;
+        Self::open_inner(dir, opts).map_err(|e| match e {
+            StoreError::Corrupt { detail } => StoreError::Corrupt {
+                detail: format!("{}: {detail}", dir.join(DB_FILE).display()),
+            },
+            StoreError::Backend(msg) => {
+                StoreError::Backend(format!("opening {}: {msg}", dir.join(DB_FILE).display()))
+            }
+            e => e,
+        })
+    }
+
+    fn open_inner(dir: &Path, opts: StoreOptions) -> Result<Self, StoreError> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| StoreError::Backend(format!("cannot create the data directory: {e}")))?;
         let path = dir.join(DB_FILE);
         let mut writer = open_connection(
             &path,
@@ -184,8 +192,7 @@ impl SqliteStore {
             .map_err(db)?;
         if !mode.eq_ignore_ascii_case("wal") {
             return Err(StoreError::Backend(format!(
-                "{} cannot use a write-ahead log (journal mode {mode})",
-                path.display()
+                "cannot use a write-ahead log (journal mode {mode})"
             )));
         }
         writer

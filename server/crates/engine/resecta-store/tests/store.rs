@@ -522,6 +522,11 @@ fn sqlite_garbage_file_is_corrupt() {
     std::fs::write(dir.path().join(DB_FILE), &noise).unwrap();
     let err = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap_err();
     assert!(matches!(err, StoreError::Corrupt { .. }), "{err}");
+    let msg = err.to_string();
+    assert!(
+        msg.contains(DB_FILE) && msg.contains("not a database"),
+        "{msg}"
+    );
 }
 
 #[test]
