@@ -1,0 +1,468 @@
+//! Embedded SQLite backend: one database file in the data directory, WAL journal, every commit
+//! fsynced (`synchronous=FULL`).
+
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::time::Duration;
+
+use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior, params};
+
+use crate::codec::{pack, unpack};
+use crate::{
+    Blob, LogRecord, SessionRecord, SessionStore, StoreError, StoreOptions, StoreUsage, check_name,
+    check_record, check_records, check_session,
+};
+
+/// Database file name inside the data directory.
+pub const DB_FILE: &str = "resecta.sqlite3";
+/// Schema version written to `PRAGMA user_version`.
+pub const SCHEMA_VERSION: i64 = 1;
+/// `PRAGMA application_id` of a resecta store ("RSST").
+const APPLICATION_ID: i64 = 0x5253_5354;
+/// SQLite's default limit on one value (SQLITE_MAX_LENGTH).
+const SQLITE_MAX_VALUE: u64 = 1_000_000_000;
+const BUSY_TIMEOUT: Duration = Duration::from_secs(10);
+
+const SCHEMA: &str = "
+CREATE TABLE sessions (
+    id TEXT PRIMARY KEY NOT NULL,
+    display_name TEXT NOT NULL,
+    created_ms INTEGER NOT NULL,
+    last_access_ms INTEGER NOT NULL
+);
+CREATE INDEX sessions_by_created ON sessions (created_ms, id);
+CREATE INDEX sessions_by_access ON sessions (last_access_ms, id);
+CREATE TABLE blobs (
+    session_id TEXT NOT NULL REFERENCES sessions (id) ON DELETE CASCADE,
+    key TEXT NOT NULL,
+    meta_json TEXT NOT NULL,
+    raw_len INTEGER NOT NULL,
+    data BLOB NOT NULL,
+    PRIMARY KEY (session_id, key)
+);
+CREATE TABLE log (
+    session_id TEXT NOT NULL REFERENCES sessions (id) ON DELETE CASCADE,
+    seq INTEGER NOT NULL,
+    json TEXT NOT NULL,
+    PRIMARY KEY (session_id, seq)
+) WITHOUT ROWID;
+";
+
+/// Sessions in `DIR/resecta.sqlite3`. Writes go through one connection, reads through another
+/// (WAL lets them run side by side); blobs are (de)compressed outside both locks.
+pub struct SqliteStore {
+    path: PathBuf,
+    opts: StoreOptions,
+    writer: Mutex<Connection>,
+    reader: Mutex<Connection>,
+}
+
+impl std::fmt::Debug for SqliteStore {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SqliteStore")
+            .field("path", &self.path)
+            .field("opts", &self.opts)
+            .finish_non_exhaustive()
+    }
+}
+
+/// Maps SQLite errors; corruption gets its own variant.
+fn db(e: rusqlite::Error) -> StoreError {
+    match e.sqlite_error_code() {
+        Some(ErrorCode::DatabaseCorrupt | ErrorCode::NotADatabase) => StoreError::Corrupt {
+            detail: e.to_string(),
+        },
+        _ => StoreError::Backend(e.to_string()),
+    }
+}
+
+fn to_i64(what: &'static str, v: u64) -> Result<i64, StoreError> {
+    i64::try_from(v).map_err(|_| StoreError::Invalid {
+        what,
+        reason: format!("{v} exceeds {}", i64::MAX),
+    })
+}
+
+fn to_u64(what: &str, v: i64) -> Result<u64, StoreError> {
+    u64::try_from(v).map_err(|_| StoreError::Corrupt {
+        detail: format!("negative {what} {v}"),
+    })
+}
+
+fn lock(m: &Mutex<Connection>) -> MutexGuard<'_, Connection> {
+    // A panic inside a transaction rolls it back on unwind; the connection stays usable.
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+fn not_found(id: &str) -> StoreError {
+    StoreError::NotFound { id: id.to_owned() }
+}
+
+fn session_exists(conn: &Connection, id: &str) -> Result<bool, StoreError> {
+    conn.prepare_cached("SELECT 1 FROM sessions WHERE id = ?1")
+        .and_then(|mut st| st.exists([id]))
+        .map_err(db)
+}
+
+fn log_len(conn: &Connection, id: &str) -> Result<u64, StoreError> {
+    let n: i64 = conn
+        .prepare_cached("SELECT COALESCE(MAX(seq), 0) FROM log WHERE session_id = ?1")
+        .and_then(|mut st| st.query_row([id], |r| r.get(0)))
+        .map_err(db)?;
+    to_u64("log length", n)
+}
+
+fn open_connection(path: &Path, flags: OpenFlags) -> Result<Connection, StoreError> {
+    let conn = Connection::open_with_flags(path, flags).map_err(db)?;
+    conn.busy_timeout(BUSY_TIMEOUT).map_err(db)?;
+    conn.pragma_update(None, "foreign_keys", true).map_err(db)?;
+    Ok(conn)
+}
+
+/// Checks the file is a resecta store of a known schema, creating the schema in a new file.
+fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
+    let tx = conn
+        .transaction_with_behavior(TransactionBehavior::Immediate)
+        .map_err(db)?;
+    let version: i64 = tx
+        .pragma_query_value(None, "user_version", |r| r.get(0))
+        .map_err(db)?;
+    let app_id: i64 = tx
+        .pragma_query_value(None, "application_id", |r| r.get(0))
+        .map_err(db)?;
+    if version == 0 {
+        let tables: i64 = tx
+            .query_row("SELECT COUNT(*) FROM sqlite_schema", [], |r| r.get(0))
+            .map_err(db)?;
+        if tables != 0 {
+            return Err(StoreError::Corrupt {
+                detail: "holds tables but no resecta schema version".into(),
+            });
+        }
+        tx.execute_batch(SCHEMA).map_err(db)?;
+        tx.pragma_update(None, "application_id", APPLICATION_ID)
+            .map_err(db)?;
+        tx.pragma_update(None, "user_version", SCHEMA_VERSION)
+            .map_err(db)?;
+    } else if app_id != APPLICATION_ID {
+        return Err(StoreError::Corrupt {
+            detail: format!(
+                "{DB_FILE} is an SQLite database of another application (id {app_id:#x})"
+            ),
+        });
+    } else if version > SCHEMA_VERSION {
+        return Err(StoreError::SchemaTooNew {
+            found: version,
+            supported: SCHEMA_VERSION,
+        });
+    } else if version < 0 {
+        return Err(StoreError::Corrupt {
+            detail: format!("schema version {version}"),
+        });
+    }
+    tx.commit().map_err(db)
+}
+
+impl SqliteStore {
+    /// Opens (creating if needed) the store in `dir`.
+    pub fn open(dir: &Path, opts: StoreOptions) -> Result<Self, StoreError> {
+        Self::open_inner(dir, opts).map_err(|e| match e {
+            StoreError::Corrupt { detail } => StoreError::Corrupt {
+                detail: format!("{}: {detail}", dir.join(DB_FILE).display()),
+            },
+            StoreError::Backend(msg) => {
+                StoreError::Backend(format!("opening {}: {msg}", dir.join(DB_FILE).display()))
+            }
+            e => e,
+        })
+    }
+
+    fn open_inner(dir: &Path, opts: StoreOptions) -> Result<Self, StoreError> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| StoreError::Backend(format!("cannot create the data directory: {e}")))?;
+        let path = dir.join(DB_FILE);
+        let mut writer = open_connection(
+            &path,
+            OpenFlags::SQLITE_OPEN_READ_WRITE
+                | OpenFlags::SQLITE_OPEN_CREATE
+                | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )?;
+        let mode: String = writer
+            .pragma_update_and_check(None, "journal_mode", "WAL", |r| r.get(0))
+            .map_err(db)?;
+        if !mode.eq_ignore_ascii_case("wal") {
+            return Err(StoreError::Backend(format!(
+                "cannot use a write-ahead log (journal mode {mode})"
+            )));
+        }
+        writer
+            .pragma_update(None, "synchronous", "FULL")
+            .map_err(db)?;
+        // Truncate the WAL back to 64 MiB after checkpoints that follow large blob writes.
+        writer
+            .pragma_update(None, "journal_size_limit", 64_i64 << 20)
+            .map_err(db)?;
+        migrate(&mut writer)?;
+        let reader = open_connection(
+            &path,
+            OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+        )?;
+        reader.pragma_update(None, "query_only", true).map_err(db)?;
+        Ok(Self {
+            path,
+            opts,
+            writer: Mutex::new(writer),
+            reader: Mutex::new(reader),
+        })
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn options(&self) -> &StoreOptions {
+        &self.opts
+    }
+}
+
+fn read_record(r: &rusqlite::Row<'_>) -> rusqlite::Result<SessionRecord> {
+    Ok(SessionRecord {
+        id: r.get(0)?,
+        display_name: r.get(1)?,
+        created_ms: r.get(2)?,
+        last_access_ms: r.get(3)?,
+    })
+}
+
+impl SessionStore for SqliteStore {
+    fn create_session(&self, rec: &SessionRecord) -> Result<(), StoreError> {
+        check_session(&self.opts, rec)?;
+        let conn = lock(&self.writer);
+        let inserted = conn
+            .prepare_cached(
+                "INSERT INTO sessions (id, display_name, created_ms, last_access_ms)
+                 VALUES (?1, ?2, ?3, ?4) ON CONFLICT (id) DO NOTHING",
+            )
+            .and_then(|mut st| {
+                st.execute(params![
+                    rec.id,
+                    rec.display_name,
+                    rec.created_ms,
+                    rec.last_access_ms
+                ])
+            })
+            .map_err(db)?;
+        if inserted == 0 {
+            return Err(StoreError::AlreadyExists { id: rec.id.clone() });
+        }
+        Ok(())
+    }
+
+    fn sessions(&self) -> Result<Vec<SessionRecord>, StoreError> {
+        let conn = lock(&self.reader);
+        let mut st = conn
+            .prepare_cached(
+                "SELECT id, display_name, created_ms, last_access_ms FROM sessions
+                 ORDER BY created_ms, id",
+            )
+            .map_err(db)?;
+        st.query_map([], read_record)
+            .and_then(Iterator::collect)
+            .map_err(db)
+    }
+
+    fn session(&self, id: &str) -> Result<Option<SessionRecord>, StoreError> {
+        let conn = lock(&self.reader);
+        conn.prepare_cached(
+            "SELECT id, display_name, created_ms, last_access_ms FROM sessions WHERE id = ?1",
+        )
+        .and_then(|mut st| st.query_row([id], read_record).optional())
+        .map_err(db)
+    }
+
+    fn delete_session(&self, id: &str) -> Result<bool, StoreError> {
+        let conn = lock(&self.writer);
+        let n = conn
+            .prepare_cached("DELETE FROM sessions WHERE id = ?1")
+            .and_then(|mut st| st.execute([id]))
+            .map_err(db)?;
+        Ok(n > 0)
+    }
+
+    fn touch(&self, id: &str, at_ms: i64) -> Result<(), StoreError> {
+        let conn = lock(&self.writer);
+        let n = conn
+            .prepare_cached(
+                "UPDATE sessions SET last_access_ms = MAX(last_access_ms, ?2) WHERE id = ?1",
+            )
+            .and_then(|mut st| st.execute(params![id, at_ms]))
+            .map_err(db)?;
+        if n == 0 {
+            return Err(not_found(id));
+        }
+        Ok(())
+    }
+
+    fn put_blob(&self, id: &str, key: &str, blob: &Blob) -> Result<(), StoreError> {
+        check_name("blob key", key)?;
+        check_record(&self.opts, "blob metadata", blob.meta_json.len())?;
+        if !session_exists(&lock(&self.reader), id)? {
+            return Err(not_found(id));
+        }
+        let packed = pack(&self.opts, &blob.data)?;
+        if packed.data.len() as u64 > SQLITE_MAX_VALUE {
+            return Err(StoreError::TooLarge {
+                what: "compressed blob",
+                size: packed.data.len() as u64,
+                limit: SQLITE_MAX_VALUE,
+            });
+        }
+        let raw_len = to_i64("blob length", packed.raw_len)?;
+        let conn = lock(&self.writer);
+        let n = conn
+            .prepare_cached(
+                "INSERT INTO blobs (session_id, key, meta_json, raw_len, data)
+                 SELECT id, ?2, ?3, ?4, ?5 FROM sessions WHERE id = ?1
+                 ON CONFLICT (session_id, key) DO UPDATE SET
+                   meta_json = excluded.meta_json, raw_len = excluded.raw_len, data = excluded.data",
+            )
+            .and_then(|mut st| st.execute(params![id, key, blob.meta_json, raw_len, packed.data]))
+            .map_err(db)?;
+        if n == 0 {
+            return Err(not_found(id));
+        }
+        Ok(())
+    }
+
+    fn blob(&self, id: &str, key: &str) -> Result<Option<Blob>, StoreError> {
+        type Row = (Option<String>, Option<i64>, Option<Vec<u8>>);
+        let row: Option<Row> = {
+            let conn = lock(&self.reader);
+            conn.prepare_cached(
+                "SELECT b.meta_json, b.raw_len, b.data FROM sessions s
+                 LEFT JOIN blobs b ON b.session_id = s.id AND b.key = ?2 WHERE s.id = ?1",
+            )
+            .and_then(|mut st| {
+                st.query_row([id, key], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+                    .optional()
+            })
+            .map_err(db)?
+        };
+        match row {
+            None => Err(not_found(id)),
+            Some((Some(meta_json), Some(raw_len), Some(data))) => {
+                let data = unpack(&self.opts, to_u64("blob length", raw_len)?, &data)?;
+                Ok(Some(Blob { meta_json, data }))
+            }
+            Some(_) => Ok(None),
+        }
+    }
+
+    fn delete_blob(&self, id: &str, key: &str) -> Result<bool, StoreError> {
+        let mut conn = lock(&self.writer);
+        let tx = conn.transaction().map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Err(not_found(id));
+        }
+        let n = tx
+            .prepare_cached("DELETE FROM blobs WHERE session_id = ?1 AND key = ?2")
+            .and_then(|mut st| st.execute([id, key]))
+            .map_err(db)?;
+        tx.commit().map_err(db)?;
+        Ok(n > 0)
+    }
+
+    fn append(&self, id: &str, expected_len: u64, records: &[String]) -> Result<u64, StoreError> {
+        check_records(&self.opts, records)?;
+        let mut conn = lock(&self.writer);
+        let tx = conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Err(not_found(id));
+        }
+        let actual = log_len(&tx, id)?;
+        if actual != expected_len {
+            return Err(StoreError::Conflict {
+                expected: expected_len,
+                actual,
+            });
+        }
+        let new_len = actual + records.len() as u64;
+        to_i64("log length", new_len)?;
+        {
+            let mut st = tx
+                .prepare_cached("INSERT INTO log (session_id, seq, json) VALUES (?1, ?2, ?3)")
+                .map_err(db)?;
+            for (json, seq) in records.iter().zip(expected_len + 1..) {
+                st.execute(params![id, seq as i64, json]).map_err(db)?;
+            }
+        }
+        // synchronous=FULL: the WAL is fsynced before commit returns.
+        tx.commit().map_err(db)?;
+        Ok(new_len)
+    }
+
+    fn log(&self, id: &str, after: u64) -> Result<Vec<LogRecord>, StoreError> {
+        let after = i64::try_from(after).unwrap_or(i64::MAX);
+        let mut conn = lock(&self.reader);
+        let tx = conn.transaction().map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Err(not_found(id));
+        }
+        let rows: Vec<(i64, String)> = tx
+            .prepare_cached(
+                "SELECT seq, json FROM log WHERE session_id = ?1 AND seq > ?2 ORDER BY seq",
+            )
+            .and_then(|mut st| {
+                st.query_map(params![id, after], |r| Ok((r.get(0)?, r.get(1)?)))?
+                    .collect()
+            })
+            .map_err(db)?;
+        rows.into_iter()
+            .map(|(seq, json)| {
+                Ok(LogRecord {
+                    seq: to_u64("log seq", seq)?,
+                    json,
+                })
+            })
+            .collect()
+    }
+
+    fn log_len(&self, id: &str) -> Result<u64, StoreError> {
+        let mut conn = lock(&self.reader);
+        let tx = conn.transaction().map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Err(not_found(id));
+        }
+        log_len(&tx, id)
+    }
+
+    fn idle_since(&self, before_ms: i64) -> Result<Vec<String>, StoreError> {
+        let conn = lock(&self.reader);
+        conn.prepare_cached(
+            "SELECT id FROM sessions WHERE last_access_ms < ?1 ORDER BY last_access_ms, id",
+        )
+        .and_then(|mut st| st.query_map([before_ms], |r| r.get(0))?.collect())
+        .map_err(db)
+    }
+
+    fn usage(&self) -> Result<StoreUsage, StoreError> {
+        let mut conn = lock(&self.reader);
+        let tx = conn.transaction().map_err(db)?;
+        let (sessions, blobs, log): (i64, i64, i64) = tx
+            .query_row(
+                "SELECT (SELECT COUNT(*) FROM sessions),
+                        (SELECT COALESCE(SUM(length(data) + octet_length(meta_json)), 0) FROM blobs),
+                        (SELECT COALESCE(SUM(octet_length(json)), 0) FROM log)",
+                [],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
+            .map_err(db)?;
+        Ok(StoreUsage {
+            sessions: to_u64("session count", sessions)?,
+            stored_bytes: to_u64("stored bytes", blobs)? + to_u64("stored bytes", log)?,
+        })
+    }
+}
