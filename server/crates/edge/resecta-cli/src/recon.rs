@@ -341,7 +341,10 @@ pub fn models(args: &ModelsArgs) -> Result<(), CliError> {
     let labels = read_labels(&args.input)?;
     std::fs::create_dir_all(&args.out_dir)
         .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
-    let mut built = |name: &str| pb.set_message(format!("built {name}"));
+    let mut built = |name: &str| {
+        pb.set_message(format!("built {name}"));
+        true
+    };
     let models = patient_models(
         &labels,
         &roles,

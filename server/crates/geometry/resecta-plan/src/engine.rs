@@ -150,6 +150,10 @@ impl Planner {
         Ok(planner)
     }
 
+    /// The shared anatomy (for a new planner on the same patient).
+    pub fn anatomy_shared(&self) -> Arc<Anatomy> {
+        Arc::clone(&self.anatomy)
+    }
     pub fn anatomy(&self) -> &Anatomy {
         &self.anatomy
     }

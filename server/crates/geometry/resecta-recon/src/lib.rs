@@ -33,6 +33,8 @@ pub enum ReconError {
     LabelsAbsent { labels: Vec<u16> },
     #[error("the selected mask is empty")]
     EmptyMask,
+    #[error("reconstruction cancelled")]
+    Cancelled,
     #[error("{name} {reason}")]
     InvalidParameter {
         name: &'static str,

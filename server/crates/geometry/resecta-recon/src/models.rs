@@ -29,13 +29,14 @@ impl PatientModel {
     }
 }
 
-/// Builds every model; `progress(name)` is called after each one.
+/// Builds every model; `progress(name)` is called after each one and stops the work with
+/// [`ReconError::Cancelled`] when it returns `false`.
 pub fn patient_models(
     labels: &LabelMap,
     roles: &RoleMap,
     depth: u32,
     mcsd_params: &McsdParams,
-    progress: &mut dyn FnMut(&str),
+    progress: &mut dyn FnMut(&str) -> bool,
 ) -> Result<Vec<PatientModel>, ReconError> {
     let mut out = Vec::new();
     let all: Vec<u16> = roles.roles().flat_map(|(_, l)| l.iter().copied()).collect();
@@ -56,7 +57,9 @@ pub fn patient_models(
             voxels,
             mesh: model.mesh,
         });
-        progress("parenchyma");
+        if !progress("parenchyma") {
+            return Err(ReconError::Cancelled);
+        }
     }
     for role in [Role::Tumor, Role::Portal, Role::Hepatic, Role::Vessel] {
         let wanted = roles.labels(role);
@@ -78,7 +81,9 @@ pub fn patient_models(
                 voxels,
                 mesh,
             };
-            progress(&model.name());
+            if !progress(&model.name()) {
+                return Err(ReconError::Cancelled);
+            }
             out.push(model);
         }
     }

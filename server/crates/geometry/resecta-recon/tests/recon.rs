@@ -220,7 +220,10 @@ fn patient_model_of_the_small_phantom() {
         &roles,
         7,
         &McsdParams::default(),
-        &mut |n| names.push(n.to_owned()),
+        &mut |n| {
+            names.push(n.to_owned());
+            true
+        },
     )
     .unwrap();
     let by_role = |r: Role| models.iter().filter(|m| m.role == r).count();
@@ -228,6 +231,18 @@ fn patient_model_of_the_small_phantom() {
     assert_eq!(by_role(Role::Tumor), 1);
     assert_eq!(by_role(Role::Portal), 1);
     assert_eq!(names.len(), models.len());
+    // Cancelling after the first model stops the work.
+    let cancelled = patient_models(
+        &phantom.labels,
+        &roles,
+        7,
+        &McsdParams::default(),
+        &mut |_| false,
+    );
+    assert!(matches!(
+        cancelled,
+        Err(resecta_recon::ReconError::Cancelled)
+    ));
     for m in &models {
         assert!(m.mesh.report().watertight, "{}", m.name());
         assert!(m.mesh.signed_volume() > 0.0);

@@ -1,0 +1,266 @@
+//! Requests, answers and watch events of the operation layer: plain Rust values the gRPC and
+//! HTTP edges translate to and from their wire types.
+
+use std::collections::BTreeMap;
+
+use resecta_geom::{Real, RoleMap};
+use resecta_plan::{PlanEvent, Target, Verdict, VolumeReport};
+use serde::{Deserialize, Serialize};
+
+/// The API generation clients must speak.
+pub const API_VERSION: &str = "resecta.v1";
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ServerInfo {
+    pub version: &'static str,
+    pub api_version: &'static str,
+    pub capabilities: Vec<String>,
+    pub limits: Limits,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct Limits {
+    pub max_sessions: usize,
+    pub max_voxels: u64,
+    pub max_upload_bytes: u64,
+    pub max_memory_bytes: u64,
+}
+
+/// Where a session is in the workflow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SessionState {
+    /// Created, no label map yet.
+    Empty,
+    /// A label map is loaded: planning works.
+    LabelMap,
+    /// Surface models are built too.
+    Ready,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct SessionInfo {
+    pub id: String,
+    pub display_name: String,
+    pub created_ms: i64,
+    pub last_access_ms: i64,
+    pub state: SessionState,
+    /// Number of acknowledged plan changes (label-map loads, imports, edits, undo, redo).
+    pub plan_version: u64,
+    pub label_map: Option<LabelMapSummary>,
+}
+
+/// Geometry and contents of a loaded label map.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LabelMapSummary {
+    pub dims: [usize; 3],
+    pub spacing: [Real; 3],
+    pub origin: [Real; 3],
+    /// Row-major 3×3; column c is the RAS direction of index axis c.
+    pub direction: [Real; 9],
+    /// Voxels per non-zero label.
+    pub labels: BTreeMap<u16, u64>,
+    /// Functional liver volume (every liver role, tumours excluded), ml.
+    pub liver_ml: Real,
+    pub roles: RoleMap,
+}
+
+/// Voxel type of raw uploaded data (little-endian).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DataType {
+    U8,
+    U16,
+    I16,
+    U32,
+    I32,
+}
+
+impl DataType {
+    pub fn size(self) -> usize {
+        match self {
+            Self::U8 => 1,
+            Self::U16 | Self::I16 => 2,
+            Self::U32 | Self::I32 => 4,
+        }
+    }
+}
+
+/// A label map as raw voxels with its geometry.
+#[derive(Debug, Clone)]
+pub struct RawLabelMap {
+    pub dims: [usize; 3],
+    pub spacing: [Real; 3],
+    pub origin: [Real; 3],
+    /// Row-major 3×3; column c is the RAS direction of index axis c.
+    pub direction: [Real; 9],
+    pub data_type: DataType,
+    /// `dims` voxels of `data_type`, i fastest.
+    pub data: Vec<u8>,
+}
+
+/// Image file formats accepted as label-map uploads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FileFormat {
+    Nifti,
+    Nrrd,
+    SegNrrd,
+    MetaImage,
+    /// From the bytes' magic.
+    Auto,
+}
+
+#[derive(Debug, Clone)]
+pub enum LabelMapSource {
+    Raw(RawLabelMap),
+    File { format: FileFormat, bytes: Vec<u8> },
+}
+
+/// One plan change.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "op", rename_all = "snake_case")]
+pub enum EditOp {
+    /// Any plan event (set control points, move groups, translate, rotate, margins, ...).
+    Event {
+        event: PlanEvent,
+    },
+    /// A new resection initialised from its target tumour(s) and an end point (Alg. 1–2).
+    InitFromEndPoint {
+        name: String,
+        #[serde(default)]
+        target: Target,
+        end_point: [Real; 3],
+        #[serde(default = "default_grid")]
+        grid: [usize; 2],
+    },
+    /// A new resection on the plane through `point` with `normal`.
+    InitFromPlane {
+        name: String,
+        #[serde(default)]
+        target: Target,
+        point: [Real; 3],
+        normal: [Real; 3],
+        #[serde(default = "default_grid")]
+        grid: [usize; 2],
+    },
+    Undo,
+    Redo,
+}
+
+fn default_grid() -> [usize; 2] {
+    [4, 4]
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct EditOutcome {
+    pub plan_version: u64,
+    /// The resection the change touched, if it still exists.
+    pub resection: Option<String>,
+    pub verdict: Option<Verdict>,
+}
+
+/// Surface models of one reconstruction.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ModelInfo {
+    pub name: String,
+    pub kind: SurfaceKind,
+    pub method: String,
+    pub triangles: usize,
+    pub vertices: usize,
+    pub volume_ml: Real,
+}
+
+/// Reconstruction methods for the parenchyma (tumours and vessels always use MCSD).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReconMethod {
+    /// Screened Poisson at the given depth (the thesis' preferred parenchyma model).
+    #[default]
+    Psr,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum ReconstructEvent {
+    Progress { stage: String, fraction: Real },
+    Model { model: ModelInfo },
+    Done { models: usize, time_ms: Real },
+}
+
+/// What a surface shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SurfaceKind {
+    Parenchyma,
+    Tumor,
+    Portal,
+    Hepatic,
+    Vessel,
+    Resection,
+}
+
+/// A whole surface: `mesh` is a `resecta-delta` mesh encoding (magic `RSMS`).
+#[derive(Debug, Clone, Serialize)]
+pub struct Surface {
+    pub name: String,
+    pub kind: SurfaceKind,
+    #[serde(skip)]
+    pub mesh: Vec<u8>,
+}
+
+/// A resection surface after an edit: a delta against the previous frame (magic `RSDL`) when
+/// the topology is unchanged, else the whole mesh.
+#[derive(Debug, Clone, Serialize)]
+pub struct SurfaceUpdate {
+    pub name: String,
+    pub full: bool,
+    #[serde(skip)]
+    pub bytes: Vec<u8>,
+}
+
+#[derive(Debug, Clone, Serialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum WatchBody {
+    /// Everything: models, resection surfaces with their verdicts, the last volumes.
+    Snapshot {
+        models: Vec<Surface>,
+        resections: Vec<Surface>,
+        verdicts: BTreeMap<String, Verdict>,
+        volumes: Option<VolumeReport>,
+    },
+    /// Resection surfaces that changed, removed ones, and the verdicts of the changed ones.
+    Delta {
+        updates: Vec<SurfaceUpdate>,
+        removed: Vec<String>,
+        verdicts: BTreeMap<String, Verdict>,
+    },
+    /// New surface models (after a reconstruction).
+    Models { models: Vec<Surface> },
+    /// Volumes after the edits settled.
+    Volumes { volumes: VolumeReport },
+}
+
+/// One message of a session's watch stream.
+#[derive(Debug, Clone, Serialize)]
+pub struct WatchEvent {
+    /// Increases by one per event of this session (since the server started).
+    pub seq: u64,
+    pub plan_version: u64,
+    pub body: WatchBody,
+}
+
+impl WatchEvent {
+    /// Payload bytes (for the replay ring's byte bound).
+    pub fn weight(&self) -> usize {
+        let surfaces = |s: &[Surface]| s.iter().map(|s| s.mesh.len() + 64).sum::<usize>();
+        256 + match &self.body {
+            WatchBody::Snapshot {
+                models, resections, ..
+            } => surfaces(models) + surfaces(resections),
+            WatchBody::Delta { updates, .. } => updates.iter().map(|u| u.bytes.len() + 64).sum(),
+            WatchBody::Models { models } => surfaces(models),
+            WatchBody::Volumes { .. } => 512,
+        }
+    }
+}

@@ -1,0 +1,236 @@
+//! Uploaded label maps: raw voxels or image files to a validated `u16` [`LabelMap`], its summary,
+//! and its storage form (a JSON header and little-endian `u16` voxels).
+
+use resecta_geom::{Grid, LabelMap, Mat3, Real, Role, RoleMap, Vec3, Volume, VoxelLimit};
+use resecta_io::{metaimage, nifti, nrrd};
+use serde::{Deserialize, Serialize};
+
+use crate::api::{DataType, FileFormat, LabelMapSource, LabelMapSummary, RawLabelMap};
+use crate::error::{Result, SessionError};
+
+/// Name used in errors for uploaded files (never the client's file name: patient data).
+const UPLOAD: &str = "uploaded label map";
+
+fn invalid(m: impl Into<String>) -> SessionError {
+    SessionError::Invalid(m.into())
+}
+
+/// The label map of an upload, checked against `max_voxels`.
+pub fn decode(source: &LabelMapSource, max_voxels: u64) -> Result<LabelMap> {
+    let limit = VoxelLimit(max_voxels);
+    match source {
+        LabelMapSource::Raw(raw) => from_raw(raw, limit),
+        LabelMapSource::File { format, bytes } => from_file(*format, bytes, limit),
+    }
+}
+
+fn grid(
+    dims: [usize; 3],
+    spacing: [Real; 3],
+    origin: [Real; 3],
+    direction: [Real; 9],
+    limit: VoxelLimit,
+) -> Result<Grid> {
+    if direction.iter().chain(&origin).any(|v| !v.is_finite()) {
+        return Err(invalid("origin and direction must be finite"));
+    }
+    Grid::with_limit(
+        dims,
+        spacing,
+        Vec3::from(origin),
+        Mat3::from_row_slice(&direction),
+        limit,
+    )
+    .map_err(|e| match e {
+        resecta_geom::GeomError::TooManyVoxels { .. } => SessionError::Quota(e.to_string()),
+        _ => invalid(format!("label-map geometry: {e}")),
+    })
+}
+
+fn from_raw(raw: &RawLabelMap, limit: VoxelLimit) -> Result<LabelMap> {
+    let g = grid(raw.dims, raw.spacing, raw.origin, raw.direction, limit)?;
+    let n = raw.dims.iter().product::<usize>();
+    let size = raw.data_type.size();
+    if n.checked_mul(size) != Some(raw.data.len()) {
+        return Err(invalid(format!(
+            "label-map data holds {} bytes, but {}×{}×{} voxels of {:?} need {}",
+            raw.data.len(),
+            raw.dims[0],
+            raw.dims[1],
+            raw.dims[2],
+            raw.data_type,
+            n.saturating_mul(size)
+        )));
+    }
+    let bad = |v: i64| invalid(format!("label {v} is outside 0..=65535"));
+    let labels: Vec<u16> = match raw.data_type {
+        DataType::U8 => raw.data.iter().map(|&b| u16::from(b)).collect(),
+        DataType::U16 => raw
+            .data
+            .chunks_exact(2)
+            .map(|c| u16::from_le_bytes([c[0], c[1]]))
+            .collect(),
+        DataType::I16 => raw
+            .data
+            .chunks_exact(2)
+            .map(|c| {
+                let v = i16::from_le_bytes([c[0], c[1]]);
+                u16::try_from(v).map_err(|_| bad(v.into()))
+            })
+            .collect::<Result<_>>()?,
+        DataType::U32 => raw
+            .data
+            .chunks_exact(4)
+            .map(|c| {
+                let v = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                u16::try_from(v).map_err(|_| bad(v.into()))
+            })
+            .collect::<Result<_>>()?,
+        DataType::I32 => raw
+            .data
+            .chunks_exact(4)
+            .map(|c| {
+                let v = i32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                u16::try_from(v).map_err(|_| bad(v.into()))
+            })
+            .collect::<Result<_>>()?,
+    };
+    Volume::from_vec(g, labels).map_err(|e| invalid(format!("label map: {e}")))
+}
+
+fn sniff(bytes: &[u8]) -> Result<FileFormat> {
+    let head = &bytes[..bytes.len().min(4096)];
+    let text = String::from_utf8_lossy(head);
+    if bytes.starts_with(&[0x1f, 0x8b]) || (bytes.len() >= 348 && &bytes[344..348] == b"n+1\0") {
+        Ok(FileFormat::Nifti)
+    } else if bytes.starts_with(b"NRRD") {
+        Ok(if text.contains("Segment0_") {
+            FileFormat::SegNrrd
+        } else {
+            FileFormat::Nrrd
+        })
+    } else if text.contains("ObjectType") || text.contains("NDims") {
+        Ok(FileFormat::MetaImage)
+    } else {
+        Err(invalid(
+            "the uploaded file is not NIfTI-1, NRRD, .seg.nrrd or MetaImage (.mha)",
+        ))
+    }
+}
+
+fn from_file(format: FileFormat, bytes: &[u8], limit: VoxelLimit) -> Result<LabelMap> {
+    let format = match format {
+        FileFormat::Auto => sniff(bytes)?,
+        f => f,
+    };
+    let io = |e: resecta_io::IoError| match &e.kind {
+        resecta_io::ErrorKind::Geometry(resecta_geom::GeomError::TooManyVoxels { .. }) => {
+            SessionError::Quota(e.to_string())
+        }
+        _ => invalid(e.to_string()),
+    };
+    let image = match format {
+        FileFormat::Nifti => nifti::read_nifti_bytes(bytes, UPLOAD, limit).map_err(io)?,
+        FileFormat::Nrrd => nrrd::read_nrrd_bytes(bytes, UPLOAD, limit).map_err(io)?,
+        FileFormat::MetaImage => {
+            metaimage::read_metaimage_bytes(bytes, UPLOAD, limit).map_err(io)?
+        }
+        FileFormat::SegNrrd => {
+            let seg = nrrd::read_seg_nrrd_bytes(bytes, UPLOAD, limit).map_err(io)?;
+            return seg
+                .to_label_map()
+                .map_err(|k| invalid(format!("{UPLOAD}: {k}")));
+        }
+        FileFormat::Auto => return Err(invalid("file format could not be told")),
+    };
+    image
+        .to_label_map()
+        .map_err(|k| invalid(format!("{UPLOAD}: {k}")))
+}
+
+/// Checks the role map against the labels present: some parenchyma label must occur.
+pub fn check_roles(roles: &RoleMap, counts: &std::collections::BTreeMap<u16, u64>) -> Result<()> {
+    if !roles
+        .labels(Role::Parenchyma)
+        .iter()
+        .any(|l| counts.contains_key(l))
+    {
+        return Err(invalid(
+            "no parenchyma label of the role map occurs in the label map",
+        ));
+    }
+    if !roles
+        .labels(Role::Tumor)
+        .iter()
+        .any(|l| counts.contains_key(l))
+    {
+        return Err(invalid(
+            "no tumour label of the role map occurs in the label map",
+        ));
+    }
+    Ok(())
+}
+
+/// Summary of a label map (voxel counts, functional liver volume).
+pub fn summary(labels: &LabelMap, roles: &RoleMap) -> LabelMapSummary {
+    let g = labels.grid();
+    let mut counts = labels.value_counts();
+    counts.remove(&0);
+    let voxel_ml = g.voxel_volume_mm3() / 1000.0;
+    let liver: u64 = counts
+        .iter()
+        .filter(|(l, _)| roles.role_of(**l).is_some_and(Role::is_functional_liver))
+        .map(|(_, c)| c)
+        .sum();
+    let d = g.direction();
+    LabelMapSummary {
+        dims: g.dims(),
+        spacing: g.spacing(),
+        origin: g.origin().into(),
+        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
+        labels: counts,
+        liver_ml: liver as Real * voxel_ml,
+        roles: roles.clone(),
+    }
+}
+
+/// Stored header of a label-map blob.
+#[derive(Debug, Serialize, Deserialize)]
+pub struct StoredHeader {
+    pub dims: [usize; 3],
+    pub spacing: [Real; 3],
+    pub origin: [Real; 3],
+    pub direction: [Real; 9],
+    pub roles: RoleMap,
+}
+
+/// The blob form of a label map and its roles.
+pub fn to_blob(labels: &LabelMap, roles: &RoleMap) -> Result<resecta_store::Blob> {
+    let s = summary(labels, roles);
+    let header = StoredHeader {
+        dims: s.dims,
+        spacing: s.spacing,
+        origin: s.origin,
+        direction: s.direction,
+        roles: roles.clone(),
+    };
+    let meta_json =
+        serde_json::to_string(&header).map_err(|e| SessionError::Internal(e.to_string()))?;
+    let data = labels.data().iter().flat_map(|v| v.to_le_bytes()).collect();
+    Ok(resecta_store::Blob { meta_json, data })
+}
+
+/// The label map and roles of a stored blob.
+pub fn from_blob(blob: &resecta_store::Blob, max_voxels: u64) -> Result<(LabelMap, RoleMap)> {
+    let h: StoredHeader = serde_json::from_str(&blob.meta_json)
+        .map_err(|e| SessionError::Internal(format!("stored label-map header: {e}")))?;
+    let raw = RawLabelMap {
+        dims: h.dims,
+        spacing: h.spacing,
+        origin: h.origin,
+        direction: h.direction,
+        data_type: DataType::U16,
+        data: blob.data.clone(),
+    };
+    Ok((from_raw(&raw, VoxelLimit(max_voxels))?, h.roles))
+}

@@ -1,0 +1,1040 @@
+//! The operation layer: every operation of the planning server, once, for the gRPC and HTTP
+//! faces alike.
+//!
+//! Per session, one async mutex orders the operations; heavy work (anatomy set-up, edits,
+//! volumetry, reconstruction) runs on the blocking pool, so a long job never stalls the runtime
+//! or another session. An edit is acknowledged only after its log record is durable in the store;
+//! restarting replays the log to the same plan.
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime, UNIX_EPOCH};
+
+use resecta_delta::{
+    DecodeLimits, EncodeOptions, SurfaceFrame, Topology, decode_mesh, encode_mesh,
+};
+use resecta_geom::{LabelMap, Plane, Real, Role, RoleMap, TriMesh, Vec3};
+use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
+use resecta_plan::{
+    Anatomy, History, LogEntry, Plan, PlanEvent, Planner, SlicePositions, SliceProjections,
+    VolumeReport, slice_projections,
+};
+use resecta_recon::{McsdParams, ReconError, patient_models};
+use resecta_store::{Blob, SessionRecord, SessionStore};
+use serde::{Deserialize, Serialize};
+use tokio::sync::{Mutex as AsyncMutex, mpsc};
+
+use crate::api::{
+    API_VERSION, EditOp, EditOutcome, LabelMapSource, LabelMapSummary, Limits, ModelInfo,
+    ReconstructEvent, ServerInfo, SessionInfo, SessionState, Surface, SurfaceKind,
+};
+use crate::error::{Result, SessionError};
+use crate::labelmap;
+use crate::watch::{Hub, RingBounds, WatchStream};
+
+/// Limits and tuning of a [`Service`].
+#[derive(Debug, Clone)]
+pub struct ServiceConfig {
+    pub max_sessions: usize,
+    /// Voxels per label map.
+    pub max_voxels: u64,
+    /// Bytes of one upload (raw data or file).
+    pub max_upload_bytes: u64,
+    /// Estimated memory of all loaded sessions together.
+    pub max_memory_bytes: u64,
+    /// Sessions untouched for this long are deleted by [`Service::expire_idle`].
+    pub idle_expiry: Option<Duration>,
+    pub ring: RingBounds,
+    pub encode: EncodeOptions,
+    /// Volumes are recomputed this long after the last edit of a burst.
+    pub volumes_delay: Duration,
+    /// Depth of the parenchyma's screened Poisson reconstruction.
+    pub psr_depth: u32,
+    /// Capabilities reported by [`Service::info`] (the edges add theirs, e.g. "tls").
+    pub capabilities: Vec<String>,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            max_sessions: 64,
+            max_voxels: 1 << 28,
+            max_upload_bytes: 1 << 30,
+            max_memory_bytes: 16 << 30,
+            idle_expiry: Some(Duration::from_secs(7 * 24 * 3600)),
+            ring: RingBounds {
+                items: 1024,
+                bytes: 64 << 20,
+            },
+            encode: EncodeOptions::exact(),
+            volumes_delay: Duration::from_millis(30),
+            psr_depth: 7,
+            capabilities: Vec::new(),
+        }
+    }
+}
+
+/// Estimated resident bytes per voxel of a loaded session (label map, liver masks, volumetry).
+const BYTES_PER_VOXEL: u64 = 8;
+/// Display names: characters.
+const MAX_DISPLAY_NAME: usize = 256;
+/// Last-access times are written at most this often per session (ms).
+const TOUCH_EVERY_MS: i64 = 60_000;
+const LABELMAP_BLOB: &str = "labelmap";
+const SUMMARY_BLOB: &str = "summary";
+const MODELS_BLOB: &str = "models";
+
+/// A record of a session's plan log.
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+enum Record {
+    /// A new base plan (label-map load or import): what follows edits it.
+    Reset {
+        plan: String,
+    },
+    Entry {
+        entry: LogEntry,
+    },
+}
+
+fn now_ms() -> i64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+}
+
+fn internal(e: impl std::fmt::Display) -> SessionError {
+    SessionError::Internal(e.to_string())
+}
+
+/// Runs `f` on the blocking pool.
+async fn blocking<T: Send + 'static>(f: impl FnOnce() -> Result<T> + Send + 'static) -> Result<T> {
+    tokio::task::spawn_blocking(f).await.map_err(internal)?
+}
+
+#[derive(Debug)]
+struct Model {
+    info: ModelInfo,
+    mesh: TriMesh,
+    surface: Surface,
+}
+
+#[derive(Debug)]
+struct Loaded {
+    labels: Arc<LabelMap>,
+    summary: LabelMapSummary,
+    /// `None` only while a blocking task holds it.
+    planner: Option<Planner>,
+    /// Changes with every label-map load (reconstructions of an older one are dropped).
+    generation: u64,
+}
+
+#[derive(Debug)]
+struct State {
+    display_name: String,
+    created_ms: i64,
+    /// Restored from the store on first use after a restart.
+    restored: bool,
+    loaded: Option<Loaded>,
+    models: Option<Arc<Vec<Model>>>,
+    /// Acknowledged log records.
+    version: u64,
+    generation: u64,
+}
+
+#[derive(Debug)]
+struct Session {
+    id: String,
+    state: Arc<AsyncMutex<State>>,
+    hub: Arc<Hub>,
+    last_touch_ms: AtomicI64,
+    volumes_scheduled: AtomicBool,
+    memory: std::sync::atomic::AtomicU64,
+}
+
+/// The operation layer over a [`SessionStore`].
+#[derive(Debug)]
+pub struct Service {
+    store: Arc<dyn SessionStore>,
+    config: ServiceConfig,
+    sessions: Mutex<HashMap<String, Arc<Session>>>,
+}
+
+fn take_planner(loaded: &mut Loaded) -> Result<Planner> {
+    loaded
+        .planner
+        .take()
+        .ok_or_else(|| internal("session planner is busy or was lost"))
+}
+
+fn check_display_name(name: &str) -> Result<()> {
+    if name.is_empty() || name.chars().count() > MAX_DISPLAY_NAME {
+        return Err(SessionError::Invalid(format!(
+            "display name must have 1 to {MAX_DISPLAY_NAME} characters"
+        )));
+    }
+    if name.chars().any(char::is_control) {
+        return Err(SessionError::Invalid(
+            "display name must not contain control characters".into(),
+        ));
+    }
+    Ok(())
+}
+
+fn surface_kind(role: Role) -> SurfaceKind {
+    match role {
+        Role::Parenchyma => SurfaceKind::Parenchyma,
+        Role::Tumor => SurfaceKind::Tumor,
+        Role::Portal => SurfaceKind::Portal,
+        Role::Hepatic => SurfaceKind::Hepatic,
+        Role::Vessel => SurfaceKind::Vessel,
+    }
+}
+
+/// Names of resections that differ between two plans (changed, added or removed).
+fn changed_names(before: &Plan, after: &Plan) -> Vec<String> {
+    let mut names: Vec<String> = after
+        .resections
+        .iter()
+        .filter(|r| before.resection(&r.name).ok() != Some(*r))
+        .map(|r| r.name.clone())
+        .collect();
+    names.extend(
+        before
+            .resections
+            .iter()
+            .filter(|r| after.resection(&r.name).is_err())
+            .map(|r| r.name.clone()),
+    );
+    names
+}
+
+impl Service {
+    /// A service over `store`; sessions already stored are restored when first used.
+    pub fn new(store: Arc<dyn SessionStore>, config: ServiceConfig) -> Self {
+        Self {
+            store,
+            config,
+            sessions: Mutex::new(HashMap::new()),
+        }
+    }
+
+    pub fn config(&self) -> &ServiceConfig {
+        &self.config
+    }
+
+    pub fn info(&self) -> ServerInfo {
+        let mut capabilities = vec!["zstd".to_owned(), "watch-deltas".to_owned()];
+        capabilities.extend(self.config.capabilities.iter().cloned());
+        ServerInfo {
+            version: env!("CARGO_PKG_VERSION"),
+            api_version: API_VERSION,
+            capabilities,
+            limits: Limits {
+                max_sessions: self.config.max_sessions,
+                max_voxels: self.config.max_voxels,
+                max_upload_bytes: self.config.max_upload_bytes,
+                max_memory_bytes: self.config.max_memory_bytes,
+            },
+        }
+    }
+
+    fn map(&self) -> Result<std::sync::MutexGuard<'_, HashMap<String, Arc<Session>>>> {
+        self.sessions
+            .lock()
+            .map_err(|_| internal("session table lock poisoned"))
+    }
+
+    fn new_session(&self, rec: &SessionRecord, restored: bool) -> Arc<Session> {
+        Arc::new(Session {
+            id: rec.id.clone(),
+            state: Arc::new(AsyncMutex::new(State {
+                display_name: rec.display_name.clone(),
+                created_ms: rec.created_ms,
+                restored,
+                loaded: None,
+                models: None,
+                version: 0,
+                generation: 0,
+            })),
+            hub: Arc::new(Hub::new(self.config.ring, self.config.encode)),
+            last_touch_ms: AtomicI64::new(rec.last_access_ms),
+            volumes_scheduled: AtomicBool::new(false),
+            memory: std::sync::atomic::AtomicU64::new(0),
+        })
+    }
+
+    /// The session `id`, from memory or the store; records the access.
+    async fn session(&self, id: &str) -> Result<Arc<Session>> {
+        let found = self.map()?.get(id).cloned();
+        let session = match found {
+            Some(s) => s,
+            None => {
+                let store = Arc::clone(&self.store);
+                let key = id.to_owned();
+                let rec = blocking(move || Ok(store.session(&key)?)).await?;
+                let rec = rec.ok_or_else(|| SessionError::UnknownSession(id.to_owned()))?;
+                let fresh = self.new_session(&rec, false);
+                Arc::clone(self.map()?.entry(id.to_owned()).or_insert(fresh))
+            }
+        };
+        let now = now_ms();
+        if now - session.last_touch_ms.load(Ordering::Relaxed) >= TOUCH_EVERY_MS {
+            session.last_touch_ms.store(now, Ordering::Relaxed);
+            let store = Arc::clone(&self.store);
+            let key = id.to_owned();
+            blocking(move || Ok(store.touch(&key, now)?)).await?;
+        }
+        Ok(session)
+    }
+
+    fn memory_in_use(&self) -> Result<u64> {
+        Ok(self
+            .map()?
+            .values()
+            .map(|s| s.memory.load(Ordering::Relaxed))
+            .sum())
+    }
+
+    // ---- sessions -------------------------------------------------------------------------
+
+    pub async fn create_session(&self, display_name: &str) -> Result<SessionInfo> {
+        check_display_name(display_name)?;
+        let store = Arc::clone(&self.store);
+        let max = self.config.max_sessions;
+        let now = now_ms();
+        let rec = SessionRecord {
+            id: uuid::Uuid::new_v4().simple().to_string(),
+            display_name: display_name.to_owned(),
+            created_ms: now,
+            last_access_ms: now,
+        };
+        let stored = rec.clone();
+        blocking(move || {
+            let usage = store.usage()?;
+            if usage.sessions >= max as u64 {
+                return Err(SessionError::Quota(format!(
+                    "the server holds {} sessions, its limit",
+                    usage.sessions
+                )));
+            }
+            Ok(store.create_session(&stored)?)
+        })
+        .await?;
+        let session = self.new_session(&rec, true);
+        self.map()?.insert(rec.id.clone(), Arc::clone(&session));
+        tracing::info!(session = %rec.id, "session created");
+        self.describe(&session).await
+    }
+
+    pub async fn list_sessions(&self) -> Result<Vec<SessionInfo>> {
+        let store = Arc::clone(&self.store);
+        let records = blocking(move || Ok(store.sessions()?)).await?;
+        let mut out = Vec::with_capacity(records.len());
+        for rec in records {
+            let loaded = self.map()?.get(&rec.id).cloned();
+            match loaded {
+                Some(s) => out.push(self.describe(&s).await?),
+                None => out.push(self.describe_stored(rec).await?),
+            }
+        }
+        Ok(out)
+    }
+
+    pub async fn get_session(&self, id: &str) -> Result<SessionInfo> {
+        let s = self.session(id).await?;
+        self.describe(&s).await
+    }
+
+    pub async fn delete_session(&self, id: &str) -> Result<()> {
+        let store = Arc::clone(&self.store);
+        let key = id.to_owned();
+        let existed = blocking(move || Ok(store.delete_session(&key)?)).await?;
+        let dropped = self.map()?.remove(id);
+        if let Some(s) = &dropped {
+            s.hub.close();
+        }
+        if !existed && dropped.is_none() {
+            return Err(SessionError::UnknownSession(id.to_owned()));
+        }
+        tracing::info!(session = %id, "session deleted");
+        Ok(())
+    }
+
+    /// Deletes sessions idle for longer than the configured expiry; returns how many.
+    pub async fn expire_idle(&self) -> Result<usize> {
+        let Some(expiry) = self.config.idle_expiry else {
+            return Ok(0);
+        };
+        let before = now_ms() - i64::try_from(expiry.as_millis()).unwrap_or(i64::MAX);
+        let store = Arc::clone(&self.store);
+        let idle = blocking(move || Ok(store.idle_since(before)?)).await?;
+        let mut n = 0;
+        for id in idle {
+            let recent = self
+                .map()?
+                .get(&id)
+                .is_some_and(|s| s.last_touch_ms.load(Ordering::Relaxed) >= before);
+            if !recent {
+                self.delete_session(&id).await?;
+                n += 1;
+            }
+        }
+        Ok(n)
+    }
+
+    async fn describe(&self, s: &Arc<Session>) -> Result<SessionInfo> {
+        let st = s.state.lock().await;
+        if !st.restored {
+            drop(st);
+            let store = Arc::clone(&self.store);
+            let key = s.id.clone();
+            let rec = blocking(move || Ok(store.session(&key)?))
+                .await?
+                .ok_or_else(|| SessionError::UnknownSession(s.id.clone()))?;
+            return self.describe_stored(rec).await;
+        }
+        Ok(SessionInfo {
+            id: s.id.clone(),
+            display_name: st.display_name.clone(),
+            created_ms: st.created_ms,
+            last_access_ms: s.last_touch_ms.load(Ordering::Relaxed),
+            state: match (&st.loaded, &st.models) {
+                (None, _) => SessionState::Empty,
+                (Some(_), None) => SessionState::LabelMap,
+                (Some(_), Some(_)) => SessionState::Ready,
+            },
+            plan_version: st.version,
+            label_map: st.loaded.as_ref().map(|l| l.summary.clone()),
+        })
+    }
+
+    /// A session not loaded in memory, from its record and small blobs only.
+    async fn describe_stored(&self, rec: SessionRecord) -> Result<SessionInfo> {
+        let store = Arc::clone(&self.store);
+        let key = rec.id.clone();
+        let (version, summary, models) = blocking(move || {
+            let version = store.log_len(&key)?;
+            let summary = store.blob(&key, SUMMARY_BLOB)?;
+            let models = store.blob(&key, MODELS_BLOB)?.is_some();
+            Ok((version, summary, models))
+        })
+        .await?;
+        let summary: Option<LabelMapSummary> = summary
+            .map(|b| serde_json::from_str(&b.meta_json))
+            .transpose()
+            .map_err(internal)?;
+        Ok(SessionInfo {
+            id: rec.id,
+            display_name: rec.display_name,
+            created_ms: rec.created_ms,
+            last_access_ms: rec.last_access_ms,
+            state: match (&summary, models) {
+                (None, _) => SessionState::Empty,
+                (Some(_), false) => SessionState::LabelMap,
+                (Some(_), true) => SessionState::Ready,
+            },
+            plan_version: version,
+            label_map: summary,
+        })
+    }
+
+    /// Restores a session's label map, plan and models from the store (first use after a
+    /// restart).
+    async fn restore(&self, s: &Session, st: &mut State) -> Result<()> {
+        if st.restored {
+            return Ok(());
+        }
+        let store = Arc::clone(&self.store);
+        let id = s.id.clone();
+        let max_voxels = self.config.max_voxels;
+        let restored = blocking(move || {
+            let Some(rec) = store.session(&id)? else {
+                return Err(SessionError::UnknownSession(id));
+            };
+            let version = store.log_len(&id)?;
+            let loaded = match store.blob(&id, LABELMAP_BLOB)? {
+                None => None,
+                Some(blob) => {
+                    let (labels, roles) = labelmap::from_blob(&blob, max_voxels)?;
+                    let records = store.log(&id, 0)?;
+                    let mut base = Plan::new(roles.clone());
+                    let mut entries = Vec::new();
+                    for r in records {
+                        match serde_json::from_str::<Record>(&r.json).map_err(internal)? {
+                            Record::Reset { plan } => {
+                                base = Plan::from_json(&plan)?;
+                                entries.clear();
+                            }
+                            Record::Entry { entry } => entries.push(entry),
+                        }
+                    }
+                    let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
+                    let planner = Planner::resume(anatomy, History::replay(base, &entries)?)?;
+                    let summary = labelmap::summary(&labels, &roles);
+                    Some((Arc::new(labels), summary, planner))
+                }
+            };
+            let models = match store.blob(&id, MODELS_BLOB)? {
+                None => None,
+                Some(b) => Some(decode_models(&b)?),
+            };
+            Ok((rec, version, loaded, models))
+        })
+        .await?;
+        let (rec, version, loaded, models) = restored;
+        st.display_name = rec.display_name;
+        st.created_ms = rec.created_ms;
+        st.version = version;
+        st.restored = true;
+        if let Some((labels, summary, planner)) = loaded {
+            s.memory.store(
+                labels.data().len() as u64 * BYTES_PER_VOXEL,
+                Ordering::Relaxed,
+            );
+            s.hub.reset(version, planner.states())?;
+            st.loaded = Some(Loaded {
+                labels,
+                summary,
+                planner: Some(planner),
+                generation: 0,
+            });
+        }
+        if let Some(models) = models {
+            s.hub
+                .publish_models(models.iter().map(|m| m.surface.clone()).collect())?;
+            st.models = Some(Arc::new(models));
+        }
+        tracing::info!(session = %s.id, version, "session restored");
+        Ok(())
+    }
+
+    /// The session, locked and restored.
+    async fn open(&self, id: &str) -> Result<(Arc<Session>, tokio::sync::OwnedMutexGuard<State>)> {
+        let s = self.session(id).await?;
+        let mut st = Arc::clone(&s.state).lock_owned().await;
+        self.restore(&s, &mut st).await?;
+        Ok((s, st))
+    }
+
+    // ---- label maps and models --------------------------------------------------------------
+
+    /// Loads a label map with its role map, replacing any earlier one (the plan starts anew:
+    /// an empty plan on the new roles).
+    pub async fn upload_label_map(
+        &self,
+        id: &str,
+        source: LabelMapSource,
+        roles: RoleMap,
+    ) -> Result<LabelMapSummary> {
+        let bytes = match &source {
+            LabelMapSource::Raw(r) => r.data.len(),
+            LabelMapSource::File { bytes, .. } => bytes.len(),
+        } as u64;
+        if bytes > self.config.max_upload_bytes {
+            return Err(SessionError::Quota(format!(
+                "upload of {bytes} bytes exceeds the limit of {} bytes",
+                self.config.max_upload_bytes
+            )));
+        }
+        let (s, mut st) = self.open(id).await?;
+        let max_voxels = self.config.max_voxels;
+        let labels = blocking(move || labelmap::decode(&source, max_voxels)).await?;
+        let need = labels.data().len() as u64 * BYTES_PER_VOXEL;
+        let others = self.memory_in_use()? - s.memory.load(Ordering::Relaxed);
+        if others + need > self.config.max_memory_bytes {
+            return Err(SessionError::Quota(format!(
+                "a label map of {} voxels needs about {need} bytes; {} of the server's {} are in use",
+                labels.data().len(),
+                others,
+                self.config.max_memory_bytes
+            )));
+        }
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        let version = st.version;
+        let (labels, summary, planner, version) = blocking(move || {
+            let summary = labelmap::summary(&labels, &roles);
+            labelmap::check_roles(&roles, &summary.labels)?;
+            let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
+            let plan = Plan::new(roles.clone());
+            let planner = Planner::new(anatomy, plan.clone())?;
+            let summary_blob = Blob {
+                meta_json: serde_json::to_string(&summary).map_err(internal)?,
+                data: Vec::new(),
+            };
+            store.put_blob(&key, LABELMAP_BLOB, &labelmap::to_blob(&labels, &roles)?)?;
+            store.put_blob(&key, SUMMARY_BLOB, &summary_blob)?;
+            store.delete_blob(&key, MODELS_BLOB)?;
+            let record = serde_json::to_string(&Record::Reset {
+                plan: plan.to_json()?,
+            })
+            .map_err(internal)?;
+            let version = store.append(&key, version, &[record])?;
+            Ok((Arc::new(labels), summary, planner, version))
+        })
+        .await?;
+        s.memory.store(need, Ordering::Relaxed);
+        st.version = version;
+        st.generation += 1;
+        st.models = None;
+        s.hub.reset(version, planner.states())?;
+        s.hub.publish_models(Vec::new())?;
+        st.loaded = Some(Loaded {
+            labels,
+            summary: summary.clone(),
+            planner: Some(planner),
+            generation: st.generation,
+        });
+        tracing::info!(session = %s.id, voxels = summary.dims.iter().product::<usize>(), "label map loaded");
+        Ok(summary)
+    }
+
+    /// Builds the surface models (parenchyma by screened Poisson, tumours and vessels by MCSD)
+    /// off the runtime. Events arrive on the returned channel; dropping it cancels the work.
+    pub async fn reconstruct(
+        self: &Arc<Self>,
+        id: &str,
+    ) -> Result<mpsc::Receiver<Result<ReconstructEvent>>> {
+        let (s, st) = self.open(id).await?;
+        let loaded = st
+            .loaded
+            .as_ref()
+            .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))?;
+        let labels = Arc::clone(&loaded.labels);
+        let roles = loaded.summary.roles.clone();
+        let generation = loaded.generation;
+        drop(st);
+        let (tx, rx) = mpsc::channel(64);
+        let service = Arc::clone(self);
+        let depth = self.config.psr_depth;
+        tokio::spawn(async move {
+            let started = std::time::Instant::now();
+            let progress_tx = tx.clone();
+            let built = blocking(move || {
+                let mut done = 0usize;
+                let mut progress = |name: &str| {
+                    done += 1;
+                    // The parenchyma (first, Poisson) dominates; the rest share what is left.
+                    let fraction = 1.0 - 0.4 / done as Real;
+                    let event = ReconstructEvent::Progress {
+                        stage: format!("built {name}"),
+                        fraction,
+                    };
+                    progress_tx.blocking_send(Ok(event)).is_ok()
+                };
+                patient_models(
+                    &labels,
+                    &roles,
+                    depth,
+                    &McsdParams::default(),
+                    &mut progress,
+                )
+                .map_err(|e| match e {
+                    ReconError::Cancelled => SessionError::Cancelled,
+                    e => SessionError::Precondition(format!("reconstruction: {e}")),
+                })
+            })
+            .await;
+            let result = match built {
+                Ok(models) => service.install_models(&s, generation, models).await,
+                Err(e) => Err(e),
+            };
+            let end = match result {
+                Ok(infos) => {
+                    for model in &infos {
+                        let _ = tx
+                            .send(Ok(ReconstructEvent::Model {
+                                model: model.clone(),
+                            }))
+                            .await;
+                    }
+                    Ok(ReconstructEvent::Done {
+                        models: infos.len(),
+                        time_ms: started.elapsed().as_secs_f64() * 1e3,
+                    })
+                }
+                Err(e) => Err(e),
+            };
+            let _ = tx.send(end).await;
+        });
+        Ok(rx)
+    }
+
+    async fn install_models(
+        &self,
+        s: &Arc<Session>,
+        generation: u64,
+        built: Vec<resecta_recon::PatientModel>,
+    ) -> Result<Vec<ModelInfo>> {
+        let encode = self.config.encode;
+        let models: Vec<Model> = built
+            .into_iter()
+            .map(|m| -> Result<Model> {
+                let info = ModelInfo {
+                    name: m.name(),
+                    kind: surface_kind(m.role),
+                    method: m.method.to_owned(),
+                    triangles: m.mesh.triangles().len(),
+                    vertices: m.mesh.vertices().len(),
+                    volume_ml: m.mesh.signed_volume() / 1000.0,
+                };
+                let (topology, frame) = SurfaceFrame::from_trimesh(&m.mesh);
+                let surface = Surface {
+                    name: info.name.clone(),
+                    kind: info.kind,
+                    mesh: encode_mesh(&topology, &frame, &encode).map_err(internal)?,
+                };
+                Ok(Model {
+                    info,
+                    mesh: m.mesh,
+                    surface,
+                })
+            })
+            .collect::<Result<_>>()?;
+        let mut st = s.state.lock().await;
+        if st.generation != generation || st.loaded.is_none() {
+            return Err(SessionError::Precondition(
+                "the label map changed during the reconstruction".into(),
+            ));
+        }
+        let blob = encode_models(&models)?;
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        blocking(move || Ok(store.put_blob(&key, MODELS_BLOB, &blob)?)).await?;
+        let infos = models.iter().map(|m| m.info.clone()).collect();
+        s.hub
+            .publish_models(models.iter().map(|m| m.surface.clone()).collect())?;
+        st.models = Some(Arc::new(models));
+        Ok(infos)
+    }
+
+    // ---- plan edits -----------------------------------------------------------------------
+
+    /// Applies one plan change made against `base_version` (0: unchecked). Conflicting edits
+    /// (an older base) are rejected with [`SessionError::StaleVersion`], never rebased.
+    pub async fn edit(
+        self: &Arc<Self>,
+        id: &str,
+        base_version: u64,
+        op: EditOp,
+    ) -> Result<EditOutcome> {
+        let (s, mut st) = self.open(id).await?;
+        if base_version != 0 && base_version != st.version {
+            return Err(SessionError::StaleVersion {
+                base: base_version,
+                current: st.version,
+            });
+        }
+        let version = st.version;
+        let loaded = st
+            .loaded
+            .as_mut()
+            .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))?;
+        let mut planner = take_planner(loaded)?;
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        let (planner, result) = tokio::task::spawn_blocking(move || {
+            let r = apply_edit(&mut planner, store.as_ref(), &key, version, op);
+            (planner, r)
+        })
+        .await
+        .map_err(internal)?;
+        let (new_version, name, changed) = match result {
+            Ok(r) => r,
+            Err(e) => {
+                loaded.planner = Some(planner);
+                return Err(e);
+            }
+        };
+        s.hub
+            .publish_edit(new_version, planner.states(), &changed)?;
+        let verdict = name
+            .as_ref()
+            .and_then(|n| planner.state(n).ok())
+            .map(|state| state.verdict.clone());
+        loaded.planner = Some(planner);
+        st.version = new_version;
+        drop(st);
+        self.schedule_volumes(&s);
+        Ok(EditOutcome {
+            plan_version: new_version,
+            resection: name,
+            verdict,
+        })
+    }
+
+    /// Recomputes the volumes shortly after the last edit of a burst and publishes them.
+    fn schedule_volumes(self: &Arc<Self>, s: &Arc<Session>) {
+        if s.volumes_scheduled.swap(true, Ordering::AcqRel) {
+            return;
+        }
+        let service = Arc::clone(self);
+        let s = Arc::clone(s);
+        tokio::spawn(async move {
+            tokio::time::sleep(service.config.volumes_delay).await;
+            s.volumes_scheduled.store(false, Ordering::Release);
+            let Ok((_, mut st)) = service.open(&s.id).await else {
+                return;
+            };
+            let version = st.version;
+            match compute_volumes(&mut st).await {
+                Ok(Some(v)) => {
+                    let _ = s.hub.publish_volumes(version, v);
+                }
+                Ok(None) => {}
+                Err(e) => tracing::warn!(session = %s.id, error = %e, "volumes failed"),
+            }
+        });
+    }
+
+    pub async fn volumes(&self, id: &str) -> Result<VolumeReport> {
+        let (_, mut st) = self.open(id).await?;
+        compute_volumes(&mut st)
+            .await?
+            .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))
+    }
+
+    pub async fn export_plan(&self, id: &str) -> Result<String> {
+        let (_, mut st) = self.open(id).await?;
+        let loaded = loaded_mut(&mut st)?;
+        let planner = loaded
+            .planner
+            .as_ref()
+            .ok_or_else(|| internal("session planner is busy"))?;
+        Ok(planner.plan().to_json()?)
+    }
+
+    /// Replaces the plan by a `resecta-plan/1` document (its roles must be the label map's).
+    pub async fn import_plan(&self, id: &str, json: &str, base_version: u64) -> Result<u64> {
+        let plan = Plan::from_json(json)?;
+        let (s, mut st) = self.open(id).await?;
+        if base_version != 0 && base_version != st.version {
+            return Err(SessionError::StaleVersion {
+                base: base_version,
+                current: st.version,
+            });
+        }
+        let version = st.version;
+        let loaded = loaded_mut(&mut st)?;
+        if plan.roles != loaded.summary.roles {
+            return Err(SessionError::Invalid(
+                "the plan's role map differs from the loaded label map's".into(),
+            ));
+        }
+        let anatomy = {
+            let planner = loaded
+                .planner
+                .as_ref()
+                .ok_or_else(|| internal("session planner is busy"))?;
+            planner.anatomy_shared()
+        };
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        let (planner, new_version) = blocking(move || {
+            let record = serde_json::to_string(&Record::Reset {
+                plan: plan.to_json()?,
+            })
+            .map_err(internal)?;
+            let planner = Planner::new(anatomy, plan)?;
+            let v = store.append(&key, version, &[record])?;
+            Ok((planner, v))
+        })
+        .await?;
+        s.hub.reset(new_version, planner.states())?;
+        loaded.planner = Some(planner);
+        st.version = new_version;
+        Ok(new_version)
+    }
+
+    /// A model or resection surface as mesh file bytes.
+    pub async fn export_model(&self, id: &str, name: &str, format: MeshFormat) -> Result<Vec<u8>> {
+        let (_, mut st) = self.open(id).await?;
+        let mesh = match st
+            .models
+            .as_ref()
+            .and_then(|m| m.iter().find(|m| m.info.name == name))
+        {
+            Some(m) => m.mesh.clone(),
+            None => {
+                let loaded = loaded_mut(&mut st)?;
+                let planner = loaded
+                    .planner
+                    .as_ref()
+                    .ok_or_else(|| internal("session planner is busy"))?;
+                planner
+                    .state(name)
+                    .map_err(|_| SessionError::NotFound(format!("no model or resection {name:?}")))?
+                    .mesh()?
+            }
+        };
+        blocking(move || {
+            mesh_to_bytes(&mesh, format, &WriteOptions::default(), "model").map_err(internal)
+        })
+        .await
+    }
+
+    /// Intersections of a resection surface with axis-aligned slice planes.
+    pub async fn slices(
+        &self,
+        id: &str,
+        name: &str,
+        at: SlicePositions,
+    ) -> Result<SliceProjections> {
+        let (_, mut st) = self.open(id).await?;
+        let loaded = loaded_mut(&mut st)?;
+        let planner = loaded
+            .planner
+            .as_ref()
+            .ok_or_else(|| internal("session planner is busy"))?;
+        let mesh = planner.state(name)?.mesh()?;
+        Ok(slice_projections(&mesh, &at)?)
+    }
+
+    /// The session's event stream: from `since` when the server still holds what followed it,
+    /// else from a snapshot.
+    pub async fn watch(&self, id: &str, since: Option<u64>) -> Result<WatchStream> {
+        let (s, _st) = self.open(id).await?;
+        Ok(s.hub.subscribe(since))
+    }
+}
+
+fn loaded_mut(st: &mut State) -> Result<&mut Loaded> {
+    st.loaded
+        .as_mut()
+        .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))
+}
+
+/// Volumes of the current plan (`None` without a label map), on the blocking pool.
+async fn compute_volumes(st: &mut State) -> Result<Option<VolumeReport>> {
+    let Some(loaded) = st.loaded.as_mut() else {
+        return Ok(None);
+    };
+    let mut planner = take_planner(loaded)?;
+    let (planner, report) = tokio::task::spawn_blocking(move || {
+        let r = planner.volumes();
+        (planner, r)
+    })
+    .await
+    .map_err(internal)?;
+    loaded.planner = Some(planner);
+    Ok(Some(report?))
+}
+
+/// Applies `op`, then makes its record durable; on a storage failure the planner is rebuilt
+/// to the state before. Returns the new version, the resection touched and the changed names.
+fn apply_edit(
+    planner: &mut Planner,
+    store: &dyn SessionStore,
+    id: &str,
+    version: u64,
+    op: EditOp,
+) -> Result<(u64, Option<String>, Vec<String>)> {
+    let before = planner.plan().clone();
+    let (entry, name) = match op {
+        EditOp::Event { event } => {
+            let name = event.resection_name().to_owned();
+            planner.edit(event.clone())?;
+            (LogEntry::Edit { event }, Some(name))
+        }
+        EditOp::InitFromEndPoint {
+            name,
+            target,
+            end_point,
+            grid,
+        } => {
+            let (r, _) = planner.initial_resection(&name, &target, Vec3::from(end_point), grid)?;
+            let event = PlanEvent::AddResection { resection: r };
+            planner.edit(event.clone())?;
+            (LogEntry::Edit { event }, Some(name))
+        }
+        EditOp::InitFromPlane {
+            name,
+            target,
+            point,
+            normal,
+            grid,
+        } => {
+            let plane = Plane::new(Vec3::from(point), Vec3::from(normal))
+                .map_err(|e| SessionError::Invalid(format!("plane: {e}")))?;
+            let (r, _) = planner.initial_on_plane(&name, &target, &plane, grid)?;
+            let event = PlanEvent::AddResection { resection: r };
+            planner.edit(event.clone())?;
+            (LogEntry::Edit { event }, Some(name))
+        }
+        EditOp::Undo => {
+            planner.undo()?;
+            (LogEntry::Undo, None)
+        }
+        EditOp::Redo => {
+            planner.redo()?;
+            (LogEntry::Redo, None)
+        }
+    };
+    let changed = changed_names(&before, planner.plan());
+    let name = name.or_else(|| changed.first().cloned());
+    let record = serde_json::to_string(&Record::Entry { entry }).map_err(internal)?;
+    match store.append(id, version, &[record]) {
+        Ok(v) => Ok((v, name, changed)),
+        Err(e) => {
+            let h = planner.history();
+            let log = h.log();
+            let restored = History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)])
+                .and_then(|h| Planner::resume(planner.anatomy_shared(), h));
+            match restored {
+                Ok(p) => *planner = p,
+                Err(r) => {
+                    tracing::error!(session = %id, error = %r, "rollback after a storage failure failed")
+                }
+            }
+            Err(e.into())
+        }
+    }
+}
+
+/// Models as a blob: JSON infos with byte lengths, then the `RSMS` encodings back to back.
+fn encode_models(models: &[Model]) -> Result<Blob> {
+    let meta: Vec<(&ModelInfo, usize)> = models
+        .iter()
+        .map(|m| (&m.info, m.surface.mesh.len()))
+        .collect();
+    Ok(Blob {
+        meta_json: serde_json::to_string(&meta).map_err(internal)?,
+        data: models
+            .iter()
+            .flat_map(|m| m.surface.mesh.iter().copied())
+            .collect(),
+    })
+}
+
+fn decode_models(blob: &Blob) -> Result<Vec<Model>> {
+    let meta: Vec<(ModelInfo, usize)> = serde_json::from_str(&blob.meta_json).map_err(internal)?;
+    let mut at = 0usize;
+    let mut out = Vec::with_capacity(meta.len());
+    for (info, len) in meta {
+        let bytes = at
+            .checked_add(len)
+            .and_then(|end| blob.data.get(at..end))
+            .ok_or_else(|| internal("stored models are truncated"))?;
+        at += len;
+        let (topology, frame): (Topology, SurfaceFrame) =
+            decode_mesh(bytes, &DecodeLimits::default()).map_err(internal)?;
+        let vertices = frame
+            .positions
+            .iter()
+            .map(|p| Vec3::new(Real::from(p[0]), Real::from(p[1]), Real::from(p[2])))
+            .collect();
+        let mesh = TriMesh::new(vertices, topology.triangles).map_err(internal)?;
+        out.push(Model {
+            surface: Surface {
+                name: info.name.clone(),
+                kind: info.kind,
+                mesh: bytes.to_vec(),
+            },
+            info,
+            mesh,
+        });
+    }
+    Ok(out)
+}

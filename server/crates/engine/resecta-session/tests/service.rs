@@ -1,0 +1,466 @@
+//! The operation layer on the small phantom, with the in-memory and the SQLite store: upload,
+//! edits with versions, watch snapshots and deltas, volumes, restart recovery, reconstruction,
+//! bad input and quotas.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use resecta_delta::{DecodeLimits, SurfaceFrame, apply_delta, decode_mesh};
+use resecta_geom::{LabelMap, RoleMap};
+use resecta_phantom::{PhantomSpec, generate};
+use resecta_plan::PlanEvent;
+use resecta_session::api::{
+    DataType, EditOp, FileFormat, LabelMapSource, RawLabelMap, ReconstructEvent, SessionState,
+    WatchBody, WatchEvent,
+};
+use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
+use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
+
+fn phantom() -> LabelMap {
+    generate(&PhantomSpec::small()).unwrap().labels
+}
+
+fn raw(labels: &LabelMap) -> RawLabelMap {
+    let g = labels.grid();
+    let d = g.direction();
+    RawLabelMap {
+        dims: g.dims(),
+        spacing: g.spacing(),
+        origin: g.origin().into(),
+        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
+        data_type: DataType::U8,
+        data: labels.data().iter().map(|&v| v as u8).collect(),
+    }
+}
+
+fn config() -> ServiceConfig {
+    ServiceConfig {
+        volumes_delay: Duration::from_millis(5),
+        psr_depth: 6,
+        ..ServiceConfig::default()
+    }
+}
+
+fn init_op() -> EditOp {
+    EditOp::InitFromEndPoint {
+        name: "r1".into(),
+        target: Default::default(),
+        end_point: [-30.0, 0.0, 0.0],
+        grid: [4, 4],
+    }
+}
+
+fn drag(point: [f64; 3]) -> EditOp {
+    EditOp::Event {
+        event: PlanEvent::SetControlPoint {
+            name: "r1".into(),
+            i: 1,
+            j: 2,
+            point,
+        },
+    }
+}
+
+async fn next(w: &mut WatchStream) -> Arc<WatchEvent> {
+    tokio::time::timeout(Duration::from_secs(30), w.next())
+        .await
+        .expect("watch event in time")
+        .expect("stream open")
+        .unwrap()
+}
+
+/// The resection frame of a snapshot.
+fn snapshot_frame(e: &WatchEvent, name: &str) -> SurfaceFrame {
+    let WatchBody::Snapshot { resections, .. } = &e.body else {
+        panic!("not a snapshot: {:?}", e.body);
+    };
+    let s = resections.iter().find(|s| s.name == name).unwrap();
+    decode_mesh(&s.mesh, &DecodeLimits::default()).unwrap().1
+}
+
+async fn workflow(store: Arc<dyn SessionStore>) {
+    let labels = phantom();
+    let service = Arc::new(Service::new(store, config()));
+    let info = service.create_session("Demo patient").await.unwrap();
+    assert_eq!(info.state, SessionState::Empty);
+    let id = info.id.clone();
+
+    let summary = service
+        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+        .await
+        .unwrap();
+    let counts = labels.value_counts();
+    assert_eq!(summary.labels.get(&1), counts.get(&1));
+    let voxel_ml = labels.grid().voxel_volume_mm3() / 1000.0;
+    let liver = (counts[&1] + counts[&3]) as f64 * voxel_ml;
+    assert!((summary.liver_ml - liver).abs() < 1e-9);
+    let info = service.get_session(&id).await.unwrap();
+    assert_eq!((info.state, info.plan_version), (SessionState::LabelMap, 1));
+
+    // A watcher starts from a snapshot without resections.
+    let mut w = service.watch(&id, None).await.unwrap();
+    let first = next(&mut w).await;
+    assert!(matches!(&first.body, WatchBody::Snapshot { resections, .. } if resections.is_empty()));
+
+    // New resection: a whole mesh in the delta, with its verdict.
+    let out = service.edit(&id, 1, init_op()).await.unwrap();
+    assert_eq!(out.plan_version, 2);
+    assert_eq!(out.resection.as_deref(), Some("r1"));
+    let verdict = out.verdict.unwrap();
+    assert!(verdict.min_margin_mm.is_some());
+    let e = next(&mut w).await;
+    assert_eq!(e.plan_version, 2);
+    let WatchBody::Delta {
+        updates, verdicts, ..
+    } = &e.body
+    else {
+        panic!("expected a delta, got {:?}", e.body);
+    };
+    assert!(updates[0].full);
+    assert_eq!(verdicts["r1"], verdict);
+    let (topology, mut frame) = decode_mesh(&updates[0].bytes, &DecodeLimits::default()).unwrap();
+    assert_eq!(frame.positions.len(), 40 * 40);
+    assert_eq!(topology.triangles.len(), 2 * 39 * 39);
+    assert_eq!(frame.margins.len(), 1600);
+
+    // A drag: a delta that, applied, equals a fresh snapshot's frame bit for bit.
+    let out = service.edit(&id, 2, drag([-8.0, 5.0, 4.0])).await.unwrap();
+    assert_eq!(out.plan_version, 3);
+    let mut e = next(&mut w).await;
+    while matches!(e.body, WatchBody::Volumes { .. }) {
+        e = next(&mut w).await;
+    }
+    let WatchBody::Delta { updates, .. } = &e.body else {
+        panic!("expected a delta, got {:?}", e.body);
+    };
+    assert!(!updates[0].full);
+    apply_delta(&mut frame, &updates[0].bytes, &DecodeLimits::default()).unwrap();
+    let mut late = service.watch(&id, None).await.unwrap();
+    let snap = next(&mut late).await;
+    assert_eq!(snap.plan_version, 3);
+    assert_eq!(snapshot_frame(&snap, "r1"), frame);
+
+    // A client reconnecting from a known sequence gets only what followed it.
+    let mut again = service.watch(&id, Some(first.seq)).await.unwrap();
+    let replay = next(&mut again).await;
+    assert_eq!(replay.seq, first.seq + 1);
+
+    // Stale base version and bad input: rejected, version unchanged.
+    let stale = service
+        .edit(&id, 2, drag([-9.0, 5.0, 4.0]))
+        .await
+        .unwrap_err();
+    assert_eq!(stale.kind(), ErrorKind::Conflict);
+    let nan = service
+        .edit(&id, 3, drag([f64::NAN, 0.0, 0.0]))
+        .await
+        .unwrap_err();
+    assert_eq!(nan.kind(), ErrorKind::InvalidArgument);
+    let unknown = EditOp::Event {
+        event: PlanEvent::Translate {
+            name: "nope".into(),
+            delta: [1.0, 0.0, 0.0],
+        },
+    };
+    let e404 = service.edit(&id, 3, unknown).await.unwrap_err();
+    assert_eq!(e404.kind(), ErrorKind::NotFound);
+    assert_eq!(service.get_session(&id).await.unwrap().plan_version, 3);
+
+    // Undo and redo are versions too and come back to identical surfaces.
+    service.edit(&id, 3, EditOp::Undo).await.unwrap();
+    service.edit(&id, 4, EditOp::Redo).await.unwrap();
+    let mut after = service.watch(&id, None).await.unwrap();
+    assert_eq!(snapshot_frame(&*next(&mut after).await, "r1"), frame);
+
+    // Volumes: the cap beyond the plane is resected, the cut is complete; a Volumes event follows.
+    let v = service.volumes(&id).await.unwrap();
+    assert!(v.complete);
+    let (resected, remnant) = (v.resected_ml.unwrap(), v.remnant_ml.unwrap());
+    assert!((resected + remnant - v.total_ml).abs() < 1e-6 * v.total_ml);
+    assert!(resected > 0.05 * v.total_ml && remnant > 0.05 * v.total_ml);
+    let mut saw_volumes = false;
+    for _ in 0..10 {
+        let e = next(&mut w).await;
+        if let WatchBody::Volumes { volumes } = &e.body {
+            assert_eq!(volumes.complete, v.complete);
+            saw_volumes = true;
+            break;
+        }
+    }
+    assert!(saw_volumes);
+
+    // Plan export and import round-trip.
+    let plan = service.export_plan(&id).await.unwrap();
+    assert!(plan.contains("resecta-plan/1"));
+    let v6 = service.import_plan(&id, &plan, 5).await.unwrap();
+    assert_eq!(v6, 6);
+    assert_eq!(service.export_plan(&id).await.unwrap(), plan);
+    let bad = service
+        .import_plan(&id, "{\"format\":\"x\"}", 0)
+        .await
+        .unwrap_err();
+    assert_eq!(bad.kind(), ErrorKind::InvalidArgument);
+
+    // Deleting ends watchers and the session.
+    service.delete_session(&id).await.unwrap();
+    let end = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            match w.next().await {
+                None => break true,
+                Some(_) => continue,
+            }
+        }
+    })
+    .await
+    .unwrap();
+    assert!(end);
+    let gone = service.get_session(&id).await.unwrap_err();
+    assert_eq!(gone.kind(), ErrorKind::NotFound);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn workflow_in_memory() {
+    workflow(Arc::new(MemoryStore::new(StoreOptions::default()))).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn workflow_on_sqlite() {
+    let dir = tempfile::tempdir().unwrap();
+    workflow(Arc::new(
+        SqliteStore::open(dir.path(), StoreOptions::default()).unwrap(),
+    ))
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
+    let dir = tempfile::tempdir().unwrap();
+    let labels = phantom();
+    let (id, plan, frame, version) = {
+        let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
+        let service = Arc::new(Service::new(store, config()));
+        let id = service.create_session("Restart").await.unwrap().id;
+        service
+            .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+            .await
+            .unwrap();
+        service.edit(&id, 0, init_op()).await.unwrap();
+        service.edit(&id, 0, drag([-6.0, 4.0, 3.0])).await.unwrap();
+        service.edit(&id, 0, drag([-7.0, 4.0, 3.0])).await.unwrap();
+        service.edit(&id, 0, EditOp::Undo).await.unwrap();
+        let mut w = service.watch(&id, None).await.unwrap();
+        let snap = next(&mut w).await;
+        let plan = service.export_plan(&id).await.unwrap();
+        (id, plan, snapshot_frame(&snap, "r1"), snap.plan_version)
+    };
+    let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
+    let service = Arc::new(Service::new(store, config()));
+    let listed = service.list_sessions().await.unwrap();
+    assert_eq!(listed.len(), 1);
+    assert_eq!(listed[0].plan_version, version);
+    assert_eq!(listed[0].state, SessionState::LabelMap);
+    assert_eq!(service.export_plan(&id).await.unwrap(), plan);
+    let mut w = service.watch(&id, None).await.unwrap();
+    assert_eq!(snapshot_frame(&*next(&mut w).await, "r1"), frame);
+    // Redo survives the restart (the undone edit is still in the log).
+    service.edit(&id, version, EditOp::Redo).await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    ));
+    let id = service.create_session("Models").await.unwrap().id;
+    let early = service.reconstruct(&id).await.unwrap_err();
+    assert_eq!(early.kind(), ErrorKind::FailedPrecondition);
+    let labels = phantom();
+    service
+        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+        .await
+        .unwrap();
+    let mut rx = service.reconstruct(&id).await.unwrap();
+    let mut progress = Vec::new();
+    let mut models = Vec::new();
+    let mut done = false;
+    while let Some(e) = rx.recv().await {
+        match e.unwrap() {
+            ReconstructEvent::Progress { fraction, .. } => progress.push(fraction),
+            ReconstructEvent::Model { model } => models.push(model),
+            ReconstructEvent::Done { models: n, .. } => {
+                assert_eq!(n, models.len());
+                done = true;
+            }
+        }
+    }
+    assert!(done);
+    assert!(progress.windows(2).all(|w| w[0] < w[1]) && progress.iter().all(|f| *f <= 1.0));
+    let names: Vec<&str> = models.iter().map(|m| m.name.as_str()).collect();
+    assert!(
+        names.contains(&"parenchyma") && names.contains(&"tumor_1"),
+        "{names:?}"
+    );
+    // Tumour model volume within 20 % of the sphere (r = 8 mm on 2×2×3 mm voxels: the MCSD
+    // display model shrinks small coarse tumours by ~15 %; margins use the planner's own model).
+    let tumour = models.iter().find(|m| m.name == "tumor_1").unwrap();
+    let sphere = 4.0 / 3.0 * std::f64::consts::PI * 512.0 / 1000.0;
+    assert!(
+        (tumour.volume_ml / sphere - 1.0).abs() < 0.2,
+        "{}",
+        tumour.volume_ml
+    );
+    assert_eq!(
+        service.get_session(&id).await.unwrap().state,
+        SessionState::Ready
+    );
+    let vtp = service
+        .export_model(&id, "tumor_1", resecta_io::mesh::MeshFormat::Vtp)
+        .await
+        .unwrap();
+    let mesh = resecta_io::mesh::read_mesh_bytes(&vtp, resecta_io::mesh::MeshFormat::Vtp, "t.vtp")
+        .unwrap();
+    assert_eq!(mesh.triangles().len(), tumour.triangles);
+    let missing = service
+        .export_model(&id, "nothing", resecta_io::mesh::MeshFormat::Stl)
+        .await
+        .unwrap_err();
+    assert_eq!(missing.kind(), ErrorKind::NotFound);
+    // The watch snapshot carries the models.
+    let mut w = service.watch(&id, None).await.unwrap();
+    let snap = next(&mut w).await;
+    let WatchBody::Snapshot {
+        models: surfaces, ..
+    } = &snap.body
+    else {
+        panic!()
+    };
+    assert_eq!(surfaces.len(), models.len());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn cancelling_a_reconstruction_stops_it() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    ));
+    let id = service.create_session("Cancel").await.unwrap().id;
+    service
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(raw(&phantom())),
+            RoleMap::default(),
+        )
+        .await
+        .unwrap();
+    let rx = service.reconstruct(&id).await.unwrap();
+    drop(rx);
+    // Edits keep working meanwhile, and no models appear.
+    service.edit(&id, 0, init_op()).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(
+        service.get_session(&id).await.unwrap().state,
+        SessionState::LabelMap
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        ServiceConfig {
+            max_sessions: 2,
+            max_voxels: 100_000,
+            ..config()
+        },
+    ));
+    assert_eq!(
+        service.create_session("").await.unwrap_err().kind(),
+        ErrorKind::InvalidArgument
+    );
+    let id = service.create_session("Quota").await.unwrap().id;
+    service.create_session("Second").await.unwrap();
+    let third = service.create_session("Third").await.unwrap_err();
+    assert_eq!(third.kind(), ErrorKind::ResourceExhausted);
+
+    let labels = phantom();
+    let mut short = raw(&labels);
+    short.data.pop();
+    let e = service
+        .upload_label_map(&id, LabelMapSource::Raw(short), RoleMap::default())
+        .await
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+    assert!(e.to_string().contains("bytes"), "{e}");
+    let mut big = raw(&labels);
+    big.dims = [100, 100, 11];
+    big.data = vec![0; 110_000];
+    let e = service
+        .upload_label_map(&id, LabelMapSource::Raw(big), RoleMap::default())
+        .await
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::ResourceExhausted);
+    let mut nan = raw(&labels);
+    nan.spacing[1] = f64::NAN;
+    let e = service
+        .upload_label_map(&id, LabelMapSource::Raw(nan), RoleMap::default())
+        .await
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+    let no_tumour: RoleMap = serde_json::from_str(r#"{"parenchyma":[1],"tumor":[9]}"#).unwrap();
+    let e = service
+        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), no_tumour)
+        .await
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+    let garbage = LabelMapSource::File {
+        format: FileFormat::Auto,
+        bytes: b"not an image".to_vec(),
+    };
+    let e = service
+        .upload_label_map(&id, garbage, RoleMap::default())
+        .await
+        .unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+    // Nothing was loaded by any of these.
+    let info = service.get_session(&id).await.unwrap();
+    assert_eq!((info.state, info.plan_version), (SessionState::Empty, 0));
+    let e = service.edit(&id, 0, init_op()).await.unwrap_err();
+    assert_eq!(e.kind(), ErrorKind::FailedPrecondition);
+    assert_eq!(
+        service.get_session("no-such-id").await.unwrap_err().kind(),
+        ErrorKind::NotFound
+    );
+    // No patient data in messages.
+    assert!(!format!("{e} {third}").contains("Quota"));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn nifti_uploads_are_read_like_raw_ones() {
+    let labels = phantom();
+    let bytes =
+        resecta_io::nifti::nifti_bytes(&resecta_io::Image::from_label_map(&labels), true).unwrap();
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    ));
+    let id = service.create_session("File").await.unwrap().id;
+    let s = service
+        .upload_label_map(
+            &id,
+            LabelMapSource::File {
+                format: FileFormat::Auto,
+                bytes,
+            },
+            RoleMap::default(),
+        )
+        .await
+        .unwrap();
+    assert_eq!(s.labels, {
+        let mut c = labels.value_counts();
+        c.remove(&0);
+        c
+    });
+    assert_eq!(s.dims, labels.grid().dims());
+}
