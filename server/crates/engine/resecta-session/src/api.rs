@@ -4,7 +4,7 @@
 use std::collections::BTreeMap;
 
 use resecta_geom::{Real, RoleMap};
-use resecta_plan::{PlanEvent, Target, Verdict, VolumeReport};
+use resecta_plan::{PlanEvent, Resection, Target, Verdict, VolumeReport};
 use serde::{Deserialize, Serialize};
 
 /// The API generation clients must speak.
@@ -227,6 +227,8 @@ pub enum WatchBody {
         models: Vec<Surface>,
         resections: Vec<Surface>,
         verdicts: BTreeMap<String, Verdict>,
+        /// Every resection's parameters (grid, control points, margin, ...).
+        resection_params: BTreeMap<String, Resection>,
         volumes: Option<VolumeReport>,
     },
     /// Resection surfaces that changed, removed ones, and the verdicts of the changed ones.
@@ -234,6 +236,8 @@ pub enum WatchBody {
         updates: Vec<SurfaceUpdate>,
         removed: Vec<String>,
         verdicts: BTreeMap<String, Verdict>,
+        /// The changed resections' parameters, so every watcher sees control points move.
+        resections: BTreeMap<String, Resection>,
     },
     /// New surface models (after a reconstruction).
     Models { models: Vec<Surface> },

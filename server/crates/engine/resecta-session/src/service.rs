@@ -493,7 +493,7 @@ impl Service {
                 labels.data().len() as u64 * BYTES_PER_VOXEL,
                 Ordering::Relaxed,
             );
-            s.hub.reset(version, planner.states())?;
+            s.hub.reset(version, planner.plan(), planner.states())?;
             st.loaded = Some(Loaded {
                 labels,
                 summary,
@@ -579,7 +579,7 @@ impl Service {
         st.version = version;
         st.generation += 1;
         st.models = None;
-        s.hub.reset(version, planner.states())?;
+        s.hub.reset(version, planner.plan(), planner.states())?;
         s.hub.publish_models(Vec::new())?;
         st.loaded = Some(Loaded {
             labels,
@@ -749,7 +749,7 @@ impl Service {
             }
         };
         s.hub
-            .publish_edit(new_version, planner.states(), &changed)?;
+            .publish_edit(new_version, planner.plan(), planner.states(), &changed)?;
         let verdict = name
             .as_ref()
             .and_then(|n| planner.state(n).ok())
@@ -842,7 +842,7 @@ impl Service {
             Ok((planner, v))
         })
         .await?;
-        s.hub.reset(new_version, planner.states())?;
+        s.hub.reset(new_version, planner.plan(), planner.states())?;
         loaded.planner = Some(planner);
         st.version = new_version;
         Ok(new_version)

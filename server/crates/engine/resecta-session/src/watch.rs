@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use resecta_delta::{
     EncodeOptions, ReplayRing, Since, SurfaceFrame, Topology, encode_delta, encode_mesh,
 };
-use resecta_plan::{ResectionState, Verdict, VolumeReport};
+use resecta_plan::{Plan, Resection, ResectionState, Verdict, VolumeReport};
 use tokio::sync::watch;
 
 use crate::api::{Surface, SurfaceKind, SurfaceUpdate, WatchBody, WatchEvent};
@@ -37,6 +37,7 @@ struct HubState {
     ring: ReplayRing<Arc<WatchEvent>>,
     shown: BTreeMap<String, Shown>,
     verdicts: BTreeMap<String, Verdict>,
+    params: BTreeMap<String, Resection>,
     models: Arc<Vec<Surface>>,
     volumes: Option<VolumeReport>,
 }
@@ -78,6 +79,7 @@ impl Hub {
                 ring,
                 shown: BTreeMap::new(),
                 verdicts: BTreeMap::new(),
+                params: BTreeMap::new(),
                 models: Arc::new(Vec::new()),
                 volumes: None,
             }),
@@ -112,6 +114,7 @@ impl Hub {
     pub fn publish_edit(
         &self,
         plan_version: u64,
+        plan: &Plan,
         states: &BTreeMap<String, ResectionState>,
         changed: &[String],
     ) -> Result<()> {
@@ -120,14 +123,18 @@ impl Hub {
         let mut updates = Vec::new();
         let mut removed = Vec::new();
         let mut verdicts = BTreeMap::new();
+        let mut params = BTreeMap::new();
         for name in changed {
-            let Some(state) = states.get(name) else {
+            let (Some(state), Ok(r)) = (states.get(name), plan.resection(name)) else {
                 if st.shown.remove(name).is_some() {
                     st.verdicts.remove(name);
+                    st.params.remove(name);
                     removed.push(name.clone());
                 }
                 continue;
             };
+            params.insert(name.clone(), r.clone());
+            st.params.insert(name.clone(), r.clone());
             let frame = frame_of(state);
             let (bytes, full, topology) = match st.shown.get(name) {
                 Some(old) if old.frame.positions.len() == frame.positions.len() => {
@@ -157,6 +164,7 @@ impl Hub {
                 updates,
                 removed,
                 verdicts,
+                resections: params,
             },
         )
     }
@@ -166,9 +174,15 @@ impl Hub {
     pub fn reset(
         &self,
         plan_version: u64,
+        plan: &Plan,
         states: &BTreeMap<String, ResectionState>,
     ) -> Result<()> {
         let mut st = self.lock()?;
+        st.params = plan
+            .resections
+            .iter()
+            .map(|r| (r.name.clone(), r.clone()))
+            .collect();
         st.plan_version = plan_version;
         st.shown = states
             .iter()
@@ -229,6 +243,7 @@ impl Hub {
                 models: st.models.as_ref().clone(),
                 resections,
                 verdicts: st.verdicts.clone(),
+                resection_params: st.params.clone(),
                 volumes: st.volumes.clone(),
             },
         })

@@ -131,10 +131,17 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     while matches!(e.body, WatchBody::Volumes { .. }) {
         e = next(&mut w).await;
     }
-    let WatchBody::Delta { updates, .. } = &e.body else {
+    let WatchBody::Delta {
+        updates,
+        resections,
+        ..
+    } = &e.body
+    else {
         panic!("expected a delta, got {:?}", e.body);
     };
     assert!(!updates[0].full);
+    // Every watcher sees the moved control point (row-major: i·n + j).
+    assert_eq!(resections["r1"].control_points[4 + 2], [-8.0, 5.0, 4.0]);
     apply_delta(&mut frame, &updates[0].bytes, &DecodeLimits::default()).unwrap();
     let mut late = service.watch(&id, None).await.unwrap();
     let snap = next(&mut late).await;
