@@ -323,7 +323,12 @@ impl Service {
         })
         .await?;
         let session = self.new_session(&rec, true);
-        self.map()?.insert(rec.id.clone(), Arc::clone(&session));
+        let loaded = {
+            let mut map = self.map()?;
+            map.insert(rec.id.clone(), Arc::clone(&session));
+            map.len()
+        };
+        metrics::gauge!("resecta_sessions_loaded").set(loaded as f64);
         tracing::info!(session = %rec.id, "session created");
         self.describe(&session).await
     }
@@ -720,8 +725,11 @@ impl Service {
         base_version: u64,
         op: EditOp,
     ) -> Result<EditOutcome> {
+        let started = std::time::Instant::now();
         let (s, mut st) = self.open(id).await?;
         if base_version != 0 && base_version != st.version {
+            metrics::counter!("resecta_edits_rejected_total", "reason" => "stale_version")
+                .increment(1);
             return Err(SessionError::StaleVersion {
                 base: base_version,
                 current: st.version,
@@ -758,6 +766,7 @@ impl Service {
         st.version = new_version;
         drop(st);
         self.schedule_volumes(&s);
+        metrics::histogram!("resecta_edit_seconds").record(started.elapsed().as_secs_f64());
         Ok(EditOutcome {
             plan_version: new_version,
             resection: name,
@@ -779,7 +788,11 @@ impl Service {
                 return;
             };
             let version = st.version;
-            match compute_volumes(&mut st).await {
+            let started = std::time::Instant::now();
+            let volumes = compute_volumes(&mut st).await;
+            metrics::histogram!("resecta_volumes_seconds")
+                .record(started.elapsed().as_secs_f64());
+            match volumes {
                 Ok(Some(v)) => {
                     let _ = s.hub.publish_volumes(version, v);
                 }

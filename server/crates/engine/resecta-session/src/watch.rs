@@ -256,6 +256,7 @@ impl Hub {
     /// A stream for one client: from `since` if the ring still holds what follows it, else from
     /// a snapshot.
     pub fn subscribe(self: &Arc<Self>, since: Option<u64>) -> WatchStream {
+        metrics::gauge!("resecta_watchers").increment(1.0);
         WatchStream {
             hub: Arc::clone(self),
             rx: self.notify.subscribe(),
@@ -278,6 +279,12 @@ pub struct WatchStream {
     /// Last sequence number delivered (`None`: a snapshot is due).
     cursor: Option<u64>,
     pending: VecDeque<Arc<WatchEvent>>,
+}
+
+impl Drop for WatchStream {
+    fn drop(&mut self) {
+        metrics::gauge!("resecta_watchers").decrement(1.0);
+    }
 }
 
 impl WatchStream {
