@@ -790,8 +790,7 @@ impl Service {
             let version = st.version;
             let started = std::time::Instant::now();
             let volumes = compute_volumes(&mut st).await;
-            metrics::histogram!("resecta_volumes_seconds")
-                .record(started.elapsed().as_secs_f64());
+            metrics::histogram!("resecta_volumes_seconds").record(started.elapsed().as_secs_f64());
             match volumes {
                 Ok(Some(v)) => {
                     let _ = s.hub.publish_volumes(version, v);
