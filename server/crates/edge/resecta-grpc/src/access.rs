@@ -1,0 +1,80 @@
+//! The access check in front of `PlanningService`: [`AccessPolicy`] on the `authorization` and
+//! `resecta-api-version` metadata of every call, before the request body is read. A tower
+//! wrapper rather than a tonic interceptor because `GetServerInfo` must skip the version check,
+//! and an interceptor cannot see the method.
+
+use std::convert::Infallible;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+
+use futures_util::future::{Either, Ready, ready};
+use resecta_auth::{API_VERSION_HEADER, AccessError, AccessPolicy};
+use tonic::server::NamedService;
+
+use crate::error::access_status;
+
+/// The one method that answers clients of any API version.
+const SERVER_INFO_PATH: &str = "/resecta.v1.PlanningService/GetServerInfo";
+
+/// `inner` behind the access policy.
+#[derive(Debug, Clone)]
+pub struct Access<S> {
+    inner: S,
+    policy: Arc<AccessPolicy>,
+}
+
+impl<S> Access<S> {
+    pub fn new(inner: S, policy: AccessPolicy) -> Self {
+        Self {
+            inner,
+            policy: Arc::new(policy),
+        }
+    }
+}
+
+impl<S: NamedService> NamedService for Access<S> {
+    const NAME: &'static str = S::NAME;
+}
+
+/// A header's value; a value that is not visible ASCII counts as present but unusable.
+fn header<'a, B>(req: &'a http::Request<B>, name: &str) -> Option<&'a str> {
+    req.headers()
+        .get(name)
+        .map(|v| v.to_str().unwrap_or("\u{fffd}"))
+}
+
+fn check<B>(policy: &AccessPolicy, req: &http::Request<B>) -> Result<(), AccessError> {
+    let authorization = header(req, "authorization");
+    if req.uri().path() == SERVER_INFO_PATH {
+        policy.check_authorization(authorization)
+    } else {
+        policy.check(authorization, header(req, API_VERSION_HEADER))
+    }
+}
+
+impl<S, B> tower::Service<http::Request<B>> for Access<S>
+where
+    S: tower::Service<
+            http::Request<B>,
+            Response = http::Response<tonic::body::Body>,
+            Error = Infallible,
+        >,
+{
+    type Response = http::Response<tonic::body::Body>;
+    type Error = Infallible;
+    type Future = Either<S::Future, Ready<Result<Self::Response, Infallible>>>;
+
+    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Infallible>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, req: http::Request<B>) -> Self::Future {
+        match check(&self.policy, &req) {
+            Ok(()) => Either::Left(self.inner.call(req)),
+            Err(e) => {
+                tracing::debug!(path = req.uri().path(), reason = e.code(), "call refused");
+                Either::Right(ready(Ok(access_status(&e).into_http())))
+            }
+        }
+    }
+}

@@ -1,0 +1,577 @@
+//! Wire (`resecta.v1` prost messages) ⇄ operation layer (`resecta_session::api`) translation, in
+//! one place. Inbound conversions validate what the wire type cannot express (required fields,
+//! finite numbers, array lengths, UNSPECIFIED enums, label ranges) and name the offending field;
+//! the operation layer checks the rest (ranges of plan parameters, geometry, quotas).
+
+use std::collections::BTreeMap;
+
+use resecta_api::v1 as pb;
+use resecta_geom::{Mat3, Real, Role, RoleMap};
+use resecta_io::mesh::MeshFormat;
+use resecta_plan::{
+    Group, IncompleteCut, PlanEvent, Resection, SlicePositions, SliceProjections, Target, Verdict,
+    VolumeReport,
+};
+use resecta_session::api::{
+    DataType, EditOp, FileFormat, LabelMapSummary, ModelInfo, ReconstructEvent, SessionInfo,
+    SessionState, Surface, SurfaceKind,
+};
+
+use crate::error::WireError;
+
+type Wire<T> = Result<T, WireError>;
+
+// ---- inbound ---------------------------------------------------------------------------------
+
+fn finite(field: &str, v: f64) -> Wire<f64> {
+    if v.is_finite() {
+        Ok(v)
+    } else {
+        Err(WireError::invalid(
+            field,
+            format!("must be finite, got {v}"),
+        ))
+    }
+}
+
+fn point(field: &str, v: &pb::Vec3) -> Wire<[Real; 3]> {
+    Ok([
+        finite(&format!("{field}.x"), v.x)?,
+        finite(&format!("{field}.y"), v.y)?,
+        finite(&format!("{field}.z"), v.z)?,
+    ])
+}
+
+/// A required `Vec3` field.
+fn required(field: &str, v: Option<&pb::Vec3>) -> Wire<[Real; 3]> {
+    point(
+        field,
+        v.ok_or_else(|| WireError::invalid(field, "is required"))?,
+    )
+}
+
+/// Exactly `N` finite values.
+fn array<const N: usize>(field: &str, values: &[f64]) -> Wire<[Real; N]> {
+    let a: [f64; N] = values.try_into().map_err(|_| {
+        WireError::invalid(
+            field,
+            format!("needs exactly {N} values, got {}", values.len()),
+        )
+    })?;
+    for (k, &v) in a.iter().enumerate() {
+        finite(&format!("{field}[{k}]"), v)?;
+    }
+    Ok(a)
+}
+
+fn label(field: &str, v: u32) -> Wire<u16> {
+    u16::try_from(v)
+        .ok()
+        .filter(|&l| l != 0)
+        .ok_or_else(|| WireError::invalid(field, format!("label {v} is outside 1..=65535")))
+}
+
+fn labels(field: &str, values: &[u32]) -> Wire<Vec<u16>> {
+    values
+        .iter()
+        .enumerate()
+        .map(|(k, &v)| label(&format!("{field}[{k}]"), v))
+        .collect()
+}
+
+/// A non-UNSPECIFIED value of a proto enum.
+fn known<E: TryFrom<i32>>(field: &str, v: i32) -> Wire<E> {
+    if v == 0 {
+        return Err(WireError::invalid(field, "must not be UNSPECIFIED"));
+    }
+    E::try_from(v).map_err(|_| WireError::invalid(field, format!("unknown value {v}")))
+}
+
+/// The role map of an upload; absent: the default `{parenchyma:[1], tumor:[2], portal:[3],
+/// hepatic:[4]}`.
+pub fn role_map(field: &str, roles: Option<&pb::RoleMap>) -> Wire<RoleMap> {
+    let Some(r) = roles else {
+        return Ok(RoleMap::default());
+    };
+    let mut map = BTreeMap::new();
+    for (role, values) in [
+        (Role::Parenchyma, &r.parenchyma),
+        (Role::Tumor, &r.tumor),
+        (Role::Portal, &r.portal),
+        (Role::Hepatic, &r.hepatic),
+        (Role::Vessel, &r.vessel),
+    ] {
+        if !values.is_empty() {
+            map.insert(role, labels(&format!("{field}.{}", role.name()), values)?);
+        }
+    }
+    RoleMap::try_from(map).map_err(|e| WireError::invalid(field, e.to_string()))
+}
+
+fn target(field: &str, t: Option<&pb::Target>) -> Wire<Target> {
+    let Some(t) = t else {
+        return Ok(Target::default());
+    };
+    Ok(Target {
+        labels: labels(&format!("{field}.labels"), &t.labels)?,
+        points: t
+            .points
+            .iter()
+            .enumerate()
+            .map(|(k, p)| point(&format!("{field}.points[{k}]"), p))
+            .collect::<Wire<_>>()?,
+    })
+}
+
+/// Grid size of an init: 0 means 4.
+fn grid(m: u32, n: u32) -> [usize; 2] {
+    let side = |v: u32| if v == 0 { 4 } else { v as usize };
+    [side(m), side(n)]
+}
+
+/// The operation of an `EditRequest`.
+pub fn edit(edit: Option<&pb::edit_request::Edit>) -> Wire<EditOp> {
+    use pb::edit_request::Edit as E;
+    let event = |event| Ok(EditOp::Event { event });
+    match edit.ok_or_else(|| WireError::invalid("edit", "is required"))? {
+        E::InitFromEndPoint(e) => Ok(EditOp::InitFromEndPoint {
+            name: e.name.clone(),
+            target: target("init_from_end_point.target", e.target.as_ref())?,
+            end_point: required("init_from_end_point.end_point", e.end_point.as_ref())?,
+            grid: grid(e.grid_m, e.grid_n),
+        }),
+        E::InitFromPlane(e) => Ok(EditOp::InitFromPlane {
+            name: e.name.clone(),
+            target: target("init_from_plane.target", e.target.as_ref())?,
+            point: required("init_from_plane.plane_point", e.plane_point.as_ref())?,
+            normal: required("init_from_plane.plane_normal", e.plane_normal.as_ref())?,
+            grid: grid(e.grid_m, e.grid_n),
+        }),
+        E::SetControlPoint(e) => event(PlanEvent::SetControlPoint {
+            name: e.name.clone(),
+            i: e.i as usize,
+            j: e.j as usize,
+            point: required("set_control_point.point", e.point.as_ref())?,
+        }),
+        E::SetControlPoints(e) => event(PlanEvent::SetControlPoints {
+            name: e.name.clone(),
+            points: e
+                .points
+                .iter()
+                .enumerate()
+                .map(|(k, p)| point(&format!("set_control_points.points[{k}]"), p))
+                .collect::<Wire<_>>()?,
+        }),
+        E::MoveGroup(e) => {
+            use pb::move_group::Selection;
+            let group = match e.selection {
+                None => return Err(WireError::invalid("move_group.selection", "is required")),
+                Some(Selection::Ring(k)) => Group::Ring(k as usize),
+                Some(Selection::Group(g)) => match known("move_group.group", g)? {
+                    pb::ControlGroup::Inner => Group::Inner,
+                    pb::ControlGroup::Outer => Group::Outer,
+                    pb::ControlGroup::All => Group::All,
+                    pb::ControlGroup::Unspecified => {
+                        return Err(WireError::invalid(
+                            "move_group.group",
+                            "must not be UNSPECIFIED",
+                        ));
+                    }
+                },
+            };
+            event(PlanEvent::MoveGroup {
+                name: e.name.clone(),
+                group,
+                delta: required("move_group.delta", e.delta.as_ref())?,
+            })
+        }
+        E::Translate(e) => event(PlanEvent::Translate {
+            name: e.name.clone(),
+            delta: required("translate.delta", e.delta.as_ref())?,
+        }),
+        E::Rotate(e) => event(PlanEvent::Rotate {
+            name: e.name.clone(),
+            axis: required("rotate.axis", e.axis.as_ref())?,
+            angle_deg: finite("rotate.angle_deg", e.angle_deg)?,
+            centre: e
+                .centre
+                .as_ref()
+                .map(|c| point("rotate.centre", c))
+                .transpose()?,
+        }),
+        E::SetMargin(e) => event(PlanEvent::SetMargin {
+            name: e.name.clone(),
+            margin_mm: finite("set_margin.margin_mm", e.margin_mm)?,
+        }),
+        E::SetBand(e) => event(PlanEvent::SetBand {
+            name: e.name.clone(),
+            band_mm: finite("set_band.band_mm", e.band_mm)?,
+        }),
+        E::SetResolution(e) => event(PlanEvent::SetResolution {
+            name: e.name.clone(),
+            resolution: [e.ru as usize, e.rv as usize],
+        }),
+        E::SetTarget(e) => event(PlanEvent::SetTarget {
+            name: e.name.clone(),
+            target: target("set_target.target", e.target.as_ref())?,
+        }),
+        E::DeleteResection(e) => event(PlanEvent::DeleteResection {
+            name: e.name.clone(),
+        }),
+        E::Undo(_) => Ok(EditOp::Undo),
+        E::Redo(_) => Ok(EditOp::Redo),
+    }
+}
+
+/// Geometry and voxel type of a raw upload, checked against its `total_bytes`.
+#[derive(Debug, Clone)]
+pub struct RawGeometry {
+    pub dims: [usize; 3],
+    pub spacing: [Real; 3],
+    pub origin: [Real; 3],
+    pub direction: [Real; 9],
+    pub data_type: DataType,
+    /// The wire type was INT8: bytes ≥ 0x80 are negative labels and refused; the rest are the
+    /// same bytes as UINT8.
+    pub signed_bytes: bool,
+}
+
+/// The geometry of a raw upload header.
+pub fn raw_geometry(h: &pb::RawLabelMapHeader) -> Wire<RawGeometry> {
+    let dims: [u32; 3] = h.dims.as_slice().try_into().map_err(|_| {
+        WireError::invalid(
+            "raw.dims",
+            format!("needs exactly 3 values, got {}", h.dims.len()),
+        )
+    })?;
+    if let Some(k) = dims.iter().position(|&d| d == 0) {
+        return Err(WireError::invalid(
+            format!("raw.dims[{k}]"),
+            "must be at least 1",
+        ));
+    }
+    let spacing = array::<3>("raw.spacing", &h.spacing)?;
+    if let Some(k) = spacing.iter().position(|&s| s <= 0.0) {
+        return Err(WireError::invalid(
+            format!("raw.spacing[{k}]"),
+            "must be > 0",
+        ));
+    }
+    let (data_type, signed_bytes) = match known("raw.data_type", h.data_type)? {
+        pb::DataType::Uint8 => (DataType::U8, false),
+        pb::DataType::Int8 => (DataType::U8, true),
+        pb::DataType::Uint16 => (DataType::U16, false),
+        pb::DataType::Int16 => (DataType::I16, false),
+        pb::DataType::Uint32 => (DataType::U32, false),
+        pb::DataType::Int32 => (DataType::I32, false),
+        pb::DataType::Unspecified => {
+            return Err(WireError::invalid(
+                "raw.data_type",
+                "must not be UNSPECIFIED",
+            ));
+        }
+    };
+    let g = RawGeometry {
+        dims: dims.map(|d| d as usize),
+        spacing,
+        origin: array("raw.origin", &h.origin)?,
+        direction: array("raw.direction", &h.direction)?,
+        data_type,
+        signed_bytes,
+    };
+    let need = g
+        .dims
+        .iter()
+        .try_fold(data_type.size() as u64, |n, &d| n.checked_mul(d as u64));
+    if need != Some(h.total_bytes) {
+        return Err(WireError::invalid(
+            "raw.total_bytes",
+            format!(
+                "{}×{}×{} voxels of {} bytes need {} bytes, but total_bytes is {}",
+                g.dims[0],
+                g.dims[1],
+                g.dims[2],
+                data_type.size(),
+                need.map_or_else(|| "more than 2^64".to_owned(), |n| n.to_string()),
+                h.total_bytes
+            ),
+        ));
+    }
+    Ok(g)
+}
+
+pub fn file_format(v: i32) -> Wire<FileFormat> {
+    Ok(match known("file.format", v)? {
+        pb::LabelMapFormat::Auto => FileFormat::Auto,
+        pb::LabelMapFormat::Nifti => FileFormat::Nifti,
+        pb::LabelMapFormat::Nrrd => FileFormat::Nrrd,
+        pb::LabelMapFormat::SegNrrd => FileFormat::SegNrrd,
+        pb::LabelMapFormat::Metaimage => FileFormat::MetaImage,
+        pb::LabelMapFormat::Unspecified => {
+            return Err(WireError::invalid("file.format", "must not be UNSPECIFIED"));
+        }
+    })
+}
+
+pub fn mesh_format(v: i32) -> Wire<MeshFormat> {
+    Ok(match known("format", v)? {
+        pb::ModelFormat::Vtp => MeshFormat::Vtp,
+        pb::ModelFormat::Vtk => MeshFormat::Vtk,
+        pb::ModelFormat::Stl => MeshFormat::Stl,
+        pb::ModelFormat::Ply => MeshFormat::Ply,
+        pb::ModelFormat::Obj => MeshFormat::Obj,
+        pb::ModelFormat::Unspecified => {
+            return Err(WireError::invalid("format", "must not be UNSPECIFIED"));
+        }
+    })
+}
+
+/// Checks a reconstruction request against what the operation layer builds: PSR for the liver
+/// with the server's depth and the engine's MCSD settings.
+pub fn check_reconstruct(r: &pb::ReconstructRequest, psr_depth: u32) -> Wire<()> {
+    let unsupported = |field: &str, message: String| WireError::Unsupported {
+        field: field.to_owned(),
+        message,
+    };
+    match known("method", r.method)? {
+        pb::ReconstructionMethod::Psr => {}
+        _ => {
+            return Err(unsupported(
+                "method",
+                "this server builds the liver by PSR only".into(),
+            ));
+        }
+    }
+    let Some(o) = &r.options else { return Ok(()) };
+    if let Some(d) = o.psr_depth {
+        if !(1..=10).contains(&d) {
+            return Err(WireError::invalid(
+                "options.psr_depth",
+                format!("{d} is outside 1..=10"),
+            ));
+        }
+        if d != psr_depth {
+            return Err(unsupported(
+                "options.psr_depth",
+                format!("this server reconstructs at depth {psr_depth} only"),
+            ));
+        }
+    }
+    for (field, v) in [
+        ("options.smoothing", o.smoothing),
+        ("options.decimation", o.decimation),
+    ] {
+        if let Some(v) = v {
+            finite(field, v)?;
+            return Err(unsupported(
+                field,
+                "per-call MCSD settings are not supported yet".into(),
+            ));
+        }
+    }
+    Ok(())
+}
+
+pub fn slice_positions(r: &pb::GetSlicesRequest) -> Wire<SlicePositions> {
+    let at = |field: &str, v: Option<f64>| v.map(|v| finite(field, v)).transpose();
+    Ok(SlicePositions {
+        axial: at("axial", r.axial)?,
+        coronal: at("coronal", r.coronal)?,
+        sagittal: at("sagittal", r.sagittal)?,
+    })
+}
+
+// ---- outbound --------------------------------------------------------------------------------
+
+fn vec3(p: [Real; 3]) -> pb::Vec3 {
+    pb::Vec3 {
+        x: p[0],
+        y: p[1],
+        z: p[2],
+    }
+}
+
+pub fn role_map_pb(roles: &RoleMap) -> pb::RoleMap {
+    let get = |role| roles.labels(role).iter().map(|&l| u32::from(l)).collect();
+    pb::RoleMap {
+        parenchyma: get(Role::Parenchyma),
+        tumor: get(Role::Tumor),
+        portal: get(Role::Portal),
+        hepatic: get(Role::Hepatic),
+        vessel: get(Role::Vessel),
+    }
+}
+
+pub fn label_map(s: &LabelMapSummary) -> pb::LabelMapSummary {
+    // Voxel volume: |det(direction · diag(spacing))|, in ml.
+    let voxel_ml = Mat3::from_row_slice(&s.direction).determinant().abs()
+        * s.spacing.iter().product::<Real>()
+        / 1000.0;
+    pb::LabelMapSummary {
+        dims: s.dims.iter().map(|&d| d as u32).collect(),
+        spacing: s.spacing.to_vec(),
+        origin: s.origin.to_vec(),
+        direction: s.direction.to_vec(),
+        roles: Some(role_map_pb(&s.roles)),
+        labels: s
+            .labels
+            .iter()
+            .map(|(&label, &voxels)| pb::LabelCount {
+                label: label.into(),
+                voxels,
+                volume_ml: voxels as f64 * voxel_ml,
+            })
+            .collect(),
+        liver_volume_ml: s.liver_ml,
+    }
+}
+
+pub fn session(s: &SessionInfo) -> pb::Session {
+    pb::Session {
+        id: s.id.clone(),
+        display_name: s.display_name.clone(),
+        created_ms: s.created_ms,
+        last_access_ms: s.last_access_ms,
+        state: match s.state {
+            SessionState::Empty => pb::SessionState::Empty,
+            SessionState::LabelMap => pb::SessionState::LabelMap,
+            SessionState::Ready => pb::SessionState::Ready,
+        } as i32,
+        plan_version: s.plan_version,
+        label_map: s.label_map.as_ref().map(label_map),
+    }
+}
+
+fn target_pb(t: &Target) -> pb::Target {
+    pb::Target {
+        labels: t.labels.iter().map(|&l| u32::from(l)).collect(),
+        points: t.points.iter().copied().map(vec3).collect(),
+    }
+}
+
+pub fn resection(r: &Resection) -> pb::Resection {
+    pb::Resection {
+        name: r.name.clone(),
+        grid_m: r.grid[0] as u32,
+        grid_n: r.grid[1] as u32,
+        control_points: r.control_points.iter().copied().map(vec3).collect(),
+        margin_mm: r.margin_mm,
+        band_mm: r.band_mm,
+        target: Some(target_pb(&r.target)),
+        ru: r.resolution[0] as u32,
+        rv: r.resolution[1] as u32,
+    }
+}
+
+pub fn verdict(v: &Verdict) -> pb::Verdict {
+    pb::Verdict {
+        min_margin_mm: v.min_margin_mm,
+        point: v.point.map(|p| vec3([p.x, p.y, p.z])),
+        u: v.uv.map(|uv| uv[0]),
+        v: v.uv.map(|uv| uv[1]),
+        violation: v.violation,
+        violating_area_mm2: v.violating_area_mm2,
+        warning_area_mm2: v.warning_area_mm2,
+        inside_area_mm2: v.inside_area_mm2,
+    }
+}
+
+pub fn volumes(v: &VolumeReport) -> pb::VolumeReport {
+    pb::VolumeReport {
+        total_ml: v.total_ml,
+        remnant_ml: v.remnant_ml,
+        remnant_pct: v.remnant_pct,
+        resected_ml: v.resected_ml,
+        flr_threshold_pct: v.flr_threshold_pct,
+        flr_warning: v.flr_warning,
+        complete: v.complete,
+        resections: v
+            .resections
+            .iter()
+            .map(|r| pb::ResectionVolume {
+                name: r.name.clone(),
+                resected_ml: r.resected_ml,
+                resected_pct: r.resected_pct,
+                complete_cut: r.complete_cut,
+                incomplete_reason: r
+                    .incomplete
+                    .as_ref()
+                    .map(ToString::to_string)
+                    .unwrap_or_default(),
+                incomplete_point: match r.incomplete {
+                    Some(IncompleteCut::EdgeInsideLiver { point }) => Some(vec3(point)),
+                    _ => None,
+                },
+            })
+            .collect(),
+    }
+}
+
+pub fn surface_kind(k: SurfaceKind) -> i32 {
+    (match k {
+        SurfaceKind::Parenchyma => pb::SurfaceKind::Parenchyma,
+        SurfaceKind::Tumor => pb::SurfaceKind::Tumor,
+        SurfaceKind::Portal => pb::SurfaceKind::Portal,
+        SurfaceKind::Hepatic => pb::SurfaceKind::Hepatic,
+        SurfaceKind::Vessel => pb::SurfaceKind::Vessel,
+        SurfaceKind::Resection => pb::SurfaceKind::Resection,
+    }) as i32
+}
+
+/// A model surface (its label is not known to the operation layer: 0).
+pub fn surface(s: &Surface) -> pb::Surface {
+    pb::Surface {
+        name: s.name.clone(),
+        kind: surface_kind(s.kind),
+        label: 0,
+        color: None,
+        mesh: s.mesh.clone(),
+    }
+}
+
+pub fn model_info(m: &ModelInfo) -> pb::ModelInfo {
+    pb::ModelInfo {
+        name: m.name.clone(),
+        kind: surface_kind(m.kind),
+        label: 0,
+        triangle_count: m.triangles as u64,
+        vertex_count: m.vertices as u64,
+        volume_ml: m.volume_ml,
+    }
+}
+
+pub fn reconstruct_event(e: ReconstructEvent) -> pb::ReconstructResponse {
+    use pb::reconstruct_response::Event;
+    let event = match e {
+        ReconstructEvent::Progress { stage, fraction } => {
+            Event::Progress(pb::ReconstructProgress { stage, fraction })
+        }
+        ReconstructEvent::Model { model } => Event::Model(model_info(&model)),
+        ReconstructEvent::Done { models, time_ms } => Event::Done(pb::ReconstructDone {
+            model_count: u32::try_from(models).unwrap_or(u32::MAX),
+            elapsed_s: time_ms / 1000.0,
+        }),
+    };
+    pb::ReconstructResponse { event: Some(event) }
+}
+
+pub fn slices(s: &SliceProjections) -> pb::GetSlicesResponse {
+    let lines = |ls: &[resecta_geom::Polyline]| {
+        ls.iter()
+            .map(|l| pb::Polyline {
+                points: l
+                    .points
+                    .iter()
+                    .flat_map(|p| [p.x as f32, p.y as f32, p.z as f32])
+                    .flat_map(f32::to_le_bytes)
+                    .collect(),
+                closed: l.is_closed,
+            })
+            .collect()
+    };
+    pb::GetSlicesResponse {
+        axial: lines(&s.axial),
+        coronal: lines(&s.coronal),
+        sagittal: lines(&s.sagittal),
+    }
+}

@@ -1,0 +1,183 @@
+//! Every error this face returns, mapped to a gRPC status once: operation-layer errors
+//! ([`SessionError`]), access refusals ([`AccessError`]) and malformed wire input ([`WireError`]).
+//! Each status carries a `google.rpc.Status` in its details (the `grpc-status-details-bin`
+//! trailer) whose one `Any` is a `resecta.v1.ErrorInfo`, as proto/README.md prescribes.
+
+use prost::Message;
+use resecta_api::ERROR_INFO_TYPE_URL;
+use resecta_api::v1::ErrorInfo;
+use resecta_auth::AccessError;
+use resecta_plan::PlanError;
+use resecta_session::{ErrorKind, SessionError};
+use tonic::{Code, Status};
+
+/// `google.rpc.Status`, the payload of a status' details.
+#[derive(Clone, PartialEq, Message)]
+pub struct RpcStatus {
+    /// The gRPC status code.
+    #[prost(int32, tag = "1")]
+    pub code: i32,
+    /// The status message.
+    #[prost(string, tag = "2")]
+    pub message: String,
+    /// One `resecta.v1.ErrorInfo`.
+    #[prost(message, repeated, tag = "3")]
+    pub details: Vec<prost_types::Any>,
+}
+
+/// Request input refused before it reaches the operation layer.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum WireError {
+    /// A field is missing, NaN, out of range, of the wrong length or UNSPECIFIED.
+    #[error("{field}: {message}")]
+    Invalid { field: String, message: String },
+    /// An upload stream is malformed (header missing or repeated, chunk too big, wrong length).
+    #[error("{field}: {message}")]
+    BadChunk { field: String, message: String },
+    /// An upload is larger than the server accepts.
+    #[error("{0}")]
+    TooLarge(String),
+    /// A message would exceed the largest the server sends.
+    #[error("{0}")]
+    MessageTooLarge(String),
+    /// The request needs a state or setting the server does not have.
+    #[error("{field}: {message}")]
+    Precondition { field: String, message: String },
+    /// A valid request this server cannot serve (yet).
+    #[error("{field}: {message}")]
+    Unsupported { field: String, message: String },
+}
+
+impl WireError {
+    /// An [`WireError::Invalid`] of `field`.
+    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self::Invalid {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+
+    /// A [`WireError::BadChunk`] of `field`.
+    pub fn bad_chunk(field: impl Into<String>, message: impl Into<String>) -> Self {
+        Self::BadChunk {
+            field: field.into(),
+            message: message.into(),
+        }
+    }
+}
+
+/// A status with `info` in its details.
+fn status(code: Code, message: String, info: ErrorInfo) -> Status {
+    let details = RpcStatus {
+        code: code as i32,
+        message: message.clone(),
+        details: vec![prost_types::Any {
+            type_url: ERROR_INFO_TYPE_URL.to_owned(),
+            value: info.encode_to_vec(),
+        }],
+    };
+    Status::with_details(code, message, details.encode_to_vec().into())
+}
+
+fn info(code: &str, field: &str) -> ErrorInfo {
+    ErrorInfo {
+        code: code.to_owned(),
+        field: field.to_owned(),
+        current_plan_version: None,
+    }
+}
+
+/// The `ErrorInfo.code` of an operation-layer error: the proto/README.md name where the error
+/// identifies it, else the operation layer's code in upper case.
+fn session_code(e: &SessionError) -> String {
+    let named = match e {
+        SessionError::UnknownSession(_) => "SESSION_NOT_FOUND",
+        SessionError::Plan(PlanError::UnknownResection(_)) => "RESECTION_NOT_FOUND",
+        SessionError::Plan(PlanError::NothingToUndo) => "NOTHING_TO_UNDO",
+        SessionError::Plan(PlanError::NothingToRedo) => "NOTHING_TO_REDO",
+        SessionError::Plan(PlanError::Json(_) | PlanError::Format(_)) => "BAD_PLAN",
+        _ => return e.code().to_ascii_uppercase(),
+    };
+    named.to_owned()
+}
+
+/// The status of an operation-layer error (the table of docs/server.md).
+pub fn session_status(e: &SessionError) -> Status {
+    let code = match e.kind() {
+        ErrorKind::InvalidArgument => Code::InvalidArgument,
+        ErrorKind::NotFound => Code::NotFound,
+        ErrorKind::AlreadyExists => Code::AlreadyExists,
+        ErrorKind::Conflict => Code::Aborted,
+        ErrorKind::FailedPrecondition => Code::FailedPrecondition,
+        ErrorKind::ResourceExhausted => Code::ResourceExhausted,
+        ErrorKind::Cancelled => Code::Cancelled,
+        ErrorKind::Internal => Code::Internal,
+    };
+    if code == Code::Internal {
+        tracing::error!(error = %e, "internal error");
+    }
+    let mut detail = info(&session_code(e), "");
+    if let SessionError::StaleVersion { current, .. } = e {
+        detail.current_plan_version = Some(*current);
+    }
+    status(code, e.to_string(), detail)
+}
+
+/// The status of a refused call: UNAUTHENTICATED, or FAILED_PRECONDITION for a version mismatch.
+pub fn access_status(e: &AccessError) -> Status {
+    let (code, name, field) = if e.is_auth() {
+        (Code::Unauthenticated, "UNAUTHENTICATED", "authorization")
+    } else {
+        (
+            Code::FailedPrecondition,
+            "API_VERSION_MISMATCH",
+            resecta_api::API_VERSION_HEADER,
+        )
+    };
+    status(code, e.to_string(), info(name, field))
+}
+
+impl From<WireError> for Status {
+    fn from(e: WireError) -> Self {
+        let message = e.to_string();
+        let (code, detail) = match &e {
+            WireError::Invalid { field, .. } => {
+                (Code::InvalidArgument, info("INVALID_ARGUMENT", field))
+            }
+            WireError::BadChunk { field, .. } => (Code::InvalidArgument, info("BAD_CHUNK", field)),
+            WireError::TooLarge(_) => (Code::ResourceExhausted, info("UPLOAD_TOO_LARGE", "")),
+            WireError::MessageTooLarge(_) => {
+                (Code::ResourceExhausted, info("MESSAGE_TOO_LARGE", ""))
+            }
+            WireError::Precondition { field, .. } => {
+                (Code::FailedPrecondition, info("FAILED_PRECONDITION", field))
+            }
+            WireError::Unsupported { field, .. } => {
+                (Code::Unimplemented, info("UNSUPPORTED", field))
+            }
+        };
+        status(code, message, detail)
+    }
+}
+
+/// `?`-friendly conversion of operation-layer results inside the handlers.
+pub(crate) trait OrStatus<T> {
+    fn or_status(self) -> Result<T, Status>;
+}
+
+impl<T> OrStatus<T> for Result<T, SessionError> {
+    fn or_status(self) -> Result<T, Status> {
+        self.map_err(|e| session_status(&e))
+    }
+}
+
+/// Decodes the [`ErrorInfo`] of a status made here (or by any server following
+/// proto/README.md); `None` when the details hold none.
+pub fn error_info(status: &Status) -> Option<ErrorInfo> {
+    RpcStatus::decode(status.details())
+        .ok()?
+        .details
+        .iter()
+        .find(|any| any.type_url == ERROR_INFO_TYPE_URL)
+        .and_then(|any| ErrorInfo::decode(any.value.as_slice()).ok())
+}

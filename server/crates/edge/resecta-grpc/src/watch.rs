@@ -1,0 +1,224 @@
+//! The Watch stream: the session's [`WatchStream`] pulled one event at a time as the client reads
+//! (HTTP/2 flow control is the back-pressure; nothing queues here beyond one snapshot's parts),
+//! each event translated to `WatchResponse` messages.
+
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
+use std::sync::Arc;
+
+use futures_util::Stream;
+use prost::Message;
+use resecta_api::v1 as pb;
+use resecta_api::v1::resection_surface::Mesh;
+use resecta_api::v1::watch_response::Event;
+use resecta_plan::{Resection, Verdict};
+use resecta_session::api::{WatchBody, WatchEvent};
+use resecta_session::{Service, SessionError, WatchStream};
+use tonic::Status;
+
+use crate::convert;
+use crate::error::{OrStatus, WireError, session_status};
+use crate::{MAX_MESSAGE_BYTES, SNAPSHOT_PART_BYTES};
+
+/// Room left in a message for its envelope (seq, version, field tags and lengths).
+const ENVELOPE_BYTES: usize = 64;
+
+/// Snapshot parts of at most [`SNAPSHOT_PART_BYTES`] each, except that a single surface larger
+/// than that travels alone (up to [`MAX_MESSAGE_BYTES`]).
+#[derive(Debug)]
+struct Parts {
+    parts: Vec<pb::Snapshot>,
+    size: usize,
+}
+
+impl Parts {
+    fn new(session: pb::Session) -> Self {
+        let size = session.encoded_len();
+        Self {
+            parts: vec![pb::Snapshot {
+                session: Some(session),
+                ..pb::Snapshot::default()
+            }],
+            size,
+        }
+    }
+
+    /// The part that takes `len` more bytes for the surface `name`.
+    fn room(&mut self, name: &str, len: usize) -> Result<&mut pb::Snapshot, WireError> {
+        let len = len + ENVELOPE_BYTES;
+        if len > MAX_MESSAGE_BYTES {
+            return Err(WireError::MessageTooLarge(format!(
+                "surface {name:?} needs {len} bytes, more than the largest message ({MAX_MESSAGE_BYTES} bytes)"
+            )));
+        }
+        if self.size + len > SNAPSHOT_PART_BYTES && self.size > 0 {
+            self.parts.push(pb::Snapshot::default());
+            self.size = 0;
+        }
+        self.size += len;
+        let last = self.parts.len() - 1;
+        Ok(&mut self.parts[last])
+    }
+}
+
+fn resection_surface(
+    name: &str,
+    params: &BTreeMap<String, Resection>,
+    verdicts: &BTreeMap<String, Verdict>,
+    mesh: Option<Mesh>,
+) -> pb::ResectionSurface {
+    pb::ResectionSurface {
+        name: name.to_owned(),
+        resection: params.get(name).map(convert::resection),
+        verdict: verdicts.get(name).map(convert::verdict),
+        mesh,
+    }
+}
+
+/// The messages of one event; `None` for a models event (the stream then takes a fresh
+/// snapshot, which holds the new models).
+fn responses(
+    e: &WatchEvent,
+    session: Option<pb::Session>,
+) -> Result<Option<Vec<pb::WatchResponse>>, WireError> {
+    let wrap = |event| pb::WatchResponse {
+        seq: e.seq,
+        plan_version: e.plan_version,
+        event: Some(event),
+    };
+    Ok(Some(match &e.body {
+        WatchBody::Snapshot {
+            models,
+            resections,
+            verdicts,
+            resection_params,
+            volumes,
+        } => {
+            let mut parts = Parts::new(session.unwrap_or_default());
+            for m in models {
+                let s = convert::surface(m);
+                parts.room(&s.name, s.encoded_len())?.models.push(s);
+            }
+            for r in resections {
+                let mesh = Some(Mesh::FullMesh(r.mesh.clone()));
+                let s = resection_surface(&r.name, resection_params, verdicts, mesh);
+                parts.room(&s.name, s.encoded_len())?.resections.push(s);
+            }
+            if let Some(v) = volumes {
+                let v = convert::volumes(v);
+                let len = v.encoded_len();
+                parts.room("volumes", len)?.volumes = Some(v);
+            }
+            let mut parts = parts.parts;
+            if let Some(last) = parts.last_mut() {
+                last.complete = true;
+            }
+            parts
+                .into_iter()
+                .map(|p| wrap(Event::Snapshot(p)))
+                .collect()
+        }
+        WatchBody::Delta {
+            updates,
+            removed,
+            resections,
+            verdicts,
+        } => {
+            let mut out: Vec<pb::ResectionSurface> = updates
+                .iter()
+                .map(|u| {
+                    let mesh = if u.full {
+                        Mesh::FullMesh(u.bytes.clone())
+                    } else {
+                        Mesh::MeshDelta(u.bytes.clone())
+                    };
+                    resection_surface(&u.name, resections, verdicts, Some(mesh))
+                })
+                .collect();
+            let updated: BTreeSet<&str> = updates.iter().map(|u| u.name.as_str()).collect();
+            out.extend(
+                resections
+                    .keys()
+                    .filter(|n| !updated.contains(n.as_str()))
+                    .map(|n| resection_surface(n, resections, verdicts, None)),
+            );
+            vec![wrap(Event::Delta(pb::Delta {
+                resections: out,
+                removed: removed.clone(),
+            }))]
+        }
+        WatchBody::Volumes { volumes } => vec![wrap(Event::Volumes(convert::volumes(volumes)))],
+        WatchBody::Models { .. } => return Ok(None),
+    }))
+}
+
+#[derive(Debug)]
+struct State {
+    service: Arc<Service>,
+    id: String,
+    events: WatchStream,
+    pending: VecDeque<pb::WatchResponse>,
+    ended: bool,
+}
+
+impl State {
+    /// The next message, pulling the session's stream only when nothing is pending.
+    async fn next(&mut self) -> Option<Result<pb::WatchResponse, Status>> {
+        loop {
+            if let Some(m) = self.pending.pop_front() {
+                return Some(Ok(m));
+            }
+            if self.ended {
+                return None;
+            }
+            match self.step().await {
+                Ok(()) => {}
+                Err(status) => {
+                    self.ended = true;
+                    return Some(Err(status));
+                }
+            }
+        }
+    }
+
+    async fn step(&mut self) -> Result<(), Status> {
+        let event = match self.events.next().await {
+            Some(e) => e.or_status()?,
+            // The hub closes when the session is deleted.
+            None => {
+                return Err(session_status(&SessionError::UnknownSession(
+                    self.id.clone(),
+                )));
+            }
+        };
+        let session = match event.body {
+            WatchBody::Snapshot { .. } => Some(convert::session(
+                &self.service.get_session(&self.id).await.or_status()?,
+            )),
+            _ => None,
+        };
+        match responses(&event, session)? {
+            Some(messages) => self.pending.extend(messages),
+            None => self.events = self.service.watch(&self.id, None).await.or_status()?,
+        }
+        Ok(())
+    }
+}
+
+/// The stream of `Watch` for session `id` from `since` (absent: a snapshot first).
+pub async fn watch(
+    service: Arc<Service>,
+    id: String,
+    since: Option<u64>,
+) -> Result<impl Stream<Item = Result<pb::WatchResponse, Status>> + Send + 'static, Status> {
+    let events = service.watch(&id, since).await.or_status()?;
+    let state = State {
+        service,
+        id,
+        events,
+        pending: VecDeque::new(),
+        ended: false,
+    };
+    Ok(futures_util::stream::unfold(state, |mut s| async move {
+        s.next().await.map(|m| (m, s))
+    }))
+}
