@@ -1,0 +1,82 @@
+//! Extractors whose rejections are problems: bounded body reading, JSON bodies, path and query.
+
+use axum::body::{Body, Bytes};
+use axum::extract::{FromRequest, FromRequestParts, Request};
+use axum::http::request::Parts;
+use axum::http::{HeaderMap, header};
+use futures_util::StreamExt;
+use serde::de::DeserializeOwned;
+
+use crate::App;
+use crate::problem::Problem;
+
+/// Bytes reserved up front for a body, at most (the rest grows as it arrives).
+const MAX_PREALLOC: u64 = 8 << 20;
+
+/// Reads a body of at most `limit` bytes: refuses a larger `Content-Length` before reading
+/// anything, and a longer (e.g. chunked) body as soon as it passes the limit.
+pub async fn read_body(headers: &HeaderMap, body: Body, limit: u64) -> Result<Bytes, Problem> {
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit) {
+        return Err(Problem::too_large(limit));
+    }
+    let reserve = declared.unwrap_or(0).min(limit).min(MAX_PREALLOC);
+    let mut out = Vec::with_capacity(usize::try_from(reserve).unwrap_or(0));
+    let mut chunks = body.into_data_stream();
+    while let Some(chunk) = chunks.next().await {
+        let chunk = chunk.map_err(|e| Problem::invalid(format!("request body: {e}")))?;
+        if (out.len() + chunk.len()) as u64 > limit {
+            return Err(Problem::too_large(limit));
+        }
+        out.extend_from_slice(&chunk);
+    }
+    Ok(out.into())
+}
+
+/// A JSON request body of at most [`crate::HttpOptions::max_json_bytes`].
+#[derive(Debug)]
+pub struct Json<T>(pub T);
+
+impl<T: DeserializeOwned> FromRequest<App> for Json<T> {
+    type Rejection = Problem;
+
+    async fn from_request(req: Request, app: &App) -> Result<Self, Problem> {
+        let (parts, body) = req.into_parts();
+        let bytes = read_body(&parts.headers, body, app.max_json_bytes).await?;
+        serde_json::from_slice(&bytes)
+            .map(Json)
+            .map_err(|e| Problem::invalid(format!("request body: {e}")))
+    }
+}
+
+/// Path parameters.
+#[derive(Debug)]
+pub struct Path<T>(pub T);
+
+impl<S: Send + Sync, T: DeserializeOwned + Send> FromRequestParts<S> for Path<T> {
+    type Rejection = Problem;
+
+    async fn from_request_parts(parts: &mut Parts, state: &S) -> Result<Self, Problem> {
+        axum::extract::Path::<T>::from_request_parts(parts, state)
+            .await
+            .map(|p| Self(p.0))
+            .map_err(|e| Problem::invalid(e.body_text()))
+    }
+}
+
+/// Query parameters.
+#[derive(Debug)]
+pub struct Query<T>(pub T);
+
+impl<S: Send + Sync, T: DeserializeOwned> FromRequestParts<S> for Query<T> {
+    type Rejection = Problem;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Problem> {
+        axum::extract::Query::<T>::try_from_uri(&parts.uri)
+            .map(|q| Self(q.0))
+            .map_err(|e| Problem::invalid(e.body_text()))
+    }
+}

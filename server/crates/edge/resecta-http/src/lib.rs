@@ -1,0 +1,297 @@
+//! The HTTP/JSON face of the planning server: the [`resecta_session::Service`] operations as
+//! REST routes under `/v1/`, the watch stream and reconstruction progress as server-sent events,
+//! errors as RFC 9457 problem documents, and the OpenAPI 3.1 document at `GET /v1/openapi.json`.
+//!
+//! [`router`] builds the whole face; the server process binds it (plain or TLS). Every `/v1/`
+//! route but `GET /v1/info` and `GET /v1/openapi.json` passes the [`AccessPolicy`] (bearer token
+//! and `resecta-api-version`); `/healthz` and `/metrics` are open. Every response carries an
+//! `x-request-id` (the client's, or a fresh UUID), and every request is traced (method, matched
+//! route, status, latency, request id) and counted in `resecta_http_requests_total{route,status}`.
+//! Bodies, display names and file names are never logged.
+
+mod extract;
+mod handlers;
+mod problem;
+mod wire;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Router;
+use axum::extract::{MatchedPath, Request, State};
+use axum::handler::Handler;
+use axum::http::{HeaderName, Method, header};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::routing::{MethodFilter, MethodRouter, on};
+use resecta_auth::{API_VERSION_HEADER, AccessPolicy};
+use resecta_session::Service;
+use tower::ServiceBuilder;
+use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
+use tower_http::trace::TraceLayer;
+use tracing::Span;
+
+pub use handlers::OPENAPI;
+pub use problem::{PROBLEM_JSON, Problem};
+
+/// Renders the process' Prometheus metrics (text exposition format).
+pub type MetricsRender = Arc<dyn Fn() -> String + Send + Sync>;
+
+/// JSON request bodies, at most (docs/server.md: 16 MiB).
+pub const MAX_JSON_BYTES: u64 = 16 << 20;
+
+/// Request ids longer than this, or not printable ASCII, are replaced by a fresh one.
+const MAX_REQUEST_ID: usize = 64;
+
+const X_REQUEST_ID: HeaderName = HeaderName::from_static("x-request-id");
+
+/// Options of the HTTP face. Label-map uploads are bounded by the service's
+/// `ServiceConfig::max_upload_bytes`.
+#[derive(Clone)]
+pub struct HttpOptions {
+    /// Served at `GET /metrics` when present (else that route does not exist).
+    pub metrics: Option<MetricsRender>,
+    /// Largest JSON body (edits, sessions, plan documents), bytes.
+    pub max_json_bytes: u64,
+    /// Interval of the keep-alive comments on server-sent event streams.
+    pub keep_alive: Duration,
+}
+
+impl Default for HttpOptions {
+    fn default() -> Self {
+        Self {
+            metrics: None,
+            max_json_bytes: MAX_JSON_BYTES,
+            keep_alive: Duration::from_secs(15),
+        }
+    }
+}
+
+impl std::fmt::Debug for HttpOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HttpOptions")
+            .field("metrics", &self.metrics.is_some())
+            .field("max_json_bytes", &self.max_json_bytes)
+            .field("keep_alive", &self.keep_alive)
+            .finish()
+    }
+}
+
+/// What the handlers share.
+#[derive(Clone)]
+struct App {
+    service: Arc<Service>,
+    metrics: Option<MetricsRender>,
+    max_json_bytes: u64,
+    keep_alive: Duration,
+}
+
+/// The methods the face uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Verb {
+    Get,
+    Post,
+    Put,
+    Delete,
+}
+
+impl Verb {
+    fn filter(self) -> MethodFilter {
+        match self {
+            Self::Get => MethodFilter::GET,
+            Self::Post => MethodFilter::POST,
+            Self::Put => MethodFilter::PUT,
+            Self::Delete => MethodFilter::DELETE,
+        }
+    }
+
+    fn method(self) -> Method {
+        match self {
+            Self::Get => Method::GET,
+            Self::Post => Method::POST,
+            Self::Put => Method::PUT,
+            Self::Delete => Method::DELETE,
+        }
+    }
+}
+
+const METRICS_PATH: &str = "/metrics";
+
+/// One row of the route table.
+struct Route {
+    verb: Verb,
+    path: &'static str,
+    /// Passes the access policy.
+    guarded: bool,
+    handler: MethodRouter<App>,
+}
+
+fn route<H: Handler<T, App>, T: 'static>(
+    verb: Verb,
+    path: &'static str,
+    guarded: bool,
+    handler: H,
+) -> Route {
+    Route {
+        verb,
+        path,
+        guarded,
+        handler: on(verb.filter(), handler),
+    }
+}
+
+/// The route table: the router is built from it, and [`routes`] lists it (the OpenAPI test
+/// checks the document against it).
+fn table() -> Vec<Route> {
+    use Verb::{Delete, Get, Post, Put};
+    use handlers as h;
+    const S: &str = "/v1/sessions/{id}";
+    vec![
+        route(Get, "/healthz", false, h::healthz),
+        route(Get, METRICS_PATH, false, h::metrics),
+        route(Get, "/v1/info", false, h::info),
+        route(Get, "/v1/openapi.json", false, h::openapi),
+        route(Post, "/v1/sessions", true, h::create_session),
+        route(Get, "/v1/sessions", true, h::list_sessions),
+        route(Get, S, true, h::get_session),
+        route(Delete, S, true, h::delete_session),
+        route(
+            Put,
+            "/v1/sessions/{id}/label-map",
+            true,
+            h::upload_label_map,
+        ),
+        route(Post, "/v1/sessions/{id}/reconstruct", true, h::reconstruct),
+        route(Post, "/v1/sessions/{id}/edits", true, h::edit),
+        route(Get, "/v1/sessions/{id}/volumes", true, h::volumes),
+        route(Get, "/v1/sessions/{id}/plan", true, h::export_plan),
+        route(Put, "/v1/sessions/{id}/plan", true, h::import_plan),
+        route(
+            Get,
+            "/v1/sessions/{id}/models/{name}",
+            true,
+            h::export_model,
+        ),
+        route(Get, "/v1/sessions/{id}/slices", true, h::slices),
+        route(Get, "/v1/sessions/{id}/watch", true, h::watch),
+    ]
+}
+
+/// Every route as (method, path in OpenAPI template syntax); `/metrics` exists only when
+/// [`HttpOptions::metrics`] is given.
+pub fn routes() -> Vec<(Method, &'static str)> {
+    table()
+        .into_iter()
+        .map(|r| (r.verb.method(), r.path))
+        .collect()
+}
+
+/// The HTTP face over `service`, guarded by `policy`.
+pub fn router(service: Arc<Service>, policy: AccessPolicy, options: HttpOptions) -> Router {
+    let app = App {
+        service,
+        metrics: options.metrics,
+        max_json_bytes: options.max_json_bytes,
+        keep_alive: options.keep_alive,
+    };
+    let (mut open, mut guarded) = (Router::new(), Router::new());
+    for r in table() {
+        if r.path == METRICS_PATH && app.metrics.is_none() {
+            continue;
+        }
+        if r.guarded {
+            guarded = guarded.route(r.path, r.handler);
+        } else {
+            open = open.route(r.path, r.handler);
+        }
+    }
+    let guarded = guarded.route_layer(middleware::from_fn_with_state(Arc::new(policy), access));
+    open.merge(guarded)
+        .fallback(handlers::no_route)
+        .method_not_allowed_fallback(handlers::method_not_allowed)
+        .with_state(app)
+        .layer(
+            ServiceBuilder::new()
+                .layer(middleware::map_request(sanitize_request_id))
+                .layer(SetRequestIdLayer::new(X_REQUEST_ID, MakeRequestUuid))
+                .layer(PropagateRequestIdLayer::new(X_REQUEST_ID))
+                .layer(
+                    TraceLayer::new_for_http()
+                        .make_span_with(make_span)
+                        .on_response(on_response),
+                )
+                .layer(middleware::from_fn(count)),
+        )
+}
+
+/// Applies the access policy to the `authorization` and `resecta-api-version` headers.
+async fn access(State(policy): State<Arc<AccessPolicy>>, req: Request, next: Next) -> Response {
+    let verdict = {
+        let header = |name: &str| {
+            req.headers()
+                .get(name)
+                .map(|v| v.to_str().unwrap_or("\u{fffd}"))
+        };
+        policy.check(
+            header(header::AUTHORIZATION.as_str()),
+            header(API_VERSION_HEADER),
+        )
+    };
+    match verdict {
+        Ok(()) => next.run(req).await,
+        Err(e) => Problem::from(e).into_response(),
+    }
+}
+
+/// Drops a client request id that is too long or not printable ASCII (a fresh one replaces it).
+async fn sanitize_request_id(mut req: Request) -> Request {
+    let ok = req.headers().get(&X_REQUEST_ID).is_none_or(|v| {
+        let b = v.as_bytes();
+        !b.is_empty() && b.len() <= MAX_REQUEST_ID && b.iter().all(|c| c.is_ascii_graphic())
+    });
+    if !ok {
+        req.headers_mut().remove(&X_REQUEST_ID);
+    }
+    req
+}
+
+fn route_of<B>(req: &http::Request<B>) -> &str {
+    req.extensions()
+        .get::<MatchedPath>()
+        .map_or("unmatched", MatchedPath::as_str)
+}
+
+fn make_span<B>(req: &http::Request<B>) -> Span {
+    let id = req
+        .headers()
+        .get(&X_REQUEST_ID)
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("");
+    tracing::info_span!(
+        "http",
+        method = %req.method(),
+        route = route_of(req),
+        request_id = id,
+        status = tracing::field::Empty,
+        latency_ms = tracing::field::Empty,
+    )
+}
+
+fn on_response<B>(res: &http::Response<B>, latency: Duration, span: &Span) {
+    span.record("status", res.status().as_u16());
+    span.record("latency_ms", latency.as_secs_f64() * 1e3);
+    tracing::info!(parent: span, "response");
+}
+
+/// Counts the request in `resecta_http_requests_total{route,status}`.
+async fn count(req: Request, next: Next) -> Response {
+    let route = route_of(&req).to_owned();
+    let res = next.run(req).await;
+    metrics::counter!(
+        "resecta_http_requests_total",
+        "route" => route,
+        "status" => res.status().as_str().to_owned()
+    )
+    .increment(1);
+    res
+}
