@@ -1,0 +1,696 @@
+//! The HTTP face over real sockets: sessions, uploads, reconstruction and watch streams as
+//! server-sent events, edits with versions, errors as problem documents, access, limits,
+//! request ids, metrics, and the OpenAPI document against the router.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+mod common;
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use axum::body::{Body, Bytes};
+use base64::Engine;
+use base64::engine::general_purpose::STANDARD;
+use common::*;
+use futures_util::StreamExt;
+use http::StatusCode;
+use resecta_auth::AccessPolicy;
+use resecta_delta::{DecodeLimits, apply_delta, decode_mesh};
+use resecta_http::HttpOptions;
+use resecta_session::ServiceConfig;
+use serde_json::{Value, json};
+
+fn init_edit(base: u64) -> Value {
+    json!({"base_version": base, "edit": {"op": "init_from_end_point", "name": "r1", "end_point": [-30.0, 0.0, 0.0]}})
+}
+
+fn drag_edit(base: u64, point: Value) -> Value {
+    json!({"base_version": base, "edit": {"op": "event", "event": {"op": "set_control_point", "name": "r1", "i": 1, "j": 2, "point": point}}})
+}
+
+async fn plan_version(addr: std::net::SocketAddr, id: &str) -> u64 {
+    get(addr, &format!("/v1/sessions/{id}")).await.json()["plan_version"]
+        .as_u64()
+        .unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn session_crud_and_unknown_ids() {
+    let s = open_server().await;
+    let info = get(s.addr, "/v1/info").await;
+    assert_eq!(info.status, StatusCode::OK);
+    assert_eq!(info.json()["api_version"], "resecta.v1");
+
+    let created = post_json(s.addr, "/v1/sessions", &json!({"display_name": "Demo"})).await;
+    assert_eq!(created.status, StatusCode::CREATED);
+    let id = created.json()["id"].as_str().unwrap().to_owned();
+    assert_eq!(created.headers["location"], format!("/v1/sessions/{id}"));
+    assert_eq!(created.json()["state"], "empty");
+
+    let list = get(s.addr, "/v1/sessions").await.json();
+    assert_eq!(list["sessions"].as_array().unwrap().len(), 1);
+    let one = get(s.addr, &format!("/v1/sessions/{id}")).await;
+    assert_eq!(one.json()["display_name"], "Demo");
+
+    let del = send(
+        s.addr,
+        request("DELETE", &format!("/v1/sessions/{id}"), Body::empty()),
+    )
+    .await;
+    assert_eq!(del.status, StatusCode::NO_CONTENT);
+    get(s.addr, &format!("/v1/sessions/{id}"))
+        .await
+        .problem(404, "unknown_session");
+    get(s.addr, "/v1/sessions/nope/volumes")
+        .await
+        .problem(404, "unknown_session");
+    get(s.addr, "/v1/nothing").await.problem(404, "no_route");
+    send(s.addr, request("PATCH", "/v1/sessions", Body::empty()))
+        .await
+        .problem(405, "method_not_allowed");
+    // Bad input of the operation layer: an empty display name.
+    post_json(s.addr, "/v1/sessions", &json!({"display_name": ""}))
+        .await
+        .problem(400, "invalid_argument");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_json_and_bad_queries_are_problems() {
+    let s = open_server().await;
+    let a = send(
+        s.addr,
+        json_request("POST", "/v1/sessions", &json!(null))
+            .map(|_| Body::from("{\"display_name\":")),
+    )
+    .await;
+    let p = a.problem(400, "invalid_argument");
+    assert!(
+        p["detail"].as_str().unwrap().contains("request body"),
+        "{p}"
+    );
+    post_json(s.addr, "/v1/sessions", &json!({"name": 3}))
+        .await
+        .problem(400, "invalid_argument");
+    let id = create_session(s.addr, "Q").await;
+    get(s.addr, &format!("/v1/sessions/{id}/watch?since_seq=abc"))
+        .await
+        .problem(400, "invalid_argument");
+    get(s.addr, &format!("/v1/sessions/{id}/models/x?format=gif"))
+        .await
+        .problem(400, "invalid_argument");
+    // No label map yet: failed precondition.
+    get(s.addr, &format!("/v1/sessions/{id}/volumes"))
+        .await
+        .problem(409, "failed_precondition");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn raw_and_file_label_maps_upload() {
+    let s = open_server().await;
+    let labels = phantom();
+    let id = create_session(s.addr, "Upload").await;
+    let url = |q: &str| format!("/v1/sessions/{id}/label-map?{q}");
+
+    // Geometry not matching the data length: 400, nothing loaded.
+    let mut short = raw_bytes(&labels);
+    short.pop();
+    let p = send(s.addr, request("PUT", &url(&raw_query(&labels)), short))
+        .await
+        .problem(400, "invalid_argument");
+    assert!(p["detail"].as_str().unwrap().contains("bytes"), "{p}");
+    // Missing geometry, bad numbers, NaN spacing, bad roles: 400 before the body matters.
+    for q in [
+        "format=raw&data_type=u8".to_owned(),
+        raw_query(&labels).replace("dims=", "dims=1,"),
+        raw_query(&labels).replace("spacing=", "spacing=NaN,"),
+        format!("{}&roles=%7Bnope", raw_query(&labels)),
+    ] {
+        let a = send(s.addr, request("PUT", &url(&q), raw_bytes(&labels))).await;
+        a.problem(400, "invalid_argument");
+    }
+    let info = get(s.addr, &format!("/v1/sessions/{id}")).await.json();
+    assert_eq!(
+        (info["state"].as_str(), info["plan_version"].as_u64()),
+        (Some("empty"), Some(0))
+    );
+
+    // Raw voxels with explicit roles.
+    let roles = "%7B%22parenchyma%22%3A%5B1%5D%2C%22tumor%22%3A%5B2%5D%2C%22portal%22%3A%5B3%5D%2C%22hepatic%22%3A%5B4%5D%7D";
+    let a = send(
+        s.addr,
+        request(
+            "PUT",
+            &url(&format!("{}&roles={roles}", raw_query(&labels))),
+            raw_bytes(&labels),
+        ),
+    )
+    .await;
+    assert_eq!(
+        a.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&a.body)
+    );
+    let summary = a.json();
+    let dims: Vec<usize> = serde_json::from_value(summary["dims"].clone()).unwrap();
+    assert_eq!(dims, labels.grid().dims());
+    let counts = labels.value_counts();
+    assert_eq!(summary["labels"]["1"].as_u64(), counts.get(&1).copied());
+
+    // The same label map as a NIfTI file (format told from its bytes).
+    let nifti =
+        resecta_io::nifti::nifti_bytes(&resecta_io::Image::from_label_map(&labels), true).unwrap();
+    let a = send(s.addr, request("PUT", &url("format=auto"), nifti)).await;
+    assert_eq!(
+        a.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&a.body)
+    );
+    assert_eq!(a.json()["labels"], summary["labels"]);
+    assert_eq!(plan_version(s.addr, &id).await, 2);
+    send(s.addr, request("PUT", &url("format=nifti"), "not an image"))
+        .await
+        .problem(400, "invalid_argument");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn oversized_bodies_are_refused_while_streaming() {
+    let limit = 1 << 20;
+    let s = serve(
+        ServiceConfig {
+            max_upload_bytes: limit,
+            ..config()
+        },
+        AccessPolicy::open(),
+        HttpOptions {
+            max_json_bytes: 1024,
+            ..HttpOptions::default()
+        },
+    )
+    .await;
+    let id = create_session(s.addr, "Big").await;
+    let url = format!("/v1/sessions/{id}/label-map?format=auto");
+
+    // A declared length beyond the limit: refused at once, although the body never comes.
+    let pending = futures_util::stream::once(async { Ok::<_, std::io::Error>(Bytes::from("x")) })
+        .chain(futures_util::stream::pending());
+    let mut req = request("PUT", &url, Body::from_stream(pending));
+    req.headers_mut()
+        .insert("content-length", (10u64 << 30).to_string().parse().unwrap());
+    let a = tokio::time::timeout(Duration::from_secs(10), send(s.addr, req))
+        .await
+        .expect("refused before the body arrives");
+    let p = a.problem(413, "payload_too_large");
+    assert!(p["detail"].as_str().unwrap().contains(&limit.to_string()));
+
+    // A chunked body is cut off once it passes the limit: the client is not read to its end.
+    let pulled = Arc::new(AtomicUsize::new(0));
+    let counter = Arc::clone(&pulled);
+    let chunks = futures_util::stream::iter(0..4096).map(move |_| {
+        counter.fetch_add(1, Ordering::Relaxed);
+        Ok::<_, std::io::Error>(Bytes::from(vec![0u8; 64 << 10]))
+    });
+    let req = request("PUT", &url, Body::from_stream(chunks));
+    match send_raw(s.addr, req).await {
+        Ok(res) => {
+            assert_eq!(res.status(), StatusCode::PAYLOAD_TOO_LARGE);
+        }
+        Err(e) => panic!("no answer: {e}"),
+    }
+    let n = pulled.load(Ordering::Relaxed);
+    assert!(n < 1024, "the client sent {n} chunks of 64 KiB");
+
+    // JSON bodies have their own limit.
+    let big = json!({"display_name": "x".repeat(2000)});
+    post_json(s.addr, "/v1/sessions", &big)
+        .await
+        .problem(413, "payload_too_large");
+    assert_eq!(plan_version(s.addr, &id).await, 0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reconstruction_streams_progress_models_and_done() {
+    let s = open_server().await;
+    let id = create_session(s.addr, "Recon").await;
+    send(
+        s.addr,
+        request(
+            "POST",
+            &format!("/v1/sessions/{id}/reconstruct"),
+            Body::empty(),
+        ),
+    )
+    .await
+    .problem(409, "failed_precondition");
+    let id = loaded_session(s.addr).await;
+    let res = send_raw(
+        s.addr,
+        request(
+            "POST",
+            &format!("/v1/sessions/{id}/reconstruct"),
+            Body::empty(),
+        ),
+    )
+    .await
+    .unwrap();
+    let mut events = SseReader::new(res);
+    let (mut progress, mut models, mut done) = (0, Vec::new(), None);
+    while let Some(e) = events.next_event().await {
+        match e.event.as_deref() {
+            Some("progress") => progress += 1,
+            Some("model") => models.push(e.json()["model"]["name"].as_str().unwrap().to_owned()),
+            Some("done") => done = Some(e.json()),
+            other => panic!("unexpected event {other:?}: {}", e.data),
+        }
+    }
+    let done = done.expect("a done event");
+    assert!(progress > 0);
+    assert_eq!(done["models"].as_u64(), Some(models.len() as u64));
+    assert!(models.contains(&"tumor_1".to_owned()), "{models:?}");
+    assert_eq!(
+        get(s.addr, &format!("/v1/sessions/{id}")).await.json()["state"],
+        "ready"
+    );
+
+    // Models export as files.
+    let a = get(
+        s.addr,
+        &format!("/v1/sessions/{id}/models/tumor_1?format=stl"),
+    )
+    .await;
+    assert_eq!(a.status, StatusCode::OK);
+    assert_eq!(a.content_type(), "model/stl");
+    let mesh =
+        resecta_io::mesh::read_mesh_bytes(&a.body, resecta_io::mesh::MeshFormat::Stl, "t.stl")
+            .unwrap();
+    assert!(!mesh.triangles().is_empty());
+    get(s.addr, &format!("/v1/sessions/{id}/models/nothing"))
+        .await
+        .problem(404, "not_found");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn edits_stream_to_watchers_with_resume_and_versions() {
+    let s = open_server().await;
+    let id = loaded_session(s.addr).await;
+    let watch_url = format!("/v1/sessions/{id}/watch");
+    let mut w = SseReader::new(
+        send_raw(s.addr, request("GET", &watch_url, Body::empty()))
+            .await
+            .unwrap(),
+    );
+    let snap = w.next_event().await.unwrap();
+    assert_eq!(snap.event.as_deref(), Some("snapshot"));
+    let first: u64 = snap.id.as_deref().unwrap().parse().unwrap();
+    assert_eq!(snap.json()["seq"].as_u64(), Some(first));
+    assert_eq!(snap.json()["body"]["type"], "snapshot");
+
+    // A new resection: a whole mesh in the delta.
+    let out = post_json(s.addr, &format!("/v1/sessions/{id}/edits"), &init_edit(1)).await;
+    assert_eq!(
+        out.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&out.body)
+    );
+    assert_eq!(out.json()["plan_version"], 2);
+    assert_eq!(out.json()["resection"], "r1");
+    let e = next_delta(&mut w).await;
+    let mut last: u64 = e.id.as_deref().unwrap().parse().unwrap();
+    assert!(last > first);
+    let update = &e.json()["body"]["updates"][0];
+    assert_eq!(update["full"], true);
+    let bytes = STANDARD.decode(update["bytes"].as_str().unwrap()).unwrap();
+    let (_, mut frame) = decode_mesh(&bytes, &DecodeLimits::default()).unwrap();
+
+    // A drag: a delta against it.
+    let out = post_json(
+        s.addr,
+        &format!("/v1/sessions/{id}/edits"),
+        &drag_edit(2, json!([-8.0, 5.0, 4.0])),
+    )
+    .await;
+    assert_eq!(out.json()["plan_version"], 3);
+    let e = next_delta(&mut w).await;
+    let seq: u64 = e.id.as_deref().unwrap().parse().unwrap();
+    assert!(seq > last);
+    last = seq;
+    let body = e.json()["body"].clone();
+    assert_eq!(body["updates"][0]["full"], false);
+    assert_eq!(
+        body["resections"]["r1"]["control_points"][6],
+        json!([-8.0, 5.0, 4.0])
+    );
+    let delta = STANDARD
+        .decode(body["updates"][0]["bytes"].as_str().unwrap())
+        .unwrap();
+    apply_delta(&mut frame, &delta, &DecodeLimits::default()).unwrap();
+
+    // A late snapshot equals the frame the deltas built.
+    let mut late = SseReader::new(
+        send_raw(s.addr, request("GET", &watch_url, Body::empty()))
+            .await
+            .unwrap(),
+    );
+    let snap = late.next_event().await.unwrap().json();
+    let mesh = STANDARD
+        .decode(snap["body"]["resections"][0]["mesh"].as_str().unwrap())
+        .unwrap();
+    assert_eq!(
+        decode_mesh(&mesh, &DecodeLimits::default()).unwrap().1,
+        frame
+    );
+
+    // Resume: Last-Event-ID wins over since_seq; what follows `first` comes, no snapshot.
+    let mut req = request(
+        "GET",
+        &format!("{watch_url}?since_seq={last}"),
+        Body::empty(),
+    );
+    req.headers_mut()
+        .insert("last-event-id", first.to_string().parse().unwrap());
+    let mut again = SseReader::new(send_raw(s.addr, req).await.unwrap());
+    let e = again.next_event().await.unwrap();
+    assert_eq!(e.id.as_deref(), Some((first + 1).to_string().as_str()));
+    assert_eq!(e.event.as_deref(), Some("delta"));
+    let req = request(
+        "GET",
+        &format!("{watch_url}?since_seq={first}"),
+        Body::empty(),
+    );
+    let mut by_query = SseReader::new(send_raw(s.addr, req).await.unwrap());
+    assert_eq!(
+        by_query.next_event().await.unwrap().id.as_deref(),
+        Some((first + 1).to_string().as_str())
+    );
+
+    // A stale base version: 409 with the current version; nothing changes.
+    let p = post_json(
+        s.addr,
+        &format!("/v1/sessions/{id}/edits"),
+        &drag_edit(2, json!([-9.0, 5.0, 4.0])),
+    )
+    .await
+    .problem(409, "stale_version");
+    assert_eq!(p["current_version"], 3);
+
+    // NaN cannot travel as a JSON number; as a string, an over-large number or an index out of
+    // the grid it is refused with 400 and the plan stays.
+    for edit in [
+        drag_edit(3, json!(["NaN", 0.0, 0.0])),
+        json!({"base_version": 3, "edit": {"op": "event", "event": {"op": "set_control_point", "name": "r1", "i": 99, "j": 2, "point": [0.0, 0.0, 0.0]}}}),
+    ] {
+        post_json(s.addr, &format!("/v1/sessions/{id}/edits"), &edit)
+            .await
+            .problem(400, "invalid_argument");
+    }
+    let huge = r#"{"base_version":3,"edit":{"op":"event","event":{"op":"set_control_point","name":"r1","i":1,"j":2,"point":[1e999,0,0]}}}"#;
+    let a = send(
+        s.addr,
+        request("POST", &format!("/v1/sessions/{id}/edits"), huge),
+    )
+    .await;
+    a.problem(400, "invalid_argument");
+    post_json(
+        s.addr,
+        &format!("/v1/sessions/{id}/edits"),
+        &json!({"edit": {"op": "event", "event": {"op": "translate", "name": "nope", "delta": [1.0, 0.0, 0.0]}}}),
+    )
+    .await
+    .problem(404, "not_found");
+    assert_eq!(plan_version(s.addr, &id).await, 3);
+
+    // Volumes, slices, plan export and import.
+    let v = get(s.addr, &format!("/v1/sessions/{id}/volumes"))
+        .await
+        .json();
+    assert_eq!(v["complete"], true);
+    let sl = get(
+        s.addr,
+        &format!("/v1/sessions/{id}/slices?resection=r1&axial=0&coronal=0"),
+    )
+    .await;
+    assert_eq!(
+        sl.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&sl.body)
+    );
+    let contour = &sl.json()["axial"][0];
+    let points = STANDARD
+        .decode(contour["points"].as_str().unwrap())
+        .unwrap();
+    assert!(!points.is_empty() && points.len() % 12 == 0);
+    assert!(sl.json()["sagittal"].as_array().unwrap().is_empty());
+    let plan = get(s.addr, &format!("/v1/sessions/{id}/plan")).await;
+    assert_eq!(plan.content_type(), "application/json");
+    assert_eq!(plan.json()["format"], "resecta-plan/1");
+    let imported = send(
+        s.addr,
+        request(
+            "PUT",
+            &format!("/v1/sessions/{id}/plan?base_version=3"),
+            plan.body.clone(),
+        ),
+    )
+    .await;
+    assert_eq!(imported.json()["plan_version"], 4);
+    send(
+        s.addr,
+        request(
+            "PUT",
+            &format!("/v1/sessions/{id}/plan?base_version=3"),
+            plan.body.clone(),
+        ),
+    )
+    .await
+    .problem(409, "stale_version");
+    send(
+        s.addr,
+        request(
+            "PUT",
+            &format!("/v1/sessions/{id}/plan"),
+            "{\"format\":\"x\"}",
+        ),
+    )
+    .await
+    .problem(400, "invalid_argument");
+
+    // Deleting the session ends the watch stream.
+    send(
+        s.addr,
+        request("DELETE", &format!("/v1/sessions/{id}"), Body::empty()),
+    )
+    .await;
+    let end = tokio::time::timeout(Duration::from_secs(10), async {
+        while w.next().await.is_some() {}
+    })
+    .await;
+    assert!(end.is_ok());
+}
+
+/// The next `delta` event (volumes and models events are skipped).
+async fn next_delta(w: &mut SseReader) -> Sse {
+    loop {
+        let e = w.next_event().await.expect("stream open");
+        if e.event.as_deref() == Some("delta") {
+            return e;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn tokens_and_api_versions_are_checked() {
+    let s = serve(
+        config(),
+        AccessPolicy::with_token(TOKEN).unwrap(),
+        HttpOptions::default(),
+    )
+    .await;
+    let with = |mut r: http::Request<Body>, auth: Option<&str>, version: Option<&str>| {
+        if let Some(a) = auth {
+            r.headers_mut().insert("authorization", a.parse().unwrap());
+        }
+        if let Some(v) = version {
+            r.headers_mut()
+                .insert("resecta-api-version", v.parse().unwrap());
+        }
+        r
+    };
+    let missing = get(s.addr, "/v1/sessions").await;
+    missing.problem(401, "unauthenticated");
+    assert!(
+        missing.headers["www-authenticate"]
+            .to_str()
+            .unwrap()
+            .starts_with("Bearer")
+    );
+    let wrong = send(
+        s.addr,
+        with(
+            request("GET", "/v1/sessions", Body::empty()),
+            Some("Bearer 0123456789abcdef-wrong"),
+            None,
+        ),
+    )
+    .await;
+    wrong.problem(401, "unauthenticated");
+    let good = format!("Bearer {TOKEN}");
+    let ok = send(
+        s.addr,
+        with(
+            request("GET", "/v1/sessions", Body::empty()),
+            Some(&good),
+            Some("v1"),
+        ),
+    )
+    .await;
+    assert_eq!(ok.status, StatusCode::OK);
+    let p = send(
+        s.addr,
+        with(
+            request("GET", "/v1/sessions", Body::empty()),
+            Some(&good),
+            Some("v2"),
+        ),
+    )
+    .await
+    .problem(400, "version_mismatch");
+    let detail = p["detail"].as_str().unwrap();
+    assert!(detail.contains("v2") && detail.contains("v1"), "{detail}");
+    // Open routes.
+    for path in ["/v1/info", "/v1/openapi.json", "/healthz"] {
+        assert_eq!(get(s.addr, path).await.status, StatusCode::OK, "{path}");
+    }
+    // Server info answers whatever version the client speaks.
+    let info = send(
+        s.addr,
+        with(request("GET", "/v1/info", Body::empty()), None, Some("v2")),
+    )
+    .await;
+    assert_eq!(info.status, StatusCode::OK);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn request_ids_are_echoed_or_made() {
+    let s = open_server().await;
+    let mut req = request("GET", "/v1/info", Body::empty());
+    req.headers_mut()
+        .insert("x-request-id", "client-42".parse().unwrap());
+    assert_eq!(send(s.addr, req).await.headers["x-request-id"], "client-42");
+    // Made when absent (also on problems), and replaced when unreasonable.
+    let a = get(s.addr, "/v1/sessions/none").await;
+    let made = a.headers["x-request-id"].to_str().unwrap();
+    assert_eq!(made.len(), 36, "{made}");
+    let mut req = request("GET", "/healthz", Body::empty());
+    req.headers_mut()
+        .insert("x-request-id", "x".repeat(200).parse().unwrap());
+    let id = send(s.addr, req).await.headers["x-request-id"].clone();
+    assert_eq!(id.len(), 36);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn metrics_are_served_when_rendered() {
+    let s = serve(
+        config(),
+        AccessPolicy::with_token(TOKEN).unwrap(),
+        HttpOptions {
+            metrics: Some(Arc::new(|| "resecta_up 1\n".to_owned())),
+            ..HttpOptions::default()
+        },
+    )
+    .await;
+    let a = get(s.addr, "/metrics").await;
+    assert_eq!(a.status, StatusCode::OK);
+    assert!(a.content_type().starts_with("text/plain"));
+    assert_eq!(a.body, "resecta_up 1\n");
+    let s = open_server().await;
+    get(s.addr, "/metrics").await.problem(404, "no_route");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn watch_streams_send_keep_alives() {
+    let s = serve(
+        config(),
+        AccessPolicy::open(),
+        HttpOptions {
+            keep_alive: Duration::from_millis(50),
+            ..HttpOptions::default()
+        },
+    )
+    .await;
+    let id = create_session(s.addr, "Quiet").await;
+    let mut w = SseReader::new(
+        send_raw(
+            s.addr,
+            request("GET", &format!("/v1/sessions/{id}/watch"), Body::empty()),
+        )
+        .await
+        .unwrap(),
+    );
+    assert_eq!(
+        w.next_event().await.unwrap().event.as_deref(),
+        Some("snapshot")
+    );
+    let mut comments = 0;
+    while comments < 2 {
+        comments += w.next().await.unwrap().comments;
+    }
+}
+
+/// Every route of the router is documented with its method, and every documented operation is
+/// routed (probed on the real router: it answers something other than "no route").
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_openapi_document_matches_the_router() {
+    let doc: Value = serde_json::from_str(resecta_http::OPENAPI).unwrap();
+    assert_eq!(doc["openapi"], "3.1.0");
+    let paths = doc["paths"].as_object().unwrap();
+    let mut documented = Vec::new();
+    for (path, item) in paths {
+        for method in item.as_object().unwrap().keys() {
+            documented.push((method.to_uppercase(), path.clone()));
+        }
+    }
+    documented.sort();
+    let mut routed: Vec<(String, String)> = resecta_http::routes()
+        .into_iter()
+        .map(|(m, p)| (m.to_string(), p.to_owned()))
+        .collect();
+    routed.sort();
+    assert_eq!(routed, documented);
+
+    // Every $ref resolves.
+    let text = resecta_http::OPENAPI;
+    for r in text.split("\"$ref\": \"#/").skip(1) {
+        let pointer = format!("/{}", &r[..r.find('"').unwrap()]);
+        assert!(doc.pointer(&pointer).is_some(), "dangling $ref {pointer}");
+    }
+
+    let s = serve(
+        config(),
+        AccessPolicy::open(),
+        HttpOptions {
+            metrics: Some(Arc::new(String::new)),
+            ..HttpOptions::default()
+        },
+    )
+    .await;
+    for (method, path) in &documented {
+        let concrete = path
+            .replace("{id}", "no-such-session")
+            .replace("{name}", "x");
+        let a = send(s.addr, request(method, &concrete, Body::empty())).await;
+        let problem = a.content_type() == "application/problem+json";
+        let code = if problem {
+            a.json()["code"].clone()
+        } else {
+            Value::Null
+        };
+        assert!(
+            code != "no_route" && code != "method_not_allowed",
+            "{method} {path}: {code}"
+        );
+    }
+}
