@@ -222,3 +222,86 @@ pub async fn watch(
         s.next().await.map(|m| (m, s))
     }))
 }
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeMap;
+
+    use resecta_session::api::{Surface, SurfaceKind};
+
+    use super::*;
+
+    fn surface(name: &str, kind: SurfaceKind, bytes: usize) -> Surface {
+        Surface {
+            name: name.into(),
+            kind,
+            mesh: vec![7; bytes],
+        }
+    }
+
+    #[test]
+    fn snapshots_split_into_parts_that_fit() {
+        let mib = 1 << 20;
+        let event = WatchEvent {
+            seq: 9,
+            plan_version: 4,
+            body: WatchBody::Snapshot {
+                models: vec![
+                    surface("parenchyma", SurfaceKind::Parenchyma, 3 * mib),
+                    surface("tumor_1", SurfaceKind::Tumor, mib / 2),
+                    surface("portal_1", SurfaceKind::Portal, 9 * mib),
+                ],
+                resections: vec![surface("r1", SurfaceKind::Resection, 2 * mib)],
+                verdicts: BTreeMap::new(),
+                resection_params: BTreeMap::new(),
+                volumes: None,
+            },
+        };
+        let session = pb::Session {
+            id: "s".into(),
+            ..pb::Session::default()
+        };
+        let parts = responses(&event, Some(session)).unwrap().unwrap();
+        let snapshots: Vec<&pb::Snapshot> = parts
+            .iter()
+            .map(|m| match &m.event {
+                Some(Event::Snapshot(s)) => s,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        // parenchyma + tumour | portal alone (over the part size) | r1.
+        let names: Vec<Vec<&str>> = snapshots
+            .iter()
+            .map(|s| {
+                s.models
+                    .iter()
+                    .map(|m| m.name.as_str())
+                    .chain(s.resections.iter().map(|r| r.name.as_str()))
+                    .collect()
+            })
+            .collect();
+        assert_eq!(
+            names,
+            [vec!["parenchyma", "tumor_1"], vec!["portal_1"], vec!["r1"]]
+        );
+        assert!(parts.iter().all(|m| m.seq == 9 && m.plan_version == 4));
+        assert!(parts.iter().all(|m| m.encoded_len() <= MAX_MESSAGE_BYTES));
+        assert!(snapshots[0].session.is_some() && snapshots[1].session.is_none());
+        let complete: Vec<bool> = snapshots.iter().map(|s| s.complete).collect();
+        assert_eq!(complete, [false, false, true]);
+
+        // A models event becomes a fresh snapshot (no messages of its own).
+        let models = WatchEvent {
+            seq: 1,
+            plan_version: 1,
+            body: WatchBody::Models { models: Vec::new() },
+        };
+        assert!(responses(&models, None).unwrap().is_none());
+        // A single surface over the largest message is refused.
+        let mut parts = Parts::new(pb::Session::default());
+        assert!(matches!(
+            parts.room("big", MAX_MESSAGE_BYTES),
+            Err(WireError::MessageTooLarge(_))
+        ));
+    }
+}
