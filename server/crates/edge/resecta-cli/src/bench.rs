@@ -15,6 +15,9 @@ pub enum Command {
     /// Bézier evaluation (Paper III, Figs. 8.5–8.7): BRF/MAT/MLE × f32/f64 × control grids ×
     /// resolutions × threads × backends, with the memory-write ceiling.
     Bezier(BezierArgs),
+    /// The planning server under load (issue #6): edit → delta latency at watching clients alone
+    /// and with many sessions at once, memory per idle session, and a 512×512×300 upload.
+    Server(crate::bench_server::ServerArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -121,6 +124,7 @@ impl Plan {
 pub fn run(cmd: &Command) -> Result<(), CliError> {
     match cmd {
         Command::Bezier(args) => bezier(args),
+        Command::Server(args) => crate::bench_server::run(args),
     }
 }
 

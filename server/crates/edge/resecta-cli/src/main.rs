@@ -4,6 +4,7 @@
 //! progress and logs go to stderr. Exit codes: 0 success, 2 bad input, 1 other failure.
 
 mod bench;
+mod bench_server;
 mod bezier;
 mod demo;
 mod error;
@@ -12,6 +13,7 @@ mod output;
 mod phantom;
 mod plan;
 mod recon;
+mod serve;
 
 use std::process::ExitCode;
 
@@ -45,6 +47,8 @@ enum Command {
     /// Bézier surfaces.
     #[command(subcommand)]
     Bezier(bezier::Command),
+    /// The planning server: gRPC and HTTP faces over patient sessions (docs/server.md).
+    Serve(resecta_server::ServeArgs),
     /// Benchmarks, with their anchors in the same run.
     #[command(subcommand)]
     Bench(bench::Command),
@@ -62,6 +66,7 @@ fn main() -> ExitCode {
         Command::Evaluate(a) => recon::evaluate(&a),
         Command::Plan(a) => plan::run(&a),
         Command::Bezier(c) => bezier::run(&c),
+        Command::Serve(a) => serve::serve(&a),
         Command::Bench(c) => bench::run(&c),
     };
     match result {

@@ -1,0 +1,780 @@
+//! `resecta bench server`: the load benchmark of issue #6 against a real server process on
+//! loopback, over gRPC. It starts `resecta serve` (this binary) with a fresh data directory unless
+//! `--addr` names a running server, uploads the demo phantom, and measures
+//! edit → delta latency as a watching client sees it (the time from sending an edit until the
+//! watch stream delivers the delta of that plan version), alone at 40×40 and 200×200 and with many
+//! sessions editing at a fixed rate at once; the server's memory per idle session; and the upload
+//! time of a 512×512×300 u8 label map.
+
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use resecta_api::v1::planning_service_client::PlanningServiceClient;
+use resecta_api::v1::{
+    self as pb, CreateSessionRequest, DeleteSessionRequest, EditRequest, RawLabelMapHeader,
+    UploadLabelMapRequest, WatchRequest, edit_request, upload_label_map_request, watch_response,
+};
+use resecta_phantom::{PhantomSpec, generate};
+use serde::Serialize;
+use tokio::sync::mpsc;
+use tonic::transport::Channel;
+
+use crate::error::CliError;
+use crate::output::{print_json, progress};
+
+#[derive(Debug, clap::Args)]
+pub struct ServerArgs {
+    /// A running server's gRPC address (`http://HOST:PORT`); by default the benchmark starts
+    /// `resecta serve` on loopback with a temporary data directory and stops it afterwards.
+    #[arg(long)]
+    pub addr: Option<String>,
+    /// Bearer token for `--addr`.
+    #[arg(long, env = "RESECTA_TOKEN", hide_env_values = true)]
+    pub token: Option<String>,
+    /// Edits per single-session scenario.
+    #[arg(long, default_value_t = 300)]
+    pub edits: usize,
+    /// Sessions editing at once in the concurrent scenario.
+    #[arg(long, default_value_t = 20)]
+    pub sessions: usize,
+    /// Edits per second of each session in the concurrent scenario.
+    #[arg(long, default_value_t = 30.0)]
+    pub rate: f64,
+    /// Length of the concurrent scenario (seconds).
+    #[arg(long, default_value_t = 10.0)]
+    pub seconds: f64,
+    /// Idle sessions created to measure memory per session (needs a started server).
+    #[arg(long, default_value_t = 10)]
+    pub idle_sessions: usize,
+    /// Uploads of the 512×512×300 label map (the median is reported).
+    #[arg(long, default_value_t = 3)]
+    pub uploads: usize,
+    /// Short runs (a smoke test; figures are not meaningful).
+    #[arg(long)]
+    pub quick: bool,
+    /// Write latency CDF plots (PNG and SVG) here.
+    #[arg(long)]
+    pub plot_dir: Option<PathBuf>,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Latency percentiles of one scenario (milliseconds).
+#[derive(Debug, Clone, Serialize)]
+struct Latency {
+    scenario: String,
+    resolution: [u32; 2],
+    sessions: usize,
+    edits: usize,
+    p50_ms: f64,
+    p90_ms: f64,
+    p99_ms: f64,
+    max_ms: f64,
+    #[serde(skip)]
+    samples: Vec<f64>,
+}
+
+#[derive(Debug, Serialize)]
+struct Upload {
+    dims: [u32; 3],
+    bytes: u64,
+    median_s: f64,
+    runs_s: Vec<f64>,
+}
+
+#[derive(Debug, Serialize)]
+struct Report {
+    quick: bool,
+    cpu: String,
+    logical_cores: usize,
+    server: &'static str,
+    latencies: Vec<Latency>,
+    /// Concurrent p99 over the single-session p99 at the same resolution.
+    concurrent_p99_ratio: f64,
+    /// Server resident memory per idle session with the demo label map and one resection
+    /// (bytes); absent against `--addr`.
+    idle_session_bytes: Option<f64>,
+    upload: Upload,
+}
+
+type Client = PlanningServiceClient<Channel>;
+
+/// A started server process, stopped on drop.
+struct ServerProcess {
+    child: Child,
+    _dir: tempfile::TempDir,
+}
+
+impl Drop for ServerProcess {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn start_server() -> Result<(ServerProcess, String), CliError> {
+    let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
+    let dir = tempfile::tempdir().map_err(|e| CliError::Failed(format!("temp dir: {e}")))?;
+    let mut child = Command::new(exe)
+        .args(["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+        .arg("--data-dir")
+        .arg(dir.path())
+        .env("RUST_LOG", "warn")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .map_err(|e| CliError::Failed(format!("starting the server: {e}")))?;
+    let stdout = child.stdout.take();
+    let server = ServerProcess { child, _dir: dir };
+    let mut line = String::new();
+    if let Some(out) = stdout {
+        std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut line)
+            .map_err(|e| CliError::Failed(format!("reading the server's addresses: {e}")))?;
+    }
+    let bound: serde_json::Value = serde_json::from_str(line.trim())
+        .map_err(|e| CliError::Failed(format!("server start-up line {line:?}: {e}")))?;
+    let grpc = bound["grpc"]
+        .as_str()
+        .ok_or_else(|| CliError::Failed(format!("no gRPC address in {line:?}")))?;
+    Ok((server, format!("http://{grpc}")))
+}
+
+fn rss_bytes(pid: u32) -> Option<f64> {
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
+    let kb: f64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb * 1024.0)
+}
+
+fn failed(what: &str) -> impl Fn(tonic::Status) -> CliError + '_ {
+    move |s| CliError::Failed(format!("{what}: {} ({:?})", s.message(), s.code()))
+}
+
+/// A request with the bearer token and the API version header.
+fn request<T>(msg: T, token: Option<&str>) -> tonic::Request<T> {
+    let mut r = tonic::Request::new(msg);
+    let md = r.metadata_mut();
+    md.insert(
+        resecta_api::API_VERSION_HEADER,
+        tonic::metadata::MetadataValue::from_static(resecta_api::API_VERSION_HEADER_VALUE),
+    );
+    if let Some(t) = token
+        && let Ok(v) = format!("Bearer {t}").parse()
+    {
+        md.insert("authorization", v);
+    }
+    r
+}
+
+/// The label map to plan on, as raw little-endian bytes with its header.
+struct LabelMap {
+    header: RawLabelMapHeader,
+    data: Vec<u8>,
+}
+
+fn demo_label_map() -> Result<LabelMap, CliError> {
+    let phantom = generate(&PhantomSpec::demo()).map_err(|e| CliError::Failed(e.to_string()))?;
+    let g = phantom.labels.grid();
+    let d = g.direction();
+    let data: Vec<u8> = phantom
+        .labels
+        .data()
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    Ok(LabelMap {
+        header: RawLabelMapHeader {
+            session_id: String::new(),
+            dims: g.dims().iter().map(|&n| n as u32).collect(),
+            spacing: g.spacing().to_vec(),
+            origin: Vec::from(<[f64; 3]>::from(g.origin())),
+            direction: (0..9).map(|k| d[(k / 3, k % 3)]).collect(),
+            data_type: pb::DataType::Uint16 as i32,
+            roles: None,
+            total_bytes: data.len() as u64,
+        },
+        data,
+    })
+}
+
+/// A 512×512×300 u8 label map at 0.7×0.7×1 mm: an ellipsoid liver (1) with a tumour (2).
+fn large_label_map() -> LabelMap {
+    let (nx, ny, nz) = (512usize, 512usize, 300usize);
+    let mut data = vec![0u8; nx * ny * nz];
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                let (x, y, z) = (
+                    (i as f64 - 256.0) / 200.0,
+                    (j as f64 - 256.0) / 150.0,
+                    (k as f64 - 150.0) / 120.0,
+                );
+                let t = ((i as f64 - 300.0).powi(2) + (j as f64 - 256.0).powi(2)) / 900.0
+                    + (k as f64 - 150.0).powi(2) / 400.0;
+                data[(k * ny + j) * nx + i] = if t <= 1.0 {
+                    2
+                } else {
+                    u8::from(x * x + y * y + z * z <= 1.0)
+                };
+            }
+        }
+    }
+    LabelMap {
+        header: RawLabelMapHeader {
+            session_id: String::new(),
+            dims: vec![nx as u32, ny as u32, nz as u32],
+            spacing: vec![0.7, 0.7, 1.0],
+            origin: vec![0.0; 3],
+            direction: vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            data_type: pb::DataType::Uint8 as i32,
+            roles: None,
+            total_bytes: data.len() as u64,
+        },
+        data,
+    }
+}
+
+async fn upload(
+    client: &mut Client,
+    token: Option<&str>,
+    id: &str,
+    map: &LabelMap,
+) -> Result<(), CliError> {
+    let mut header = map.header.clone();
+    header.session_id = id.to_owned();
+    let chunks: Vec<UploadLabelMapRequest> = map
+        .data
+        .chunks(resecta_api::MAX_CHUNK_BYTES)
+        .enumerate()
+        .map(|(k, c)| UploadLabelMapRequest {
+            header: (k == 0).then(|| upload_label_map_request::Header::Raw(header.clone())),
+            data: c.to_vec(),
+        })
+        .collect();
+    client
+        .upload_label_map(request(tokio_stream::iter(chunks), token))
+        .await
+        .map_err(failed("label-map upload"))?;
+    Ok(())
+}
+
+async fn edit(
+    client: &mut Client,
+    token: Option<&str>,
+    id: &str,
+    base: u64,
+    op: edit_request::Edit,
+) -> Result<pb::EditResponse, CliError> {
+    Ok(client
+        .edit(request(
+            EditRequest {
+                session_id: id.to_owned(),
+                base_version: base,
+                edit: Some(op),
+            },
+            token,
+        ))
+        .await
+        .map_err(failed("edit"))?
+        .into_inner())
+}
+
+fn v3(p: [f64; 3]) -> pb::Vec3 {
+    pb::Vec3 {
+        x: p[0],
+        y: p[1],
+        z: p[2],
+    }
+}
+
+/// A planning session with the demo phantom, one resection at `resolution`, and a watcher that
+/// reports the arrival time of every plan version's delta.
+struct Planning {
+    client: Client,
+    token: Option<String>,
+    id: String,
+    version: u64,
+    point: pb::Vec3,
+    arrivals: mpsc::UnboundedReceiver<(u64, Instant)>,
+}
+
+const RESECTION: &str = "resection_1";
+
+async fn planning_session(
+    channel: &Channel,
+    token: Option<&str>,
+    map: &LabelMap,
+    resolution: [u32; 2],
+) -> Result<Planning, CliError> {
+    let mut client = PlanningServiceClient::new(channel.clone())
+        .max_decoding_message_size(1 << 30)
+        .max_encoding_message_size(64 << 20);
+    let id = client
+        .create_session(request(
+            CreateSessionRequest {
+                display_name: "load benchmark".into(),
+            },
+            token,
+        ))
+        .await
+        .map_err(failed("create session"))?
+        .into_inner()
+        .session
+        .map(|s| s.id)
+        .ok_or_else(|| CliError::Failed("create session: no session in the answer".into()))?;
+    upload(&mut client, token, &id, map).await?;
+    // The demo patient's resection: around the large tumour, towards the left lobe.
+    let init = edit(
+        &mut client,
+        token,
+        &id,
+        1,
+        edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
+            name: RESECTION.into(),
+            target: Some(pb::Target {
+                labels: Vec::new(),
+                points: vec![v3([40.0, -10.0, 5.0])],
+            }),
+            end_point: Some(v3([-20.0, -10.0, 5.0])),
+            grid_m: 4,
+            grid_n: 4,
+        }),
+    )
+    .await?;
+    let set = edit(
+        &mut client,
+        token,
+        &id,
+        init.plan_version,
+        edit_request::Edit::SetResolution(pb::SetResolution {
+            name: RESECTION.into(),
+            ru: resolution[0],
+            rv: resolution[1],
+        }),
+    )
+    .await?;
+    let mut stream = client
+        .watch(request(
+            WatchRequest {
+                session_id: id.clone(),
+                since_seq: None,
+                allow_zstd: false,
+                allow_quantized: false,
+            },
+            token,
+        ))
+        .await
+        .map_err(failed("watch"))?
+        .into_inner();
+    // The snapshot names the control points; the benchmark moves an inner one.
+    let first = stream.message().await.map_err(failed("watch"))?;
+    let point = match first.and_then(|m| m.event) {
+        Some(watch_response::Event::Snapshot(s)) => s
+            .resections
+            .iter()
+            .find(|r| r.name == RESECTION)
+            .and_then(|r| r.resection.as_ref())
+            .and_then(|r| r.control_points.get(5).copied()),
+        _ => None,
+    }
+    .ok_or_else(|| CliError::Failed("watch: no snapshot with the resection first".into()))?;
+    let (tx, arrivals) = mpsc::unbounded_channel();
+    tokio::spawn(async move {
+        while let Ok(Some(m)) = stream.message().await {
+            if matches!(
+                m.event,
+                Some(watch_response::Event::Delta(_) | watch_response::Event::Snapshot(_))
+            ) && tx.send((m.plan_version, Instant::now())).is_err()
+            {
+                break;
+            }
+        }
+    });
+    Ok(Planning {
+        client,
+        token: token.map(str::to_owned),
+        id,
+        version: set.plan_version,
+        point,
+        arrivals,
+    })
+}
+
+impl Planning {
+    /// Moves an inner control point by ±1 mm and waits for its delta; the latency in ms.
+    async fn timed_edit(&mut self, k: usize) -> Result<f64, CliError> {
+        let mut p = self.point;
+        p.z += if k.is_multiple_of(2) { 1.0 } else { 0.0 };
+        let sent = Instant::now();
+        let answer = edit(
+            &mut self.client,
+            self.token.as_deref(),
+            &self.id,
+            self.version,
+            edit_request::Edit::SetControlPoint(pb::SetControlPoint {
+                name: RESECTION.into(),
+                i: 1,
+                j: 1,
+                point: Some(p),
+            }),
+        )
+        .await?;
+        self.version = answer.plan_version;
+        loop {
+            let (version, at) = tokio::time::timeout(Duration::from_secs(30), self.arrivals.recv())
+                .await
+                .map_err(|_| CliError::Failed("no delta within 30 s of an edit".into()))?
+                .ok_or_else(|| CliError::Failed("the watch stream ended".into()))?;
+            if version >= self.version {
+                return Ok(at.duration_since(sent).as_secs_f64() * 1e3);
+            }
+        }
+    }
+}
+
+fn percentile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return f64::NAN;
+    }
+    let rank = (q * (sorted.len() - 1) as f64).round() as usize;
+    sorted[rank.min(sorted.len() - 1)]
+}
+
+fn latency(
+    scenario: &str,
+    resolution: [u32; 2],
+    sessions: usize,
+    mut samples: Vec<f64>,
+) -> Latency {
+    samples.sort_by(f64::total_cmp);
+    Latency {
+        scenario: scenario.into(),
+        resolution,
+        sessions,
+        edits: samples.len(),
+        p50_ms: percentile(&samples, 0.50),
+        p90_ms: percentile(&samples, 0.90),
+        p99_ms: percentile(&samples, 0.99),
+        max_ms: samples.last().copied().unwrap_or(f64::NAN),
+        samples,
+    }
+}
+
+async fn single(
+    channel: &Channel,
+    token: Option<&str>,
+    map: &LabelMap,
+    resolution: [u32; 2],
+    edits: usize,
+) -> Result<Latency, CliError> {
+    let mut s = planning_session(channel, token, map, resolution).await?;
+    for k in 0..10 {
+        s.timed_edit(k).await?; // warm-up
+    }
+    let mut samples = Vec::with_capacity(edits);
+    for k in 0..edits {
+        samples.push(s.timed_edit(k).await?);
+    }
+    delete(channel, token, &s.id).await;
+    Ok(latency("single session", resolution, 1, samples))
+}
+
+async fn concurrent(
+    channel: &Channel,
+    token: Option<&str>,
+    map: &LabelMap,
+    args: &ServerArgs,
+    seconds: f64,
+) -> Result<Latency, CliError> {
+    let mut sessions = Vec::with_capacity(args.sessions);
+    for _ in 0..args.sessions {
+        sessions.push(planning_session(channel, token, map, [40, 40]).await?);
+    }
+    let ids: Vec<String> = sessions.iter().map(|s| s.id.clone()).collect();
+    let period = Duration::from_secs_f64(1.0 / args.rate.max(0.1));
+    let count = (seconds * args.rate).ceil() as usize;
+    let tasks: Vec<_> = sessions
+        .into_iter()
+        .enumerate()
+        .map(|(n, mut s)| {
+            tokio::spawn(async move {
+                // Spread the sessions' phases over one period.
+                tokio::time::sleep(period.mul_f64(n as f64 / 20.0)).await;
+                let mut tick = tokio::time::interval(period);
+                tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+                let mut samples = Vec::with_capacity(count);
+                for k in 0..count {
+                    tick.tick().await;
+                    samples.push(s.timed_edit(k).await?);
+                }
+                Ok::<_, CliError>(samples)
+            })
+        })
+        .collect();
+    let mut all = Vec::new();
+    for t in tasks {
+        all.extend(
+            t.await
+                .map_err(|e| CliError::Failed(format!("session task: {e}")))??,
+        );
+    }
+    for id in &ids {
+        delete(channel, token, id).await;
+    }
+    Ok(latency("concurrent sessions", [40, 40], args.sessions, all))
+}
+
+async fn delete(channel: &Channel, token: Option<&str>, id: &str) {
+    let mut client = PlanningServiceClient::new(channel.clone());
+    let _ = client
+        .delete_session(request(
+            DeleteSessionRequest {
+                session_id: id.to_owned(),
+            },
+            token,
+        ))
+        .await;
+}
+
+async fn idle_memory(
+    channel: &Channel,
+    token: Option<&str>,
+    map: &LabelMap,
+    pid: u32,
+    n: usize,
+) -> Result<f64, CliError> {
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let before = rss_bytes(pid).unwrap_or(f64::NAN);
+    let mut ids = Vec::new();
+    for _ in 0..n {
+        let s = planning_session(channel, token, map, [40, 40]).await?;
+        ids.push(s.id);
+    }
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let after = rss_bytes(pid).unwrap_or(f64::NAN);
+    for id in &ids {
+        delete(channel, token, id).await;
+    }
+    Ok((after - before) / n.max(1) as f64)
+}
+
+async fn uploads(channel: &Channel, token: Option<&str>, runs: usize) -> Result<Upload, CliError> {
+    let map = tokio::task::spawn_blocking(large_label_map)
+        .await
+        .map_err(|e| CliError::Failed(e.to_string()))?;
+    let mut client =
+        PlanningServiceClient::new(channel.clone()).max_encoding_message_size(64 << 20);
+    let mut times = Vec::new();
+    for _ in 0..runs.max(1) {
+        let id = client
+            .create_session(request(
+                CreateSessionRequest {
+                    display_name: "upload benchmark".into(),
+                },
+                token,
+            ))
+            .await
+            .map_err(failed("create session"))?
+            .into_inner()
+            .session
+            .map(|s| s.id)
+            .unwrap_or_default();
+        let t = Instant::now();
+        upload(&mut client, token, &id, &map).await?;
+        times.push(t.elapsed().as_secs_f64());
+        delete(channel, token, &id).await;
+    }
+    let mut sorted = times.clone();
+    sorted.sort_by(f64::total_cmp);
+    Ok(Upload {
+        dims: [512, 512, 300],
+        bytes: map.data.len() as u64,
+        median_s: percentile(&sorted, 0.5),
+        runs_s: times,
+    })
+}
+
+fn cpu_name() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("model name"))
+                .map(|l| l.trim_start_matches([' ', '\t', ':']).to_owned())
+        })
+        .unwrap_or_else(|| "unknown".into())
+}
+
+fn plot(dir: &std::path::Path, latencies: &[Latency]) -> Result<(), CliError> {
+    use resecta_plot::{Colour, Figure, Series, Style};
+    let colours = [Colour::BLUE, Colour::ORANGE, Colour::GREEN, Colour::RED];
+    let series = latencies
+        .iter()
+        .zip(colours.iter().cycle())
+        .map(|(l, &colour)| {
+            let n = l.samples.len().max(1) as f64;
+            let points = l
+                .samples
+                .iter()
+                .enumerate()
+                .map(|(k, &ms)| (ms.max(1e-3), 100.0 * (k + 1) as f64 / n))
+                .collect();
+            Series::new(
+                format!(
+                    "{} {}×{} ({} session{})",
+                    l.scenario,
+                    l.resolution[0],
+                    l.resolution[1],
+                    l.sessions,
+                    if l.sessions == 1 { "" } else { "s" }
+                ),
+                points,
+                Style::Line { colour },
+            )
+        })
+        .collect();
+    let figure = Figure {
+        title: "Edit → delta at a watching client (gRPC, loopback)".into(),
+        x_label: "latency (ms)".into(),
+        y_label: "edits (%)".into(),
+        log_x: true,
+        series,
+        width: 900,
+        height: 560,
+    };
+    std::fs::create_dir_all(dir)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", dir.display())))?;
+    let svg = figure
+        .to_svg()
+        .map_err(|e| CliError::Failed(format!("plot: {e}")))?;
+    let png = figure
+        .to_png()
+        .map_err(|e| CliError::Failed(format!("plot: {e}")))?;
+    for (name, bytes) in [
+        ("edit_latency_cdf.svg", svg.into_bytes()),
+        ("edit_latency_cdf.png", png),
+    ] {
+        let path = dir.join(name);
+        std::fs::write(&path, bytes)
+            .map_err(|e| CliError::Failed(format!("{}: {e}", path.display())))?;
+    }
+    Ok(())
+}
+
+pub fn run(args: &ServerArgs) -> Result<(), CliError> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| CliError::Failed(format!("runtime: {e}")))?;
+    runtime.block_on(run_async(args))
+}
+
+async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
+    let pb = progress(args.json);
+    let (server, addr) = match &args.addr {
+        Some(a) => (None, a.clone()),
+        None => {
+            pb.set_message("starting the server");
+            let (s, a) = start_server()?;
+            (Some(s), a)
+        }
+    };
+    let token = args.token.as_deref();
+    let channel = Channel::from_shared(addr.clone())
+        .map_err(|e| CliError::BadInput(format!("--addr {addr:?}: {e}")))?
+        .tcp_nodelay(true)
+        .connect()
+        .await
+        .map_err(|e| CliError::Failed(format!("connecting to {addr}: {e}")))?;
+    let map = tokio::task::spawn_blocking(demo_label_map)
+        .await
+        .map_err(|e| CliError::Failed(e.to_string()))??;
+    let (edits, seconds) = if args.quick {
+        (20, 1.0)
+    } else {
+        (args.edits, args.seconds)
+    };
+
+    pb.set_message("single session, 40×40");
+    let s40 = single(&channel, token, &map, [40, 40], edits).await?;
+    pb.set_message("single session, 200×200");
+    let s200 = single(&channel, token, &map, [200, 200], edits).await?;
+    pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
+    let multi = concurrent(&channel, token, &map, args, seconds).await?;
+    let idle_session_bytes = match &server {
+        Some(s) => {
+            pb.set_message("idle sessions");
+            let n = if args.quick { 2 } else { args.idle_sessions };
+            Some(idle_memory(&channel, token, &map, s.child.id(), n).await?)
+        }
+        None => None,
+    };
+    pb.set_message("512×512×300 upload");
+    let upload = uploads(&channel, token, if args.quick { 1 } else { args.uploads }).await?;
+    pb.finish_and_clear();
+    drop(server);
+
+    let report = Report {
+        quick: args.quick,
+        cpu: cpu_name(),
+        logical_cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        server: if args.addr.is_some() {
+            "given (--addr)"
+        } else {
+            "started by the benchmark (resecta serve, SQLite data dir)"
+        },
+        concurrent_p99_ratio: multi.p99_ms / s40.p99_ms,
+        latencies: vec![s40, s200, multi],
+        idle_session_bytes,
+        upload,
+    };
+    if let Some(dir) = &args.plot_dir {
+        plot(dir, &report.latencies)?;
+    }
+    if args.json {
+        return print_json(&report);
+    }
+    println!(
+        "{:<22} {:>9} {:>8} {:>6} {:>8} {:>8} {:>8} {:>8}",
+        "scenario", "grid", "sessions", "edits", "p50 ms", "p90 ms", "p99 ms", "max ms"
+    );
+    for l in &report.latencies {
+        println!(
+            "{:<22} {:>9} {:>8} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
+            l.scenario,
+            format!("{}×{}", l.resolution[0], l.resolution[1]),
+            l.sessions,
+            l.edits,
+            l.p50_ms,
+            l.p90_ms,
+            l.p99_ms,
+            l.max_ms
+        );
+    }
+    println!(
+        "concurrent p99 / single p99 = {:.2}",
+        report.concurrent_p99_ratio
+    );
+    if let Some(b) = report.idle_session_bytes {
+        println!("server memory per idle session: {:.1} MB", b / 1e6);
+    }
+    println!(
+        "upload 512×512×300 u8 ({:.1} MB): median {:.3} s",
+        report.upload.bytes as f64 / 1e6,
+        report.upload.median_s
+    );
+    println!(
+        "machine: {} ({} logical cores)",
+        report.cpu, report.logical_cores
+    );
+    Ok(())
+}

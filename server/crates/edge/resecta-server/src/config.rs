@@ -1,0 +1,311 @@
+//! `resecta serve` configuration: flags override environment variables (clap reads both), which
+//! override the TOML file named by `--config`, which overrides the defaults.
+
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use resecta_auth::AccessPolicy;
+use resecta_session::ServiceConfig;
+use serde::Deserialize;
+
+use crate::error::ServerError;
+
+/// Default gRPC address (loopback).
+pub const DEFAULT_GRPC: &str = "127.0.0.1:50051";
+/// Default HTTP address (loopback).
+pub const DEFAULT_HTTP: &str = "127.0.0.1:8080";
+/// Largest configuration or token file read (bytes).
+const MAX_CONFIG_FILE: u64 = 1 << 20;
+
+/// Flags of `resecta serve` (each also read from its environment variable).
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ServeArgs {
+    /// gRPC listen address [default: 127.0.0.1:50051; port 0 picks a free port].
+    #[arg(long, env = "RESECTA_GRPC")]
+    pub grpc: Option<SocketAddr>,
+    /// HTTP listen address [default: 127.0.0.1:8080].
+    #[arg(long, env = "RESECTA_HTTP")]
+    pub http: Option<SocketAddr>,
+    /// Directory of the durable session store (SQLite); sessions live in memory without it.
+    #[arg(long, env = "RESECTA_DATA_DIR")]
+    pub data_dir: Option<PathBuf>,
+    /// Bearer token clients must send (at least 16 characters).
+    #[arg(
+        long,
+        env = "RESECTA_TOKEN",
+        hide_env_values = true,
+        conflicts_with = "token_file"
+    )]
+    pub token: Option<String>,
+    /// File holding the bearer token (e.g. a Docker secret).
+    #[arg(long, env = "RESECTA_TOKEN_FILE")]
+    pub token_file: Option<PathBuf>,
+    /// PEM certificate chain for TLS on both faces (with --tls-key).
+    #[arg(long, env = "RESECTA_TLS_CERT", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key for TLS.
+    #[arg(long, env = "RESECTA_TLS_KEY", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Listen on a non-loopback address without a token (trusted networks only).
+    #[arg(long, env = "RESECTA_INSECURE")]
+    pub insecure: bool,
+    /// Add the demo patient (a synthetic liver phantom) as a session, once per data directory.
+    #[arg(long, env = "RESECTA_DEMO")]
+    pub demo: bool,
+    /// Logs as JSON lines (for collectors).
+    #[arg(long, env = "RESECTA_LOG_JSON")]
+    pub log_json: bool,
+    /// TOML configuration file (limits live here).
+    #[arg(long, env = "RESECTA_CONFIG")]
+    pub config: Option<PathBuf>,
+}
+
+/// The TOML file.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileConfig {
+    grpc: Option<SocketAddr>,
+    http: Option<SocketAddr>,
+    data_dir: Option<PathBuf>,
+    token_file: Option<PathBuf>,
+    insecure: Option<bool>,
+    demo: Option<bool>,
+    tls: Option<TlsFiles>,
+    #[serde(default)]
+    limits: FileLimits,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileLimits {
+    max_sessions: Option<usize>,
+    max_voxels: Option<u64>,
+    max_upload_bytes: Option<u64>,
+    max_memory_bytes: Option<u64>,
+    /// Seconds; 0 never expires.
+    idle_expiry_s: Option<u64>,
+}
+
+/// Certificate chain and key, PEM files.
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TlsFiles {
+    pub cert: PathBuf,
+    pub key: PathBuf,
+}
+
+/// A resolved, validated server configuration.
+#[derive(Debug, Clone)]
+pub struct ServerConfig {
+    pub grpc: SocketAddr,
+    pub http: SocketAddr,
+    pub data_dir: Option<PathBuf>,
+    pub access: AccessPolicy,
+    pub tls: Option<TlsFiles>,
+    pub demo: bool,
+    pub log_json: bool,
+    pub service: ServiceConfig,
+}
+
+fn read_small(path: &Path, what: &str) -> Result<String, ServerError> {
+    let bad = |m: String| ServerError::Config(format!("{what} {}: {m}", path.display()));
+    let len = std::fs::metadata(path)
+        .map_err(|e| bad(e.to_string()))?
+        .len();
+    if len > MAX_CONFIG_FILE {
+        return Err(bad(format!("{len} bytes is larger than {MAX_CONFIG_FILE}")));
+    }
+    std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))
+}
+
+fn parse_addr(s: &str) -> Result<SocketAddr, ServerError> {
+    s.parse()
+        .map_err(|e| ServerError::Config(format!("address {s:?}: {e}")))
+}
+
+impl ServerConfig {
+    /// Resolves flags/environment (`args`) over the TOML file over the defaults, and checks that
+    /// the server is not exposed without a token.
+    pub fn resolve(args: &ServeArgs) -> Result<Self, ServerError> {
+        let file: FileConfig = match &args.config {
+            Some(p) => toml::from_str(&read_small(p, "config file")?)
+                .map_err(|e| ServerError::Config(format!("config file {}: {e}", p.display())))?,
+            None => FileConfig::default(),
+        };
+        let grpc = match args.grpc.or(file.grpc) {
+            Some(a) => a,
+            None => parse_addr(DEFAULT_GRPC)?,
+        };
+        let http = match args.http.or(file.http) {
+            Some(a) => a,
+            None => parse_addr(DEFAULT_HTTP)?,
+        };
+        let token = match (
+            &args.token,
+            args.token_file.as_ref().or(file.token_file.as_ref()),
+        ) {
+            (Some(t), _) => Some(t.clone()),
+            (None, Some(f)) => Some(read_small(f, "token file")?),
+            (None, None) => None,
+        };
+        let access = match token {
+            Some(t) => AccessPolicy::with_token(&t)
+                .map_err(|e| ServerError::Config(format!("token: {e}")))?,
+            None => AccessPolicy::open(),
+        };
+        let insecure = args.insecure || file.insecure.unwrap_or(false);
+        for addr in [grpc, http] {
+            if !addr.ip().is_loopback() && !access.requires_token() && !insecure {
+                return Err(ServerError::Config(format!(
+                    "refusing to listen on {addr} without a bearer token: set --token or \
+                     --token-file (RESECTA_TOKEN / RESECTA_TOKEN_FILE), or pass --insecure on a \
+                     trusted network"
+                )));
+            }
+        }
+        if grpc.port() != 0 && grpc == http {
+            return Err(ServerError::Config(format!(
+                "the gRPC and HTTP faces need different addresses (both {grpc})"
+            )));
+        }
+        let tls = match (&args.tls_cert, &args.tls_key) {
+            (Some(cert), Some(key)) => Some(TlsFiles {
+                cert: cert.clone(),
+                key: key.clone(),
+            }),
+            _ => file.tls,
+        };
+        let mut service = ServiceConfig::default();
+        let l = &file.limits;
+        if let Some(v) = l.max_sessions {
+            service.max_sessions = v;
+        }
+        if let Some(v) = l.max_voxels {
+            service.max_voxels = v;
+        }
+        if let Some(v) = l.max_upload_bytes {
+            service.max_upload_bytes = v;
+        }
+        if let Some(v) = l.max_memory_bytes {
+            service.max_memory_bytes = v;
+        }
+        if let Some(s) = l.idle_expiry_s {
+            service.idle_expiry = (s > 0).then(|| Duration::from_secs(s));
+        }
+        if access.requires_token() {
+            service.capabilities.push("auth".into());
+        }
+        if tls.is_some() {
+            service.capabilities.push("tls".into());
+        }
+        Ok(Self {
+            grpc,
+            http,
+            data_dir: args.data_dir.clone().or(file.data_dir),
+            access,
+            tls,
+            demo: args.demo || file.demo.unwrap_or(false),
+            log_json: args.log_json,
+            service,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    #[test]
+    fn defaults_are_loopback_without_token() {
+        let c = ServerConfig::resolve(&ServeArgs::default()).unwrap();
+        assert_eq!(c.grpc.to_string(), DEFAULT_GRPC);
+        assert_eq!(c.http.to_string(), DEFAULT_HTTP);
+        assert!(!c.access.requires_token());
+        assert!(c.data_dir.is_none() && c.tls.is_none());
+    }
+
+    #[test]
+    fn exposed_address_needs_a_token_or_insecure() {
+        let mut a = ServeArgs {
+            grpc: Some("0.0.0.0:50051".parse().unwrap()),
+            ..ServeArgs::default()
+        };
+        let e = ServerConfig::resolve(&a).unwrap_err().to_string();
+        assert!(e.contains("refusing to listen on 0.0.0.0:50051"), "{e}");
+        a.insecure = true;
+        assert!(ServerConfig::resolve(&a).is_ok());
+        a.insecure = false;
+        a.token = Some("short".into());
+        let e = ServerConfig::resolve(&a).unwrap_err().to_string();
+        assert!(e.contains("at least 16"), "{e}");
+        a.token = Some("a-long-enough-token-1234".into());
+        let c = ServerConfig::resolve(&a).unwrap();
+        assert!(c.access.requires_token());
+        assert!(c.service.capabilities.contains(&"auth".to_owned()));
+    }
+
+    #[test]
+    fn flags_override_the_file_which_overrides_defaults() {
+        let dir = tempfile::tempdir().unwrap();
+        let token = write(dir.path(), "token", "file-token-0123456789\n");
+        let cfg = write(
+            dir.path(),
+            "c.toml",
+            &format!(
+                "grpc = \"0.0.0.0:6000\"\nhttp = \"127.0.0.1:6001\"\ntoken_file = {:?}\n\
+                 [limits]\nmax_sessions = 3\nidle_expiry_s = 0\n",
+                token.display().to_string()
+            ),
+        );
+        let args = ServeArgs {
+            config: Some(cfg),
+            http: Some("127.0.0.1:7001".parse().unwrap()),
+            ..ServeArgs::default()
+        };
+        let c = ServerConfig::resolve(&args).unwrap();
+        assert_eq!(c.grpc.to_string(), "0.0.0.0:6000");
+        assert_eq!(c.http.to_string(), "127.0.0.1:7001");
+        assert!(c.access.requires_token());
+        assert_eq!(
+            c.access
+                .check_authorization(Some("Bearer file-token-0123456789")),
+            Ok(())
+        );
+        assert_eq!(c.service.max_sessions, 3);
+        assert_eq!(c.service.idle_expiry, None);
+    }
+
+    #[test]
+    fn bad_files_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = write(
+            dir.path(),
+            "c.toml",
+            "grpc = \"127.0.0.1:1\"\nmax_sesions = 3\n",
+        );
+        let args = ServeArgs {
+            config: Some(cfg),
+            ..ServeArgs::default()
+        };
+        let e = ServerConfig::resolve(&args).unwrap_err().to_string();
+        assert!(e.contains("c.toml") && e.contains("max_sesions"), "{e}");
+        let args = ServeArgs {
+            config: Some(dir.path().join("missing.toml")),
+            ..ServeArgs::default()
+        };
+        assert!(ServerConfig::resolve(&args).is_err());
+        let args = ServeArgs {
+            grpc: Some("127.0.0.1:7000".parse().unwrap()),
+            http: Some("127.0.0.1:7000".parse().unwrap()),
+            ..ServeArgs::default()
+        };
+        assert!(ServerConfig::resolve(&args).is_err());
+    }
+}

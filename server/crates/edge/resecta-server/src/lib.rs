@@ -1,0 +1,218 @@
+//! The planning server process (`resecta serve`): one [`resecta_session::Service`] over the
+//! configured store, served on two faces — gRPC ([`resecta_grpc`]) and HTTP/JSON
+//! ([`resecta_http`]) — with the same access policy, optional TLS on both, Prometheus metrics,
+//! request tracing, idle-session expiry and, on request, the demo patient. No algorithm lives
+//! here: this crate wires listeners to the operation layer.
+
+mod config;
+mod demo;
+mod error;
+mod telemetry;
+
+use std::future::Future;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+
+use resecta_session::Service;
+use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
+use serde::Serialize;
+use tokio::sync::watch;
+
+pub use config::{DEFAULT_GRPC, DEFAULT_HTTP, ServeArgs, ServerConfig, TlsFiles};
+pub use demo::{DEMO_SESSION_NAME, seed_demo};
+pub use error::ServerError;
+pub use telemetry::{init_tracing, metrics_handle};
+
+/// Where the faces listen, as printed on start-up.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Bound {
+    pub grpc: SocketAddr,
+    pub http: SocketAddr,
+    pub tls: bool,
+}
+
+/// The session store the configuration names.
+pub fn open_store(config: &ServerConfig) -> Result<Arc<dyn SessionStore>, ServerError> {
+    Ok(match &config.data_dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir).map_err(|e| {
+                ServerError::Config(format!("data directory {}: {e}", dir.display()))
+            })?;
+            Arc::new(SqliteStore::open(dir, StoreOptions::default())?)
+        }
+        None => Arc::new(MemoryStore::new(StoreOptions::default())),
+    })
+}
+
+async fn bind(addr: SocketAddr) -> Result<tokio::net::TcpListener, ServerError> {
+    tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| ServerError::Bind { addr, source })
+}
+
+fn serve_error(face: &'static str) -> impl Fn(String) -> ServerError {
+    move |message| ServerError::Serve { face, message }
+}
+
+/// Runs the server until `shutdown` completes: binds both faces, calls `on_bound` with their
+/// addresses, serves, and drains in-flight requests on the way out.
+pub async fn run(
+    config: ServerConfig,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+    on_bound: impl FnOnce(Bound),
+) -> Result<(), ServerError> {
+    let store = open_store(&config)?;
+    let service = Arc::new(Service::new(store, config.service.clone()));
+    let tls = match &config.tls {
+        Some(files) => Some(telemetry::load_tls(files).await?),
+        None => None,
+    };
+    let grpc_listener = bind(config.grpc).await?;
+    let http_listener = bind(config.http).await?;
+    let local = |l: &tokio::net::TcpListener, addr| {
+        l.local_addr()
+            .map_err(|source| ServerError::Bind { addr, source })
+    };
+    let bound = Bound {
+        grpc: local(&grpc_listener, config.grpc)?,
+        http: local(&http_listener, config.http)?,
+        tls: tls.is_some(),
+    };
+
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let stopped = move |mut rx: watch::Receiver<bool>| async move {
+        let _ = rx.wait_for(|s| *s).await;
+    };
+
+    // gRPC face.
+    let mut builder = tonic::transport::Server::builder()
+        .trace_fn(telemetry::grpc_span)
+        .http2_keepalive_interval(Some(Duration::from_secs(30)));
+    if let Some(t) = &tls {
+        builder = builder
+            .tls_config(t.grpc.clone())
+            .map_err(|e| ServerError::Tls(e.to_string()))?;
+    }
+    let routes = resecta_grpc::grpc_routes(Arc::clone(&service), config.access.clone());
+    let incoming = tokio_stream::wrappers::TcpListenerStream::new(grpc_listener);
+    let grpc = tokio::spawn(
+        builder
+            .add_routes(routes)
+            .serve_with_incoming_shutdown(incoming, stopped(stop_rx.clone())),
+    );
+
+    // HTTP face.
+    let render = metrics_handle().map(|h| {
+        let f: Arc<dyn Fn() -> String + Send + Sync> = Arc::new(move || h.render());
+        f
+    });
+    let router = resecta_http::router(
+        Arc::clone(&service),
+        config.access.clone(),
+        resecta_http::HttpOptions {
+            metrics: render,
+            ..resecta_http::HttpOptions::default()
+        },
+    );
+    let handle = axum_server::Handle::new();
+    let std_listener = http_listener
+        .into_std()
+        .map_err(|source| ServerError::Bind {
+            addr: bound.http,
+            source,
+        })?;
+    let app = router.into_make_service();
+    let http = match &tls {
+        Some(t) => {
+            let server = axum_server::from_tcp_rustls(std_listener, t.http.clone())
+                .map_err(|e| ServerError::Tls(e.to_string()))?
+                .handle(handle.clone());
+            tokio::spawn(async move { server.serve(app).await })
+        }
+        None => {
+            let server = axum_server::from_tcp(std_listener)
+                .map_err(|source| ServerError::Bind {
+                    addr: bound.http,
+                    source,
+                })?
+                .handle(handle.clone());
+            tokio::spawn(async move { server.serve(app).await })
+        }
+    };
+
+    // Upkeep: idle expiry and the metrics exporter's histograms.
+    let upkeep = tokio::spawn(upkeep(Arc::clone(&service), stop_rx.clone()));
+    if config.demo {
+        let s = Arc::clone(&service);
+        tokio::spawn(async move {
+            match seed_demo(&s).await {
+                Ok(id) => tracing::info!(session = %id, "demo patient ready"),
+                Err(e) => tracing::error!(error = %e, "demo patient failed"),
+            }
+        });
+    }
+    tracing::info!(grpc = %bound.grpc, http = %bound.http, tls = bound.tls,
+        auth = config.access.requires_token(), durable = config.data_dir.is_some(), "listening");
+    on_bound(bound);
+
+    shutdown.await;
+    tracing::info!("shutting down");
+    let _ = stop_tx.send(true);
+    handle.graceful_shutdown(Some(Duration::from_secs(5)));
+    let grpc = grpc.await.map_err(|e| serve_error("gRPC")(e.to_string()))?;
+    let http = http.await.map_err(|e| serve_error("HTTP")(e.to_string()))?;
+    upkeep.abort();
+    grpc.map_err(|e| serve_error("gRPC")(e.to_string()))?;
+    http.map_err(|e| serve_error("HTTP")(e.to_string()))?;
+    Ok(())
+}
+
+async fn upkeep(service: Arc<Service>, mut stop: watch::Receiver<bool>) {
+    let expiry = service.config().idle_expiry;
+    let period = expiry.map_or(Duration::from_secs(60), |e| {
+        (e / 4).clamp(Duration::from_secs(1), Duration::from_secs(60))
+    });
+    let mut tick = tokio::time::interval(period.min(Duration::from_secs(5)));
+    let mut since_expiry = Duration::ZERO;
+    loop {
+        tokio::select! {
+            _ = tick.tick() => {}
+            _ = stop.wait_for(|s| *s) => return,
+        }
+        if let Some(h) = metrics_handle() {
+            h.run_upkeep();
+        }
+        since_expiry += tick.period();
+        if expiry.is_some() && since_expiry >= period {
+            since_expiry = Duration::ZERO;
+            match service.expire_idle().await {
+                Ok(0) => {}
+                Ok(n) => tracing::info!(sessions = n, "idle sessions expired"),
+                Err(e) => tracing::warn!(error = %e, "idle expiry failed"),
+            }
+        }
+    }
+}
+
+/// Completes on Ctrl-C or SIGTERM.
+pub async fn termination_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {}
+        () = term => {}
+    }
+}

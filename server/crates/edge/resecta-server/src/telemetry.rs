@@ -1,0 +1,84 @@
+//! Logs, metrics and TLS material of the process.
+
+use std::sync::OnceLock;
+
+use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
+use tracing_subscriber::EnvFilter;
+
+use crate::config::TlsFiles;
+use crate::error::ServerError;
+
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`), as text or JSON lines.
+pub fn init_tracing(json: bool) {
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let fmt = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false);
+    // A second initialisation (tests) keeps the first subscriber.
+    let _ = if json {
+        fmt.json().try_init()
+    } else {
+        fmt.try_init()
+    };
+}
+
+/// Latency buckets (seconds) for the edit and volumetry histograms: 0.25 ms … 5 s.
+const BUCKETS: &[f64] = &[
+    0.000_25, 0.000_5, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0,
+];
+
+/// The process-wide Prometheus recorder, installed on first use (`None` if another recorder
+/// was installed first).
+pub fn metrics_handle() -> Option<&'static PrometheusHandle> {
+    static HANDLE: OnceLock<Option<PrometheusHandle>> = OnceLock::new();
+    HANDLE
+        .get_or_init(|| {
+            PrometheusBuilder::new()
+                .set_buckets_for_metric(Matcher::Suffix("_seconds".into()), BUCKETS)
+                .ok()?
+                .install_recorder()
+                .ok()
+        })
+        .as_ref()
+}
+
+/// The tracing span of one gRPC call: method and request id (the client's `x-request-id`, or
+/// a new one). Never request contents.
+pub fn grpc_span(req: &http::Request<()>) -> tracing::Span {
+    let id = req
+        .headers()
+        .get("x-request-id")
+        .and_then(|v| v.to_str().ok())
+        .filter(|v| v.len() <= 64)
+        .map_or_else(|| uuid::Uuid::new_v4().to_string(), str::to_owned);
+    tracing::info_span!("grpc", method = %req.uri().path(), request_id = %id)
+}
+
+/// TLS set-up of both faces from one certificate chain and key.
+#[derive(Clone)]
+pub(crate) struct LoadedTls {
+    pub grpc: tonic::transport::ServerTlsConfig,
+    pub http: axum_server::tls_rustls::RustlsConfig,
+}
+
+pub(crate) async fn load_tls(files: &TlsFiles) -> Result<LoadedTls, ServerError> {
+    let _ = rustls::crypto::ring::default_provider().install_default();
+    let read = |p: &std::path::Path| {
+        std::fs::read(p).map_err(|e| ServerError::Tls(format!("{}: {e}", p.display())))
+    };
+    let cert = read(&files.cert)?;
+    let key = read(&files.key)?;
+    let http = axum_server::tls_rustls::RustlsConfig::from_pem(cert.clone(), key.clone())
+        .await
+        .map_err(|e| {
+            ServerError::Tls(format!(
+                "certificate {} / key {}: {e}",
+                files.cert.display(),
+                files.key.display()
+            ))
+        })?;
+    let grpc = tonic::transport::ServerTlsConfig::new()
+        .identity(tonic::transport::Identity::from_pem(cert, key));
+    Ok(LoadedTls { grpc, http })
+}
