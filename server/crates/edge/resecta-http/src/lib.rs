@@ -8,6 +8,28 @@
 //! `x-request-id` (the client's, or a fresh UUID), and every request is traced (method, matched
 //! route, status, latency, request id) and counted in `resecta_http_requests_total{route,status}`.
 //! Bodies, display names and file names are never logged.
+//!
+//! | route | does |
+//! |---|---|
+//! | `GET /healthz`, `GET /metrics` | liveness; Prometheus text (when [`HttpOptions::metrics`]) |
+//! | `GET /v1/info`, `GET /v1/openapi.json` | server info and limits; the OpenAPI document |
+//! | `POST /v1/sessions` `{"display_name"}` → 201, `GET /v1/sessions` | create, list |
+//! | `GET`, `DELETE /v1/sessions/{id}` | one session; delete it (204) |
+//! | `PUT /v1/sessions/{id}/label-map?format=…` | body = raw voxels (`format=raw&dims=i,j,k&spacing=…&data_type=u8&origin=…&direction=…`) or a NIfTI/NRRD/.seg.nrrd/MetaImage file (`format=auto`, default); `roles=` a JSON role map |
+//! | `POST /v1/sessions/{id}/reconstruct` | SSE: `progress`, `model`, `done` (or `error`); disconnecting cancels |
+//! | `POST /v1/sessions/{id}/edits` `{"base_version", "edit": EditOp}` | one plan edit |
+//! | `GET /v1/sessions/{id}/volumes` | the plan's volumes |
+//! | `GET`, `PUT /v1/sessions/{id}/plan[?base_version=]` | export, import the `resecta-plan/1` document |
+//! | `GET /v1/sessions/{id}/models/{name}?format=vtp` | a model or resection as a mesh file |
+//! | `GET /v1/sessions/{id}/slices?resection=…&axial=…` | contours (base64 packed f32) |
+//! | `GET /v1/sessions/{id}/watch?since_seq=` | SSE, `id` = seq, `Last-Event-ID` resumes; meshes base64 |
+//!
+//! Errors map [`resecta_session::ErrorKind`] once (see [`Problem`]): 400, 404, 409 (exists,
+//! stale version with `current_version`, precondition), resource exhausted 413 when it answers
+//! an upload (bytes, voxels, the memory they need) and 429 otherwise (sessions, resections),
+//! 499 cancelled, 500 internal; 401 with `WWW-Authenticate: Bearer`; 400 `version_mismatch`.
+//! Bodies over their limit (JSON [`MAX_JSON_BYTES`], uploads `max_upload_bytes`) get 413 from
+//! `Content-Length` before any byte is read, or as soon as a chunked body passes the limit.
 
 mod extract;
 mod handlers;

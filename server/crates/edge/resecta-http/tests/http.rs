@@ -181,6 +181,8 @@ async fn oversized_bodies_are_refused_while_streaming() {
     let s = serve(
         ServiceConfig {
             max_upload_bytes: limit,
+            max_voxels: 1000,
+            max_sessions: 1,
             ..config()
         },
         AccessPolicy::open(),
@@ -205,19 +207,26 @@ async fn oversized_bodies_are_refused_while_streaming() {
     let p = a.problem(413, "payload_too_large");
     assert!(p["detail"].as_str().unwrap().contains(&limit.to_string()));
 
-    // A chunked body is cut off once it passes the limit: the client is not read to its end.
+    // A chunked body is refused as soon as it passes the limit, although it has not ended.
+    let chunk = || Ok::<_, std::io::Error>(Bytes::from(vec![0u8; 64 << 10]));
+    let past_limit = futures_util::stream::iter((0..17).map(move |_| chunk()))
+        .chain(futures_util::stream::pending());
+    let req = request("PUT", &url, Body::from_stream(past_limit));
+    tokio::time::timeout(Duration::from_secs(10), send(s.addr, req))
+        .await
+        .expect("refused before the body ends")
+        .problem(413, "payload_too_large");
+
+    // A client that keeps sending is not read to its end. (Without a lingering close it may see
+    // the connection reset instead of the 413, as with any server that stops reading.)
     let pulled = Arc::new(AtomicUsize::new(0));
     let counter = Arc::clone(&pulled);
-    let chunks = futures_util::stream::iter(0..4096).map(move |_| {
+    let flood = futures_util::stream::iter(0..4096).map(move |_| {
         counter.fetch_add(1, Ordering::Relaxed);
-        Ok::<_, std::io::Error>(Bytes::from(vec![0u8; 64 << 10]))
+        chunk()
     });
-    let req = request("PUT", &url, Body::from_stream(chunks));
-    match send_raw(s.addr, req).await {
-        Ok(res) => {
-            assert_eq!(res.status(), StatusCode::PAYLOAD_TOO_LARGE);
-        }
-        Err(e) => panic!("no answer: {e}"),
+    if let Ok(res) = send_raw(s.addr, request("PUT", &url, Body::from_stream(flood))).await {
+        assert_eq!(res.status(), StatusCode::PAYLOAD_TOO_LARGE);
     }
     let n = pulled.load(Ordering::Relaxed);
     assert!(n < 1024, "the client sent {n} chunks of 64 KiB");
@@ -228,6 +237,16 @@ async fn oversized_bodies_are_refused_while_streaming() {
         .await
         .problem(413, "payload_too_large");
     assert_eq!(plan_version(s.addr, &id).await, 0);
+
+    // Quotas: an upload beyond the voxel quota is too large (413); one session too many is 429.
+    let labels = phantom();
+    let q = format!("/v1/sessions/{id}/label-map?{}", raw_query(&labels));
+    send(s.addr, request("PUT", &q, raw_bytes(&labels)))
+        .await
+        .problem(413, "quota_exceeded");
+    post_json(s.addr, "/v1/sessions", &json!({"display_name": "Second"}))
+        .await
+        .problem(429, "quota_exceeded");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -608,6 +627,36 @@ async fn metrics_are_served_when_rendered() {
     assert_eq!(a.body, "resecta_up 1\n");
     let s = open_server().await;
     get(s.addr, "/metrics").await.problem(404, "no_route");
+}
+
+/// Requests are counted per matched route (never the raw path) and status, as the server
+/// process exports them (other tests of this binary may add to the counts).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn requests_are_counted_by_route_and_status() {
+    let recorder = metrics_exporter_prometheus::PrometheusBuilder::new().build_recorder();
+    let handle = recorder.handle();
+    metrics::set_global_recorder(recorder).unwrap();
+    let s = serve(
+        config(),
+        AccessPolicy::open(),
+        HttpOptions {
+            metrics: Some(Arc::new(move || handle.render())),
+            ..HttpOptions::default()
+        },
+    )
+    .await;
+    get(s.addr, "/v1/sessions/abc")
+        .await
+        .problem(404, "unknown_session");
+    get(s.addr, "/v1/elsewhere").await.problem(404, "no_route");
+    let text = String::from_utf8(get(s.addr, "/metrics").await.body.to_vec()).unwrap();
+    for line in [
+        r#"resecta_http_requests_total{route="/v1/sessions/{id}",status="404"} "#,
+        r#"resecta_http_requests_total{route="unmatched",status="404"} "#,
+    ] {
+        assert!(text.contains(line), "{line} missing in\n{text}");
+    }
+    assert!(!text.contains("abc") && !text.contains("elsewhere"));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
