@@ -37,8 +37,8 @@ impl AccessError {
     /// Stable machine-readable code (`ErrorInfo.code`, problem `type`).
     pub fn code(&self) -> &'static str {
         match self {
-            Self::MissingToken | Self::MalformedToken | Self::WrongToken => "unauthenticated",
-            Self::VersionMismatch { .. } => "version_mismatch",
+            Self::MissingToken | Self::MalformedToken | Self::WrongToken => "UNAUTHENTICATED",
+            Self::VersionMismatch { .. } => "API_VERSION_MISMATCH",
         }
     }
 }
@@ -181,7 +181,7 @@ mod tests {
         assert_eq!(check_api_version(Some("v1")), Ok(()));
         let e = check_api_version(Some("v2")).unwrap_err();
         assert!(!e.is_auth());
-        assert_eq!(e.code(), "version_mismatch");
+        assert_eq!(e.code(), "API_VERSION_MISMATCH");
         assert!(e.to_string().contains("\"v2\""), "{e}");
         let p = AccessPolicy::with_token(T).unwrap();
         assert_eq!(

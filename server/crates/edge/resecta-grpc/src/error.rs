@@ -7,7 +7,6 @@ use prost::Message;
 use resecta_api::ERROR_INFO_TYPE_URL;
 use resecta_api::v1::ErrorInfo;
 use resecta_auth::AccessError;
-use resecta_plan::PlanError;
 use resecta_session::{ErrorKind, SessionError};
 use tonic::{Code, Status};
 
@@ -87,20 +86,6 @@ fn info(code: &str, field: &str) -> ErrorInfo {
     }
 }
 
-/// The `ErrorInfo.code` of an operation-layer error: the proto/README.md name where the error
-/// identifies it, else the operation layer's code in upper case.
-fn session_code(e: &SessionError) -> String {
-    let named = match e {
-        SessionError::UnknownSession(_) => "SESSION_NOT_FOUND",
-        SessionError::Plan(PlanError::UnknownResection(_)) => "RESECTION_NOT_FOUND",
-        SessionError::Plan(PlanError::NothingToUndo) => "NOTHING_TO_UNDO",
-        SessionError::Plan(PlanError::NothingToRedo) => "NOTHING_TO_REDO",
-        SessionError::Plan(PlanError::Json(_) | PlanError::Format(_)) => "BAD_PLAN",
-        _ => return e.code().to_ascii_uppercase(),
-    };
-    named.to_owned()
-}
-
 /// The status of an operation-layer error (the table of docs/server.md).
 pub fn session_status(e: &SessionError) -> Status {
     let code = match e.kind() {
@@ -116,7 +101,7 @@ pub fn session_status(e: &SessionError) -> Status {
     if code == Code::Internal {
         tracing::error!(error = %e, "internal error");
     }
-    let mut detail = info(&session_code(e), "");
+    let mut detail = info(e.code(), "");
     if let SessionError::StaleVersion { current, .. } = e {
         detail.current_plan_version = Some(*current);
     }

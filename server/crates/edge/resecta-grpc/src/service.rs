@@ -8,7 +8,6 @@ use futures_util::{Stream, StreamExt};
 use resecta_api::MAX_CHUNK_BYTES;
 use resecta_api::v1 as pb;
 use resecta_api::v1::planning_service_server::PlanningService;
-use resecta_plan::Plan;
 use resecta_session::Service;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
@@ -183,23 +182,18 @@ impl PlanningService for Planning {
             .edit(&r.session_id, r.base_version, op)
             .await
             .or_status()?;
-        let mut answer = pb::EditResponse {
+        let answer = pb::EditResponse {
             plan_version: out.plan_version,
-            ..pb::EditResponse::default()
+            resections: out
+                .resections
+                .iter()
+                .map(|r| pb::ResectionStatus {
+                    resection: Some(convert::resection(&r.resection)),
+                    verdict: r.verdict.as_ref().map(convert::verdict),
+                })
+                .collect(),
+            removed: out.removed,
         };
-        if let Some(name) = out.resection {
-            // The outcome names the resection but not its parameters: read them from the plan.
-            let json = self.service.export_plan(&r.session_id).await.or_status()?;
-            let plan = Plan::from_json(&json)
-                .map_err(|e| session_status(&resecta_session::SessionError::Plan(e)))?;
-            match plan.resection(&name) {
-                Ok(resection) => answer.resections.push(pb::ResectionStatus {
-                    resection: Some(convert::resection(resection)),
-                    verdict: out.verdict.as_ref().map(convert::verdict),
-                }),
-                Err(_) => answer.removed.push(name),
-            }
-        }
         Ok(Response::new(answer))
     }
 
@@ -208,11 +202,10 @@ impl PlanningService for Planning {
         request: Request<pb::GetVolumesRequest>,
     ) -> Result<Response<pb::GetVolumesResponse>, Status> {
         let id = &request.get_ref().session_id;
-        let volumes = self.service.volumes(id).await.or_status()?;
-        let session = self.service.get_session(id).await.or_status()?;
+        let v = self.service.volumes(id).await.or_status()?;
         Ok(Response::new(pb::GetVolumesResponse {
-            plan_version: session.plan_version,
-            volumes: Some(convert::volumes(&volumes)),
+            plan_version: v.plan_version,
+            volumes: Some(convert::volumes(&v.value)),
         }))
     }
 
@@ -221,11 +214,10 @@ impl PlanningService for Planning {
         request: Request<pb::ExportPlanRequest>,
     ) -> Result<Response<pb::ExportPlanResponse>, Status> {
         let id = &request.get_ref().session_id;
-        let plan_json = self.service.export_plan(id).await.or_status()?;
-        let session = self.service.get_session(id).await.or_status()?;
+        let plan = self.service.export_plan(id).await.or_status()?;
         Ok(Response::new(pb::ExportPlanResponse {
-            plan_version: session.plan_version,
-            plan_json,
+            plan_version: plan.plan_version,
+            plan_json: plan.value,
         }))
     }
 

@@ -36,7 +36,7 @@ pub async fn metrics(State(app): State<App>) -> Answer<Response> {
     let render = app
         .metrics
         .as_ref()
-        .ok_or_else(|| Problem::new(StatusCode::NOT_FOUND, "no_route", "no metrics here"))?;
+        .ok_or_else(|| Problem::new(StatusCode::NOT_FOUND, "NO_ROUTE", "no metrics here"))?;
     Ok((
         [(
             header::CONTENT_TYPE,
@@ -251,8 +251,7 @@ pub async fn upload_label_map(
     let summary = app
         .service
         .upload_label_map(&id, header.with(bytes.into()), roles)
-        .await
-        .map_err(|e| Problem::from(e).for_upload())?;
+        .await?;
     Ok(axum::Json(summary))
 }
 
@@ -301,11 +300,22 @@ pub async fn edit(
     ))
 }
 
+/// Volumes with the plan version they belong to (as gRPC's `GetVolumesResponse`).
+#[derive(Debug, Serialize)]
+pub struct VersionedVolumes {
+    plan_version: u64,
+    volumes: resecta_plan::VolumeReport,
+}
+
 pub async fn volumes(
     State(app): State<App>,
     Path(id): Path<String>,
-) -> JsonAnswer<resecta_plan::VolumeReport> {
-    Ok(axum::Json(app.service.volumes(&id).await?))
+) -> JsonAnswer<VersionedVolumes> {
+    let v = app.service.volumes(&id).await?;
+    Ok(axum::Json(VersionedVolumes {
+        plan_version: v.plan_version,
+        volumes: v.value,
+    }))
 }
 
 // ---- plans, models, slices -----------------------------------------------------------------
@@ -313,11 +323,17 @@ pub async fn volumes(
 pub async fn export_plan(State(app): State<App>, Path(id): Path<String>) -> Answer<Response> {
     let plan = app.service.export_plan(&id).await?;
     Ok((
-        [(
-            header::CONTENT_TYPE,
-            HeaderValue::from_static("application/json"),
-        )],
-        plan,
+        [
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/json"),
+            ),
+            (
+                header::HeaderName::from_static("resecta-plan-version"),
+                HeaderValue::from(plan.plan_version),
+            ),
+        ],
+        plan.value,
     )
         .into_response())
 }
@@ -448,7 +464,7 @@ pub async fn watch(
 pub async fn no_route(req: Request) -> Problem {
     Problem::new(
         StatusCode::NOT_FOUND,
-        "no_route",
+        "NO_ROUTE",
         format!("no route {} {}", req.method(), req.uri().path()),
     )
 }
@@ -456,7 +472,7 @@ pub async fn no_route(req: Request) -> Problem {
 pub async fn method_not_allowed(req: Request) -> Problem {
     Problem::new(
         StatusCode::METHOD_NOT_ALLOWED,
-        "method_not_allowed",
+        "METHOD_NOT_ALLOWED",
         format!("{} is not allowed on {}", req.method(), req.uri().path()),
     )
 }

@@ -27,7 +27,7 @@
 //! Errors map [`resecta_session::ErrorKind`] once (see [`Problem`]): 400, 404, 409 (exists,
 //! stale version with `current_version`, precondition), resource exhausted 413 when it answers
 //! an upload (bytes, voxels, the memory they need) and 429 otherwise (sessions, resections),
-//! 499 cancelled, 500 internal; 401 with `WWW-Authenticate: Bearer`; 400 `version_mismatch`.
+//! 499 cancelled, 500 internal; 401 with `WWW-Authenticate: Bearer`; 400 `API_VERSION_MISMATCH`.
 //! Bodies over their limit (JSON [`MAX_JSON_BYTES`], uploads `max_upload_bytes`) get 413 from
 //! `Content-Length` before any byte is read, or as soon as a chunked body passes the limit.
 

@@ -49,26 +49,16 @@ impl Problem {
 
     /// 400 `invalid_argument`.
     pub fn invalid(detail: impl Into<String>) -> Self {
-        Self::new(StatusCode::BAD_REQUEST, "invalid_argument", detail)
+        Self::new(StatusCode::BAD_REQUEST, "INVALID_ARGUMENT", detail)
     }
 
     /// 413 `payload_too_large`.
     pub fn too_large(limit: u64) -> Self {
         Self::new(
             StatusCode::PAYLOAD_TOO_LARGE,
-            "payload_too_large",
+            "PAYLOAD_TOO_LARGE",
             format!("the request body exceeds the limit of {limit} bytes"),
         )
-    }
-
-    /// The status for a resource-exhausted error that answers an upload: its bytes, voxels or
-    /// the memory they need are too large (413), rather than a quota of the server (429).
-    pub fn for_upload(mut self) -> Self {
-        if self.status == StatusCode::TOO_MANY_REQUESTS.as_u16() {
-            self.status = StatusCode::PAYLOAD_TOO_LARGE.as_u16();
-            self.title = "Payload Too Large".to_owned();
-        }
-        self
     }
 }
 
@@ -90,7 +80,11 @@ fn status_of(kind: ErrorKind) -> StatusCode {
 
 impl From<SessionError> for Problem {
     fn from(e: SessionError) -> Self {
-        let status = status_of(e.kind());
+        let status = if e.is_payload_too_large() {
+            StatusCode::PAYLOAD_TOO_LARGE
+        } else {
+            status_of(e.kind())
+        };
         if status.is_server_error() {
             tracing::error!(code = e.code(), error = %e, "operation failed");
         }

@@ -61,18 +61,18 @@ async fn session_crud_and_unknown_ids() {
     assert_eq!(del.status, StatusCode::NO_CONTENT);
     get(s.addr, &format!("/v1/sessions/{id}"))
         .await
-        .problem(404, "unknown_session");
+        .problem(404, "SESSION_NOT_FOUND");
     get(s.addr, "/v1/sessions/nope/volumes")
         .await
-        .problem(404, "unknown_session");
-    get(s.addr, "/v1/nothing").await.problem(404, "no_route");
+        .problem(404, "SESSION_NOT_FOUND");
+    get(s.addr, "/v1/nothing").await.problem(404, "NO_ROUTE");
     send(s.addr, request("PATCH", "/v1/sessions", Body::empty()))
         .await
-        .problem(405, "method_not_allowed");
+        .problem(405, "METHOD_NOT_ALLOWED");
     // Bad input of the operation layer: an empty display name.
     post_json(s.addr, "/v1/sessions", &json!({"display_name": ""}))
         .await
-        .problem(400, "invalid_argument");
+        .problem(400, "INVALID_ARGUMENT");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -84,25 +84,25 @@ async fn malformed_json_and_bad_queries_are_problems() {
             .map(|_| Body::from("{\"display_name\":")),
     )
     .await;
-    let p = a.problem(400, "invalid_argument");
+    let p = a.problem(400, "INVALID_ARGUMENT");
     assert!(
         p["detail"].as_str().unwrap().contains("request body"),
         "{p}"
     );
     post_json(s.addr, "/v1/sessions", &json!({"name": 3}))
         .await
-        .problem(400, "invalid_argument");
+        .problem(400, "INVALID_ARGUMENT");
     let id = create_session(s.addr, "Q").await;
     get(s.addr, &format!("/v1/sessions/{id}/watch?since_seq=abc"))
         .await
-        .problem(400, "invalid_argument");
+        .problem(400, "INVALID_ARGUMENT");
     get(s.addr, &format!("/v1/sessions/{id}/models/x?format=gif"))
         .await
-        .problem(400, "invalid_argument");
+        .problem(400, "INVALID_ARGUMENT");
     // No label map yet: failed precondition.
     get(s.addr, &format!("/v1/sessions/{id}/volumes"))
         .await
-        .problem(409, "failed_precondition");
+        .problem(409, "NO_LABEL_MAP");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -117,7 +117,7 @@ async fn raw_and_file_label_maps_upload() {
     short.pop();
     let p = send(s.addr, request("PUT", &url(&raw_query(&labels)), short))
         .await
-        .problem(400, "invalid_argument");
+        .problem(400, "BAD_LABEL_MAP");
     assert!(p["detail"].as_str().unwrap().contains("bytes"), "{p}");
     // Missing geometry, bad numbers, NaN spacing, bad roles: 400 before the body matters.
     for q in [
@@ -127,7 +127,7 @@ async fn raw_and_file_label_maps_upload() {
         format!("{}&roles=%7Bnope", raw_query(&labels)),
     ] {
         let a = send(s.addr, request("PUT", &url(&q), raw_bytes(&labels))).await;
-        a.problem(400, "invalid_argument");
+        a.problem(400, "INVALID_ARGUMENT");
     }
     let info = get(s.addr, &format!("/v1/sessions/{id}")).await.json();
     assert_eq!(
@@ -172,7 +172,7 @@ async fn raw_and_file_label_maps_upload() {
     assert_eq!(plan_version(s.addr, &id).await, 2);
     send(s.addr, request("PUT", &url("format=nifti"), "not an image"))
         .await
-        .problem(400, "invalid_argument");
+        .problem(400, "BAD_LABEL_MAP");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -204,7 +204,7 @@ async fn oversized_bodies_are_refused_while_streaming() {
     let a = tokio::time::timeout(Duration::from_secs(10), send(s.addr, req))
         .await
         .expect("refused before the body arrives");
-    let p = a.problem(413, "payload_too_large");
+    let p = a.problem(413, "PAYLOAD_TOO_LARGE");
     assert!(p["detail"].as_str().unwrap().contains(&limit.to_string()));
 
     // A chunked body is refused as soon as it passes the limit, although it has not ended.
@@ -215,7 +215,7 @@ async fn oversized_bodies_are_refused_while_streaming() {
     tokio::time::timeout(Duration::from_secs(10), send(s.addr, req))
         .await
         .expect("refused before the body ends")
-        .problem(413, "payload_too_large");
+        .problem(413, "PAYLOAD_TOO_LARGE");
 
     // A client that keeps sending is not read to its end. (Without a lingering close it may see
     // the connection reset instead of the 413, as with any server that stops reading.)
@@ -235,7 +235,7 @@ async fn oversized_bodies_are_refused_while_streaming() {
     let big = json!({"display_name": "x".repeat(2000)});
     post_json(s.addr, "/v1/sessions", &big)
         .await
-        .problem(413, "payload_too_large");
+        .problem(413, "PAYLOAD_TOO_LARGE");
     assert_eq!(plan_version(s.addr, &id).await, 0);
 
     // Quotas: an upload beyond the voxel quota is too large (413); one session too many is 429.
@@ -243,10 +243,10 @@ async fn oversized_bodies_are_refused_while_streaming() {
     let q = format!("/v1/sessions/{id}/label-map?{}", raw_query(&labels));
     send(s.addr, request("PUT", &q, raw_bytes(&labels)))
         .await
-        .problem(413, "quota_exceeded");
+        .problem(413, "VOXEL_QUOTA");
     post_json(s.addr, "/v1/sessions", &json!({"display_name": "Second"}))
         .await
-        .problem(429, "quota_exceeded");
+        .problem(429, "SESSION_QUOTA");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -262,7 +262,7 @@ async fn reconstruction_streams_progress_models_and_done() {
         ),
     )
     .await
-    .problem(409, "failed_precondition");
+    .problem(409, "NO_LABEL_MAP");
     let id = loaded_session(s.addr).await;
     let res = send_raw(
         s.addr,
@@ -307,7 +307,7 @@ async fn reconstruction_streams_progress_models_and_done() {
     assert!(!mesh.triangles().is_empty());
     get(s.addr, &format!("/v1/sessions/{id}/models/nothing"))
         .await
-        .problem(404, "not_found");
+        .problem(404, "MODEL_NOT_FOUND");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -335,7 +335,8 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         String::from_utf8_lossy(&out.body)
     );
     assert_eq!(out.json()["plan_version"], 2);
-    assert_eq!(out.json()["resection"], "r1");
+    assert_eq!(out.json()["resections"][0]["resection"]["name"], "r1");
+    assert_eq!(out.json()["removed"], json!([]));
     let e = next_delta(&mut w).await;
     let mut last: u64 = e.id.as_deref().unwrap().parse().unwrap();
     assert!(last > first);
@@ -412,7 +413,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         &drag_edit(2, json!([-9.0, 5.0, 4.0])),
     )
     .await
-    .problem(409, "stale_version");
+    .problem(409, "STALE_VERSION");
     assert_eq!(p["current_version"], 3);
 
     // NaN cannot travel as a JSON number; as a string, an over-large number or an index out of
@@ -423,7 +424,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     ] {
         post_json(s.addr, &format!("/v1/sessions/{id}/edits"), &edit)
             .await
-            .problem(400, "invalid_argument");
+            .problem(400, "INVALID_ARGUMENT");
     }
     let huge = r#"{"base_version":3,"edit":{"op":"event","event":{"op":"set_control_point","name":"r1","i":1,"j":2,"point":[1e999,0,0]}}}"#;
     let a = send(
@@ -431,21 +432,22 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         request("POST", &format!("/v1/sessions/{id}/edits"), huge),
     )
     .await;
-    a.problem(400, "invalid_argument");
+    a.problem(400, "INVALID_ARGUMENT");
     post_json(
         s.addr,
         &format!("/v1/sessions/{id}/edits"),
         &json!({"edit": {"op": "event", "event": {"op": "translate", "name": "nope", "delta": [1.0, 0.0, 0.0]}}}),
     )
     .await
-    .problem(404, "not_found");
+    .problem(404, "RESECTION_NOT_FOUND");
     assert_eq!(plan_version(s.addr, &id).await, 3);
 
     // Volumes, slices, plan export and import.
     let v = get(s.addr, &format!("/v1/sessions/{id}/volumes"))
         .await
         .json();
-    assert_eq!(v["complete"], true);
+    assert_eq!(v["plan_version"], 3);
+    assert_eq!(v["volumes"]["complete"], true);
     let sl = get(
         s.addr,
         &format!("/v1/sessions/{id}/slices?resection=r1&axial=0&coronal=0"),
@@ -485,7 +487,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         ),
     )
     .await
-    .problem(409, "stale_version");
+    .problem(409, "STALE_VERSION");
     send(
         s.addr,
         request(
@@ -495,7 +497,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         ),
     )
     .await
-    .problem(400, "invalid_argument");
+    .problem(400, "BAD_PLAN");
 
     // Deleting the session ends the watch stream.
     send(
@@ -539,7 +541,7 @@ async fn tokens_and_api_versions_are_checked() {
         r
     };
     let missing = get(s.addr, "/v1/sessions").await;
-    missing.problem(401, "unauthenticated");
+    missing.problem(401, "UNAUTHENTICATED");
     assert!(
         missing.headers["www-authenticate"]
             .to_str()
@@ -555,7 +557,7 @@ async fn tokens_and_api_versions_are_checked() {
         ),
     )
     .await;
-    wrong.problem(401, "unauthenticated");
+    wrong.problem(401, "UNAUTHENTICATED");
     let good = format!("Bearer {TOKEN}");
     let ok = send(
         s.addr,
@@ -576,7 +578,7 @@ async fn tokens_and_api_versions_are_checked() {
         ),
     )
     .await
-    .problem(400, "version_mismatch");
+    .problem(400, "API_VERSION_MISMATCH");
     let detail = p["detail"].as_str().unwrap();
     assert!(detail.contains("v2") && detail.contains("v1"), "{detail}");
     // Open routes.
@@ -626,7 +628,7 @@ async fn metrics_are_served_when_rendered() {
     assert!(a.content_type().starts_with("text/plain"));
     assert_eq!(a.body, "resecta_up 1\n");
     let s = open_server().await;
-    get(s.addr, "/metrics").await.problem(404, "no_route");
+    get(s.addr, "/metrics").await.problem(404, "NO_ROUTE");
 }
 
 /// Requests are counted per matched route (never the raw path) and status, as the server
@@ -647,8 +649,8 @@ async fn requests_are_counted_by_route_and_status() {
     .await;
     get(s.addr, "/v1/sessions/abc")
         .await
-        .problem(404, "unknown_session");
-    get(s.addr, "/v1/elsewhere").await.problem(404, "no_route");
+        .problem(404, "SESSION_NOT_FOUND");
+    get(s.addr, "/v1/elsewhere").await.problem(404, "NO_ROUTE");
     let text = String::from_utf8(get(s.addr, "/metrics").await.body.to_vec()).unwrap();
     for line in [
         r#"resecta_http_requests_total{route="/v1/sessions/{id}",status="404"} "#,
@@ -738,7 +740,7 @@ async fn the_openapi_document_matches_the_router() {
             Value::Null
         };
         assert!(
-            code != "no_route" && code != "method_not_allowed",
+            code != "NO_ROUTE" && code != "METHOD_NOT_ALLOWED",
             "{method} {path}: {code}"
         );
     }

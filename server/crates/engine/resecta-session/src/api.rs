@@ -155,9 +155,24 @@ fn default_grid() -> [usize; 2] {
 #[derive(Debug, Clone, Serialize)]
 pub struct EditOutcome {
     pub plan_version: u64,
-    /// The resection the change touched, if it still exists.
-    pub resection: Option<String>,
+    /// Resections the change added or changed, with their parameters and verdicts now.
+    pub resections: Vec<ResectionStatus>,
+    /// Resections the change deleted.
+    pub removed: Vec<String>,
+}
+
+/// A resection's parameters and margin verdict.
+#[derive(Debug, Clone, Serialize)]
+pub struct ResectionStatus {
+    pub resection: Resection,
     pub verdict: Option<Verdict>,
+}
+
+/// A value read from a session with the plan version it belongs to.
+#[derive(Debug, Clone)]
+pub struct Versioned<T> {
+    pub plan_version: u64,
+    pub value: T,
 }
 
 /// Surface models of one reconstruction.

@@ -24,6 +24,28 @@ pub enum ErrorKind {
     Internal,
 }
 
+/// Which quota a request would exceed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Quota {
+    /// Sessions held by the server.
+    Sessions,
+    /// Voxels of one label map.
+    Voxels,
+    /// Bytes of one upload.
+    UploadBytes,
+    /// Memory of the loaded sessions together.
+    Memory,
+}
+
+/// What a session lacks for an operation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Missing {
+    LabelMap,
+    Models,
+    /// Anything else (the message says what).
+    Other,
+}
+
 /// An operation-layer error.
 #[derive(Debug, thiserror::Error)]
 pub enum SessionError {
@@ -31,14 +53,17 @@ pub enum SessionError {
     UnknownSession(String),
     #[error("{0}")]
     Invalid(String),
+    /// An uploaded label map that cannot be read or does not match its geometry.
     #[error("{0}")]
-    NotFound(String),
+    BadLabelMap(String),
+    #[error("no model or resection {0:?}")]
+    ModelNotFound(String),
     #[error("the edit was made against plan version {base}, but the plan is at version {current}")]
     StaleVersion { base: u64, current: u64 },
-    #[error("{0}")]
-    Precondition(String),
-    #[error("{0}")]
-    Quota(String),
+    #[error("{1}")]
+    Precondition(Missing, String),
+    #[error("{1}")]
+    Quota(Quota, String),
     #[error("cancelled")]
     Cancelled,
     #[error("plan: {0}")]
@@ -52,11 +77,11 @@ pub enum SessionError {
 impl SessionError {
     pub fn kind(&self) -> ErrorKind {
         match self {
-            Self::UnknownSession(_) | Self::NotFound(_) => ErrorKind::NotFound,
-            Self::Invalid(_) => ErrorKind::InvalidArgument,
+            Self::UnknownSession(_) | Self::ModelNotFound(_) => ErrorKind::NotFound,
+            Self::Invalid(_) | Self::BadLabelMap(_) => ErrorKind::InvalidArgument,
             Self::StaleVersion { .. } => ErrorKind::Conflict,
-            Self::Precondition(_) => ErrorKind::FailedPrecondition,
-            Self::Quota(_) => ErrorKind::ResourceExhausted,
+            Self::Precondition(..) => ErrorKind::FailedPrecondition,
+            Self::Quota(..) => ErrorKind::ResourceExhausted,
             Self::Cancelled => ErrorKind::Cancelled,
             Self::Plan(e) => plan_kind(e),
             Self::Store(e) => match e {
@@ -71,26 +96,50 @@ impl SessionError {
         }
     }
 
-    /// A short machine-readable code (`resecta.v1.ErrorInfo.code`, problem `type`).
+    /// The stable machine-readable code both faces send (`resecta.v1.ErrorInfo.code`, the
+    /// problem's `code`); the table is in proto/README.md.
     pub fn code(&self) -> &'static str {
         match self {
-            Self::UnknownSession(_) => "unknown_session",
-            Self::Invalid(_) => "invalid_argument",
-            Self::NotFound(_) => "not_found",
-            Self::StaleVersion { .. } => "stale_version",
-            Self::Precondition(_) => "failed_precondition",
-            Self::Quota(_) => "quota_exceeded",
-            Self::Cancelled => "cancelled",
-            Self::Plan(e) => match plan_kind(e) {
-                ErrorKind::NotFound => "not_found",
-                ErrorKind::FailedPrecondition => "failed_precondition",
-                ErrorKind::ResourceExhausted => "quota_exceeded",
-                ErrorKind::Internal => "internal",
-                _ => "invalid_argument",
+            Self::UnknownSession(_) => "SESSION_NOT_FOUND",
+            Self::ModelNotFound(_) => "MODEL_NOT_FOUND",
+            Self::Invalid(_) => "INVALID_ARGUMENT",
+            Self::BadLabelMap(_) => "BAD_LABEL_MAP",
+            Self::StaleVersion { .. } => "STALE_VERSION",
+            Self::Precondition(Missing::LabelMap, _) => "NO_LABEL_MAP",
+            Self::Precondition(Missing::Models, _) => "MODELS_NOT_BUILT",
+            Self::Precondition(Missing::Other, _) => "FAILED_PRECONDITION",
+            Self::Quota(Quota::Sessions, _) => "SESSION_QUOTA",
+            Self::Quota(Quota::Voxels, _) => "VOXEL_QUOTA",
+            Self::Quota(Quota::UploadBytes, _) => "UPLOAD_TOO_LARGE",
+            Self::Quota(Quota::Memory, _) => "MEMORY_QUOTA",
+            Self::Cancelled => "CANCELLED",
+            Self::Plan(e) => match e {
+                PlanError::UnknownResection(_) => "RESECTION_NOT_FOUND",
+                PlanError::NothingToUndo => "NOTHING_TO_UNDO",
+                PlanError::NothingToRedo => "NOTHING_TO_REDO",
+                PlanError::Json(_) | PlanError::Format(_) => "BAD_PLAN",
+                PlanError::HistoryFull(_) | PlanError::TooManyResections(_) => "PLAN_QUOTA",
+                e if plan_kind(e) == ErrorKind::Internal => "INTERNAL",
+                _ => "INVALID_ARGUMENT",
             },
-            Self::Store(_) => "storage",
-            Self::Internal(_) => "internal",
+            Self::Store(e) => match e {
+                StoreError::NotFound { .. } => "SESSION_NOT_FOUND",
+                StoreError::Conflict { .. } => "STALE_VERSION",
+                StoreError::TooLarge { .. } => "UPLOAD_TOO_LARGE",
+                _ => "STORAGE",
+            },
+            Self::Internal(_) => "INTERNAL",
         }
+    }
+
+    /// Whether the request's payload is what is too large (an upload's bytes, voxels or the
+    /// memory they need) rather than a quota of the server (sessions, plan size).
+    pub fn is_payload_too_large(&self) -> bool {
+        matches!(
+            self,
+            Self::Quota(Quota::Voxels | Quota::UploadBytes | Quota::Memory, _)
+                | Self::Store(StoreError::TooLarge { .. })
+        )
     }
 }
 

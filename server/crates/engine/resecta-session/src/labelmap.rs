@@ -6,13 +6,13 @@ use resecta_io::{metaimage, nifti, nrrd};
 use serde::{Deserialize, Serialize};
 
 use crate::api::{DataType, FileFormat, LabelMapSource, LabelMapSummary, RawLabelMap};
-use crate::error::{Result, SessionError};
+use crate::error::{Quota, Result, SessionError};
 
 /// Name used in errors for uploaded files (never the client's file name: patient data).
 const UPLOAD: &str = "uploaded label map";
 
 fn invalid(m: impl Into<String>) -> SessionError {
-    SessionError::Invalid(m.into())
+    SessionError::BadLabelMap(m.into())
 }
 
 /// The label map of an upload, checked against `max_voxels`.
@@ -42,7 +42,9 @@ fn grid(
         limit,
     )
     .map_err(|e| match e {
-        resecta_geom::GeomError::TooManyVoxels { .. } => SessionError::Quota(e.to_string()),
+        resecta_geom::GeomError::TooManyVoxels { .. } => {
+            SessionError::Quota(Quota::Voxels, e.to_string())
+        }
         _ => invalid(format!("label-map geometry: {e}")),
     })
 }
@@ -125,7 +127,7 @@ fn from_file(format: FileFormat, bytes: &[u8], limit: VoxelLimit) -> Result<Labe
     };
     let io = |e: resecta_io::IoError| match &e.kind {
         resecta_io::ErrorKind::Geometry(resecta_geom::GeomError::TooManyVoxels { .. }) => {
-            SessionError::Quota(e.to_string())
+            SessionError::Quota(Quota::Voxels, e.to_string())
         }
         _ => invalid(e.to_string()),
     };

@@ -10,6 +10,6 @@ mod labelmap;
 mod service;
 mod watch;
 
-pub use error::{ErrorKind, Result, SessionError};
+pub use error::{ErrorKind, Missing, Quota, Result, SessionError};
 pub use service::{Service, ServiceConfig};
 pub use watch::{RingBounds, WatchStream};

@@ -27,9 +27,10 @@ use tokio::sync::{Mutex as AsyncMutex, mpsc};
 
 use crate::api::{
     API_VERSION, EditOp, EditOutcome, LabelMapSource, LabelMapSummary, Limits, ModelInfo,
-    ReconstructEvent, ServerInfo, SessionInfo, SessionState, Surface, SurfaceKind,
+    ReconstructEvent, ResectionStatus, ServerInfo, SessionInfo, SessionState, Surface, SurfaceKind,
+    Versioned,
 };
-use crate::error::{Result, SessionError};
+use crate::error::{Missing, Quota, Result, SessionError};
 use crate::labelmap;
 use crate::watch::{Hub, RingBounds, WatchStream};
 
@@ -102,6 +103,10 @@ fn now_ms() -> i64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
         .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+}
+
+fn no_label_map() -> SessionError {
+    SessionError::Precondition(Missing::LabelMap, "the session has no label map".into())
 }
 
 fn internal(e: impl std::fmt::Display) -> SessionError {
@@ -314,10 +319,10 @@ impl Service {
         blocking(move || {
             let usage = store.usage()?;
             if usage.sessions >= max as u64 {
-                return Err(SessionError::Quota(format!(
-                    "the server holds {} sessions, its limit",
-                    usage.sessions
-                )));
+                return Err(SessionError::Quota(
+                    Quota::Sessions,
+                    format!("the server holds {} sessions, its limit", usage.sessions),
+                ));
             }
             Ok(store.create_session(&stored)?)
         })
@@ -538,10 +543,13 @@ impl Service {
             LabelMapSource::File { bytes, .. } => bytes.len(),
         } as u64;
         if bytes > self.config.max_upload_bytes {
-            return Err(SessionError::Quota(format!(
-                "upload of {bytes} bytes exceeds the limit of {} bytes",
-                self.config.max_upload_bytes
-            )));
+            return Err(SessionError::Quota(
+                Quota::UploadBytes,
+                format!(
+                    "upload of {bytes} bytes exceeds the limit of {} bytes",
+                    self.config.max_upload_bytes
+                ),
+            ));
         }
         let (s, mut st) = self.open(id).await?;
         let max_voxels = self.config.max_voxels;
@@ -549,12 +557,15 @@ impl Service {
         let need = labels.data().len() as u64 * BYTES_PER_VOXEL;
         let others = self.memory_in_use()? - s.memory.load(Ordering::Relaxed);
         if others + need > self.config.max_memory_bytes {
-            return Err(SessionError::Quota(format!(
-                "a label map of {} voxels needs about {need} bytes; {} of the server's {} are in use",
-                labels.data().len(),
-                others,
-                self.config.max_memory_bytes
-            )));
+            return Err(SessionError::Quota(
+                Quota::Memory,
+                format!(
+                    "a label map of {} voxels needs about {need} bytes; {} of the server's {} are in use",
+                    labels.data().len(),
+                    others,
+                    self.config.max_memory_bytes
+                ),
+            ));
         }
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
@@ -603,10 +614,7 @@ impl Service {
         id: &str,
     ) -> Result<mpsc::Receiver<Result<ReconstructEvent>>> {
         let (s, st) = self.open(id).await?;
-        let loaded = st
-            .loaded
-            .as_ref()
-            .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))?;
+        let loaded = st.loaded.as_ref().ok_or_else(no_label_map)?;
         let labels = Arc::clone(&loaded.labels);
         let roles = loaded.summary.roles.clone();
         let generation = loaded.generation;
@@ -638,7 +646,7 @@ impl Service {
                 )
                 .map_err(|e| match e {
                     ReconError::Cancelled => SessionError::Cancelled,
-                    e => SessionError::Precondition(format!("reconstruction: {e}")),
+                    e => SessionError::Precondition(Missing::Other, format!("reconstruction: {e}")),
                 })
             })
             .await;
@@ -701,6 +709,7 @@ impl Service {
         let mut st = s.state.lock().await;
         if st.generation != generation || st.loaded.is_none() {
             return Err(SessionError::Precondition(
+                Missing::Other,
                 "the label map changed during the reconstruction".into(),
             ));
         }
@@ -736,10 +745,7 @@ impl Service {
             });
         }
         let version = st.version;
-        let loaded = st
-            .loaded
-            .as_mut()
-            .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))?;
+        let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
         let mut planner = take_planner(loaded)?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
@@ -749,7 +755,7 @@ impl Service {
         })
         .await
         .map_err(internal)?;
-        let (new_version, name, changed) = match result {
+        let (new_version, changed) = match result {
             Ok(r) => r,
             Err(e) => {
                 loaded.planner = Some(planner);
@@ -758,20 +764,26 @@ impl Service {
         };
         s.hub
             .publish_edit(new_version, planner.plan(), planner.states(), &changed)?;
-        let verdict = name
-            .as_ref()
-            .and_then(|n| planner.state(n).ok())
-            .map(|state| state.verdict.clone());
+        let mut outcome = EditOutcome {
+            plan_version: new_version,
+            resections: Vec::new(),
+            removed: Vec::new(),
+        };
+        for name in changed {
+            match planner.plan().resection(&name) {
+                Ok(r) => outcome.resections.push(ResectionStatus {
+                    resection: r.clone(),
+                    verdict: planner.state(&name).ok().map(|s| s.verdict.clone()),
+                }),
+                Err(_) => outcome.removed.push(name),
+            }
+        }
         loaded.planner = Some(planner);
         st.version = new_version;
         drop(st);
         self.schedule_volumes(&s);
         metrics::histogram!("resecta_edit_seconds").record(started.elapsed().as_secs_f64());
-        Ok(EditOutcome {
-            plan_version: new_version,
-            resection: name,
-            verdict,
-        })
+        Ok(outcome)
     }
 
     /// Recomputes the volumes shortly after the last edit of a burst and publishes them.
@@ -801,21 +813,29 @@ impl Service {
         });
     }
 
-    pub async fn volumes(&self, id: &str) -> Result<VolumeReport> {
+    /// The current plan's volumes with the plan version they belong to.
+    pub async fn volumes(&self, id: &str) -> Result<Versioned<VolumeReport>> {
         let (_, mut st) = self.open(id).await?;
-        compute_volumes(&mut st)
-            .await?
-            .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))
+        let value = compute_volumes(&mut st).await?.ok_or_else(no_label_map)?;
+        Ok(Versioned {
+            plan_version: st.version,
+            value,
+        })
     }
 
-    pub async fn export_plan(&self, id: &str) -> Result<String> {
+    /// The current plan as a `resecta-plan/1` document, with its plan version.
+    pub async fn export_plan(&self, id: &str) -> Result<Versioned<String>> {
         let (_, mut st) = self.open(id).await?;
+        let plan_version = st.version;
         let loaded = loaded_mut(&mut st)?;
         let planner = loaded
             .planner
             .as_ref()
             .ok_or_else(|| internal("session planner is busy"))?;
-        Ok(planner.plan().to_json()?)
+        Ok(Versioned {
+            plan_version,
+            value: planner.plan().to_json()?,
+        })
     }
 
     /// Replaces the plan by a `resecta-plan/1` document (its roles must be the label map's).
@@ -877,7 +897,7 @@ impl Service {
                     .ok_or_else(|| internal("session planner is busy"))?;
                 planner
                     .state(name)
-                    .map_err(|_| SessionError::NotFound(format!("no model or resection {name:?}")))?
+                    .map_err(|_| SessionError::ModelNotFound(name.to_owned()))?
                     .mesh()?
             }
         };
@@ -913,9 +933,7 @@ impl Service {
 }
 
 fn loaded_mut(st: &mut State) -> Result<&mut Loaded> {
-    st.loaded
-        .as_mut()
-        .ok_or_else(|| SessionError::Precondition("the session has no label map".into()))
+    st.loaded.as_mut().ok_or_else(no_label_map)
 }
 
 /// Volumes of the current plan (`None` without a label map), on the blocking pool.
@@ -935,20 +953,19 @@ async fn compute_volumes(st: &mut State) -> Result<Option<VolumeReport>> {
 }
 
 /// Applies `op`, then makes its record durable; on a storage failure the planner is rebuilt
-/// to the state before. Returns the new version, the resection touched and the changed names.
+/// to the state before. Returns the new version and the names of the changed resections.
 fn apply_edit(
     planner: &mut Planner,
     store: &dyn SessionStore,
     id: &str,
     version: u64,
     op: EditOp,
-) -> Result<(u64, Option<String>, Vec<String>)> {
+) -> Result<(u64, Vec<String>)> {
     let before = planner.plan().clone();
-    let (entry, name) = match op {
+    let entry = match op {
         EditOp::Event { event } => {
-            let name = event.resection_name().to_owned();
             planner.edit(event.clone())?;
-            (LogEntry::Edit { event }, Some(name))
+            LogEntry::Edit { event }
         }
         EditOp::InitFromEndPoint {
             name,
@@ -959,7 +976,7 @@ fn apply_edit(
             let (r, _) = planner.initial_resection(&name, &target, Vec3::from(end_point), grid)?;
             let event = PlanEvent::AddResection { resection: r };
             planner.edit(event.clone())?;
-            (LogEntry::Edit { event }, Some(name))
+            LogEntry::Edit { event }
         }
         EditOp::InitFromPlane {
             name,
@@ -973,22 +990,21 @@ fn apply_edit(
             let (r, _) = planner.initial_on_plane(&name, &target, &plane, grid)?;
             let event = PlanEvent::AddResection { resection: r };
             planner.edit(event.clone())?;
-            (LogEntry::Edit { event }, Some(name))
+            LogEntry::Edit { event }
         }
         EditOp::Undo => {
             planner.undo()?;
-            (LogEntry::Undo, None)
+            LogEntry::Undo
         }
         EditOp::Redo => {
             planner.redo()?;
-            (LogEntry::Redo, None)
+            LogEntry::Redo
         }
     };
     let changed = changed_names(&before, planner.plan());
-    let name = name.or_else(|| changed.first().cloned());
     let record = serde_json::to_string(&Record::Entry { entry }).map_err(internal)?;
     match store.append(id, version, &[record]) {
-        Ok(v) => Ok((v, name, changed)),
+        Ok(v) => Ok((v, changed)),
         Err(e) => {
             let h = planner.history();
             let log = h.log();

@@ -106,8 +106,13 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     // New resection: a whole mesh in the delta, with its verdict.
     let out = service.edit(&id, 1, init_op()).await.unwrap();
     assert_eq!(out.plan_version, 2);
-    assert_eq!(out.resection.as_deref(), Some("r1"));
-    let verdict = out.verdict.unwrap();
+    assert!(out.removed.is_empty());
+    let [status] = &out.resections[..] else {
+        panic!("one resection changed: {:?}", out.resections)
+    };
+    assert_eq!(status.resection.name, "r1");
+    assert_eq!(status.resection.control_points.len(), 16);
+    let verdict = status.verdict.clone().unwrap();
     assert!(verdict.min_margin_mm.is_some());
     let e = next(&mut w).await;
     assert_eq!(e.plan_version, 2);
@@ -159,6 +164,7 @@ async fn workflow(store: Arc<dyn SessionStore>) {
         .await
         .unwrap_err();
     assert_eq!(stale.kind(), ErrorKind::Conflict);
+    assert_eq!(stale.code(), "STALE_VERSION");
     let nan = service
         .edit(&id, 3, drag([f64::NAN, 0.0, 0.0]))
         .await
@@ -172,6 +178,7 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     };
     let e404 = service.edit(&id, 3, unknown).await.unwrap_err();
     assert_eq!(e404.kind(), ErrorKind::NotFound);
+    assert_eq!(e404.code(), "RESECTION_NOT_FOUND");
     assert_eq!(service.get_session(&id).await.unwrap().plan_version, 3);
 
     // Undo and redo are versions too and come back to identical surfaces.
@@ -181,7 +188,9 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     assert_eq!(snapshot_frame(&*next(&mut after).await, "r1"), frame);
 
     // Volumes: the cap beyond the plane is resected, the cut is complete; a Volumes event follows.
-    let v = service.volumes(&id).await.unwrap();
+    let versioned = service.volumes(&id).await.unwrap();
+    assert_eq!(versioned.plan_version, 5);
+    let v = versioned.value;
     assert!(v.complete);
     let (resected, remnant) = (v.resected_ml.unwrap(), v.remnant_ml.unwrap());
     assert!((resected + remnant - v.total_ml).abs() < 1e-6 * v.total_ml);
@@ -198,11 +207,13 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     assert!(saw_volumes);
 
     // Plan export and import round-trip.
-    let plan = service.export_plan(&id).await.unwrap();
+    let exported = service.export_plan(&id).await.unwrap();
+    assert_eq!(exported.plan_version, 5);
+    let plan = exported.value;
     assert!(plan.contains("resecta-plan/1"));
     let v6 = service.import_plan(&id, &plan, 5).await.unwrap();
     assert_eq!(v6, 6);
-    assert_eq!(service.export_plan(&id).await.unwrap(), plan);
+    assert_eq!(service.export_plan(&id).await.unwrap().value, plan);
     let bad = service
         .import_plan(&id, "{\"format\":\"x\"}", 0)
         .await
@@ -258,7 +269,7 @@ async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
         service.edit(&id, 0, EditOp::Undo).await.unwrap();
         let mut w = service.watch(&id, None).await.unwrap();
         let snap = next(&mut w).await;
-        let plan = service.export_plan(&id).await.unwrap();
+        let plan = service.export_plan(&id).await.unwrap().value;
         (id, plan, snapshot_frame(&snap, "r1"), snap.plan_version)
     };
     let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
@@ -267,7 +278,7 @@ async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
     assert_eq!(listed.len(), 1);
     assert_eq!(listed[0].plan_version, version);
     assert_eq!(listed[0].state, SessionState::LabelMap);
-    assert_eq!(service.export_plan(&id).await.unwrap(), plan);
+    assert_eq!(service.export_plan(&id).await.unwrap().value, plan);
     let mut w = service.watch(&id, None).await.unwrap();
     assert_eq!(snapshot_frame(&*next(&mut w).await, "r1"), frame);
     // Redo survives the restart (the undone edit is still in the log).
@@ -390,6 +401,8 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
     service.create_session("Second").await.unwrap();
     let third = service.create_session("Third").await.unwrap_err();
     assert_eq!(third.kind(), ErrorKind::ResourceExhausted);
+    assert_eq!(third.code(), "SESSION_QUOTA");
+    assert!(!third.is_payload_too_large());
 
     let labels = phantom();
     let mut short = raw(&labels);
@@ -399,6 +412,7 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
         .await
         .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::InvalidArgument);
+    assert_eq!(e.code(), "BAD_LABEL_MAP");
     assert!(e.to_string().contains("bytes"), "{e}");
     let mut big = raw(&labels);
     big.dims = [100, 100, 11];
@@ -408,6 +422,8 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
         .await
         .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::ResourceExhausted);
+    assert_eq!(e.code(), "VOXEL_QUOTA");
+    assert!(e.is_payload_too_large());
     let mut nan = raw(&labels);
     nan.spacing[1] = f64::NAN;
     let e = service
@@ -435,6 +451,7 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
     assert_eq!((info.state, info.plan_version), (SessionState::Empty, 0));
     let e = service.edit(&id, 0, init_op()).await.unwrap_err();
     assert_eq!(e.kind(), ErrorKind::FailedPrecondition);
+    assert_eq!(e.code(), "NO_LABEL_MAP");
     assert_eq!(
         service.get_session("no-such-id").await.unwrap_err().kind(),
         ErrorKind::NotFound
