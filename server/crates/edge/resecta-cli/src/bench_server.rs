@@ -72,6 +72,10 @@ struct Latency {
     p90_ms: f64,
     p99_ms: f64,
     max_ms: f64,
+    /// CPU the server process and the benchmark client used during the scenario (cores, from
+    /// /proc: user + system time over wall time); absent where unreadable.
+    server_cores: Option<f64>,
+    client_cores: Option<f64>,
     #[serde(skip)]
     samples: Vec<f64>,
 }
@@ -80,8 +84,12 @@ struct Latency {
 struct Upload {
     dims: [u32; 3],
     bytes: u64,
+    /// Upload acknowledged (stored durably, summary answered).
     median_s: f64,
     runs_s: Vec<f64>,
+    /// Upload start to the first volumes answer: the planning set-up (liver envelope, tumour
+    /// models, distance structures) that follows the acknowledgement off the request path.
+    ready_median_s: f64,
 }
 
 #[derive(Debug, Serialize)]
@@ -465,7 +473,54 @@ fn latency(
         p90_ms: percentile(&samples, 0.90),
         p99_ms: percentile(&samples, 0.99),
         max_ms: samples.last().copied().unwrap_or(f64::NAN),
+        server_cores: None,
+        client_cores: None,
         samples,
+    }
+}
+
+/// User + system CPU seconds of a process (`self` or a pid), at Linux's 100 ticks per second.
+fn cpu_seconds(pid: &str) -> Option<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// CPU use of the server (`pid`) and this client from `start` to `finish`.
+struct Load {
+    pid: Option<u32>,
+    server: Option<f64>,
+    client: Option<f64>,
+    t: Instant,
+}
+
+impl Load {
+    fn server_now(pid: Option<u32>) -> Option<f64> {
+        pid.and_then(|p| cpu_seconds(&p.to_string()))
+    }
+
+    fn start(pid: Option<u32>) -> Self {
+        Self {
+            pid,
+            server: Self::server_now(pid),
+            client: cpu_seconds("self"),
+            t: Instant::now(),
+        }
+    }
+
+    fn finish(self, l: &mut Latency) {
+        let wall = self.t.elapsed().as_secs_f64();
+        l.server_cores = self
+            .server
+            .zip(Self::server_now(self.pid))
+            .map(|(a, b)| (b - a) / wall);
+        l.client_cores = self
+            .client
+            .zip(cpu_seconds("self"))
+            .map(|(a, b)| (b - a) / wall);
     }
 }
 
@@ -475,17 +530,21 @@ async fn single(
     map: &LabelMap,
     resolution: [u32; 2],
     edits: usize,
+    pid: Option<u32>,
 ) -> Result<Latency, CliError> {
     let mut s = planning_session(channel, token, map, resolution).await?;
     for k in 0..10 {
         s.timed_edit(k).await?; // warm-up
     }
+    let load = Load::start(pid);
     let mut samples = Vec::with_capacity(edits);
     for k in 0..edits {
         samples.push(s.timed_edit(k).await?);
     }
+    let mut l = latency("single session", resolution, 1, samples);
+    load.finish(&mut l);
     delete(channel, token, &s.id).await;
-    Ok(latency("single session", resolution, 1, samples))
+    Ok(l)
 }
 
 async fn concurrent(
@@ -494,6 +553,7 @@ async fn concurrent(
     map: &LabelMap,
     args: &ServerArgs,
     seconds: f64,
+    pid: Option<u32>,
 ) -> Result<Latency, CliError> {
     let mut sessions = Vec::with_capacity(args.sessions);
     for _ in 0..args.sessions {
@@ -502,6 +562,7 @@ async fn concurrent(
     let ids: Vec<String> = sessions.iter().map(|s| s.id.clone()).collect();
     let period = Duration::from_secs_f64(1.0 / args.rate.max(0.1));
     let count = (seconds * args.rate).ceil() as usize;
+    let load = Load::start(pid);
     let tasks: Vec<_> = sessions
         .into_iter()
         .enumerate()
@@ -527,10 +588,12 @@ async fn concurrent(
                 .map_err(|e| CliError::Failed(format!("session task: {e}")))??,
         );
     }
+    let mut l = latency("concurrent sessions", [40, 40], args.sessions, all);
+    load.finish(&mut l);
     for id in &ids {
         delete(channel, token, id).await;
     }
-    Ok(latency("concurrent sessions", [40, 40], args.sessions, all))
+    Ok(l)
 }
 
 async fn delete(channel: &Channel, token: Option<&str>, id: &str) {
@@ -574,6 +637,7 @@ async fn uploads(channel: &Channel, token: Option<&str>, runs: usize) -> Result<
     let mut client =
         PlanningServiceClient::new(channel.clone()).max_encoding_message_size(64 << 20);
     let mut times = Vec::new();
+    let mut ready = Vec::new();
     for _ in 0..runs.max(1) {
         let id = client
             .create_session(request(
@@ -591,14 +655,29 @@ async fn uploads(channel: &Channel, token: Option<&str>, runs: usize) -> Result<
         let t = Instant::now();
         upload(&mut client, token, &id, &map).await?;
         times.push(t.elapsed().as_secs_f64());
+        // Waits for the planning set-up, so that the next run does not share the cores with it.
+        client
+            .get_volumes(request(
+                pb::GetVolumesRequest {
+                    session_id: id.clone(),
+                },
+                token,
+            ))
+            .await
+            .map_err(failed("volumes after the upload"))?;
+        ready.push(t.elapsed().as_secs_f64());
         delete(channel, token, &id).await;
     }
-    let mut sorted = times.clone();
-    sorted.sort_by(f64::total_cmp);
+    let median = |v: &[f64]| {
+        let mut sorted = v.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        percentile(&sorted, 0.5)
+    };
     Ok(Upload {
         dims: [512, 512, 300],
         bytes: map.data.len() as u64,
-        median_s: percentile(&sorted, 0.5),
+        median_s: median(&times),
+        ready_median_s: median(&ready),
         runs_s: times,
     })
 }
@@ -704,12 +783,13 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         (args.edits, args.seconds)
     };
 
+    let pid = server.as_ref().map(|s| s.child.id());
     pb.set_message("single session, 40×40");
-    let s40 = single(&channel, token, &map, [40, 40], edits).await?;
+    let s40 = single(&channel, token, &map, [40, 40], edits, pid).await?;
     pb.set_message("single session, 200×200");
-    let s200 = single(&channel, token, &map, [200, 200], edits).await?;
+    let s200 = single(&channel, token, &map, [200, 200], edits, pid).await?;
     pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
-    let multi = concurrent(&channel, token, &map, args, seconds).await?;
+    let multi = concurrent(&channel, token, &map, args, seconds, pid).await?;
     let idle_session_bytes = match &server {
         Some(s) => {
             pb.set_message("idle sessions");

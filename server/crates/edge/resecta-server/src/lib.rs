@@ -14,6 +14,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
+use axum_server::accept::NoDelayAcceptor;
 use resecta_session::Service;
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
 use serde::Serialize;
@@ -95,7 +96,10 @@ pub async fn run(
             .map_err(|e| ServerError::Tls(e.to_string()))?;
     }
     let routes = resecta_grpc::grpc_routes(Arc::clone(&service), config.access.clone());
-    let incoming = tokio_stream::wrappers::TcpListenerStream::new(grpc_listener);
+    // Small messages (edit answers, deltas of small surfaces) must not wait for Nagle's delayed
+    // ACK: 40 ms per edit otherwise.
+    let incoming =
+        tonic::transport::server::TcpIncoming::from(grpc_listener).with_nodelay(Some(true));
     let grpc = tokio::spawn(
         builder
             .add_routes(routes)
@@ -125,8 +129,14 @@ pub async fn run(
     let app = router.into_make_service();
     let http = match &tls {
         Some(t) => {
-            let server = axum_server::from_tcp_rustls(std_listener, t.http.clone())
-                .map_err(|e| ServerError::Tls(e.to_string()))?
+            let tls = axum_server::tls_rustls::RustlsAcceptor::new(t.http.clone())
+                .acceptor(NoDelayAcceptor::new());
+            let server = axum_server::from_tcp(std_listener)
+                .map_err(|source| ServerError::Bind {
+                    addr: bound.http,
+                    source,
+                })?
+                .acceptor(tls)
                 .handle(handle.clone());
             tokio::spawn(async move { server.serve(app).await })
         }
@@ -136,6 +146,7 @@ pub async fn run(
                     addr: bound.http,
                     source,
                 })?
+                .acceptor(NoDelayAcceptor::new())
                 .handle(handle.clone());
             tokio::spawn(async move { server.serve(app).await })
         }

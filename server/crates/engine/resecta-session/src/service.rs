@@ -6,7 +6,7 @@
 //! or another session. An edit is acknowledged only after its log record is durable in the store;
 //! restarting replays the log to the same plan.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
@@ -48,8 +48,10 @@ pub struct ServiceConfig {
     pub idle_expiry: Option<Duration>,
     pub ring: RingBounds,
     pub encode: EncodeOptions,
-    /// Volumes are recomputed this long after the last edit of a burst.
+    /// Volumes are recomputed once edits pause this long ...
     pub volumes_delay: Duration,
+    /// ... or, during a continuous burst of edits (a drag), this long after its first edit.
+    pub volumes_max_interval: Duration,
     /// Depth of the parenchyma's screened Poisson reconstruction.
     pub psr_depth: u32,
     /// Capabilities reported by [`Service::info`] (the edges add theirs, e.g. "tls").
@@ -69,7 +71,8 @@ impl Default for ServiceConfig {
                 bytes: 64 << 20,
             },
             encode: EncodeOptions::exact(),
-            volumes_delay: Duration::from_millis(30),
+            volumes_delay: Duration::from_millis(150),
+            volumes_max_interval: Duration::from_secs(1),
             psr_depth: 7,
             capabilities: Vec::new(),
         }
@@ -129,8 +132,11 @@ struct Model {
 struct Loaded {
     labels: Arc<LabelMap>,
     summary: LabelMapSummary,
-    /// `None` only while a blocking task holds it.
+    /// `None` only while a blocking task holds it, or while `pending` builds it.
     planner: Option<Planner>,
+    /// The planner's set-up (anatomy: liver envelope, tumour models, distance structures) after
+    /// an upload, running on the blocking pool; the upload is acknowledged without waiting.
+    pending: Option<tokio::task::JoinHandle<Result<Planner>>>,
     /// Changes with every label-map load (reconstructions of an older one are dropped).
     generation: u64,
 }
@@ -155,6 +161,8 @@ struct Session {
     hub: Arc<Hub>,
     last_touch_ms: AtomicI64,
     volumes_scheduled: AtomicBool,
+    /// When the last edit was acknowledged (volume recomputation waits for a pause).
+    last_edit: Mutex<std::time::Instant>,
     memory: std::sync::atomic::AtomicU64,
 }
 
@@ -166,11 +174,44 @@ pub struct Service {
     sessions: Mutex<HashMap<String, Arc<Session>>>,
 }
 
-fn take_planner(loaded: &mut Loaded) -> Result<Planner> {
-    loaded
-        .planner
-        .take()
-        .ok_or_else(|| internal("session planner is busy or was lost"))
+impl Loaded {
+    /// Waits for a pending planner set-up (an error there is the operation's error, and comes
+    /// again on the next try: the set-up is retried).
+    async fn ready(&mut self) -> Result<&mut Planner> {
+        if let Some(pending) = self.pending.take() {
+            match pending.await.map_err(internal)? {
+                Ok(p) => self.planner = Some(p),
+                Err(e) => {
+                    let (labels, roles) = (Arc::clone(&self.labels), self.summary.roles.clone());
+                    self.pending = Some(spawn_planner(labels, roles));
+                    return Err(e);
+                }
+            }
+        }
+        self.planner
+            .as_mut()
+            .ok_or_else(|| internal("session planner is busy or was lost"))
+    }
+
+    async fn take_planner(&mut self) -> Result<Planner> {
+        self.ready().await?;
+        self.planner
+            .take()
+            .ok_or_else(|| internal("session planner is busy or was lost"))
+    }
+}
+
+/// Builds the anatomy and an empty plan's planner for `labels` on the blocking pool.
+fn spawn_planner(
+    labels: Arc<LabelMap>,
+    roles: RoleMap,
+) -> tokio::task::JoinHandle<Result<Planner>> {
+    tokio::task::spawn_blocking(move || {
+        let t = std::time::Instant::now();
+        let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
+        tracing::debug!(ms = t.elapsed().as_secs_f64() * 1e3, "anatomy set up");
+        Ok(Planner::new(anatomy, Plan::new(roles))?)
+    })
 }
 
 fn check_display_name(name: &str) -> Result<()> {
@@ -266,6 +307,7 @@ impl Service {
             hub: Arc::new(Hub::new(self.config.ring, self.config.encode)),
             last_touch_ms: AtomicI64::new(rec.last_access_ms),
             volumes_scheduled: AtomicBool::new(false),
+            last_edit: Mutex::new(std::time::Instant::now()),
             memory: std::sync::atomic::AtomicU64::new(0),
         })
     }
@@ -508,6 +550,7 @@ impl Service {
                 labels,
                 summary,
                 planner: Some(planner),
+                pending: None,
                 generation: 0,
             });
         }
@@ -553,7 +596,9 @@ impl Service {
         }
         let (s, mut st) = self.open(id).await?;
         let max_voxels = self.config.max_voxels;
+        let t0 = std::time::Instant::now();
         let labels = blocking(move || labelmap::decode(&source, max_voxels)).await?;
+        tracing::debug!(session = %s.id, ms = t0.elapsed().as_secs_f64() * 1e3, "label map decoded");
         let need = labels.data().len() as u64 * BYTES_PER_VOXEL;
         let others = self.memory_in_use()? - s.memory.load(Ordering::Relaxed);
         if others + need > self.config.max_memory_bytes {
@@ -570,12 +615,11 @@ impl Service {
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let version = st.version;
-        let (labels, summary, planner, version) = blocking(move || {
+        let (labels, summary, plan, version) = blocking(move || {
+            let t = std::time::Instant::now();
             let summary = labelmap::summary(&labels, &roles);
             labelmap::check_roles(&roles, &summary.labels)?;
-            let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
             let plan = Plan::new(roles.clone());
-            let planner = Planner::new(anatomy, plan.clone())?;
             let summary_blob = Blob {
                 meta_json: serde_json::to_string(&summary).map_err(internal)?,
                 data: Vec::new(),
@@ -588,19 +632,22 @@ impl Service {
             })
             .map_err(internal)?;
             let version = store.append(&key, version, &[record])?;
-            Ok((Arc::new(labels), summary, planner, version))
+            tracing::debug!(session = %key, ms = t.elapsed().as_secs_f64() * 1e3, "label map stored");
+            Ok((Arc::new(labels), summary, plan, version))
         })
         .await?;
         s.memory.store(need, Ordering::Relaxed);
         st.version = version;
         st.generation += 1;
         st.models = None;
-        s.hub.reset(version, planner.plan(), planner.states())?;
+        s.hub.reset(version, &plan, &BTreeMap::new())?;
         s.hub.publish_models(Vec::new())?;
+        let pending = spawn_planner(Arc::clone(&labels), summary.roles.clone());
         st.loaded = Some(Loaded {
             labels,
             summary: summary.clone(),
-            planner: Some(planner),
+            planner: None,
+            pending: Some(pending),
             generation: st.generation,
         });
         tracing::info!(session = %s.id, voxels = summary.dims.iter().product::<usize>(), "label map loaded");
@@ -746,7 +793,7 @@ impl Service {
         }
         let version = st.version;
         let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
-        let mut planner = take_planner(loaded)?;
+        let mut planner = loaded.take_planner().await?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let (planner, result) = tokio::task::spawn_blocking(move || {
@@ -786,15 +833,33 @@ impl Service {
         Ok(outcome)
     }
 
-    /// Recomputes the volumes shortly after the last edit of a burst and publishes them.
+    /// Recomputes the volumes once the edits pause for `volumes_delay` (at the latest
+    /// `volumes_max_interval` into a continuous burst) and publishes them. Volumetry holds the
+    /// session, so it must not run between every two edits of a drag.
     fn schedule_volumes(self: &Arc<Self>, s: &Arc<Session>) {
+        let now = std::time::Instant::now();
+        if let Ok(mut last) = s.last_edit.lock() {
+            *last = now;
+        }
         if s.volumes_scheduled.swap(true, Ordering::AcqRel) {
             return;
         }
         let service = Arc::clone(self);
         let s = Arc::clone(s);
         tokio::spawn(async move {
-            tokio::time::sleep(service.config.volumes_delay).await;
+            let (delay, max) = (
+                service.config.volumes_delay,
+                service.config.volumes_max_interval,
+            );
+            let deadline = now + max;
+            loop {
+                let last = s.last_edit.lock().map_or(now, |t| *t);
+                let due = (last + delay).min(deadline.max(now + delay));
+                if std::time::Instant::now() >= due {
+                    break;
+                }
+                tokio::time::sleep_until(due.into()).await;
+            }
             s.volumes_scheduled.store(false, Ordering::Release);
             let Ok((_, mut st)) = service.open(&s.id).await else {
                 return;
@@ -828,10 +893,7 @@ impl Service {
         let (_, mut st) = self.open(id).await?;
         let plan_version = st.version;
         let loaded = loaded_mut(&mut st)?;
-        let planner = loaded
-            .planner
-            .as_ref()
-            .ok_or_else(|| internal("session planner is busy"))?;
+        let planner = loaded.ready().await?;
         Ok(Versioned {
             plan_version,
             value: planner.plan().to_json()?,
@@ -856,10 +918,7 @@ impl Service {
             ));
         }
         let anatomy = {
-            let planner = loaded
-                .planner
-                .as_ref()
-                .ok_or_else(|| internal("session planner is busy"))?;
+            let planner = loaded.ready().await?;
             planner.anatomy_shared()
         };
         let store = Arc::clone(&self.store);
@@ -891,10 +950,7 @@ impl Service {
             Some(m) => m.mesh.clone(),
             None => {
                 let loaded = loaded_mut(&mut st)?;
-                let planner = loaded
-                    .planner
-                    .as_ref()
-                    .ok_or_else(|| internal("session planner is busy"))?;
+                let planner = loaded.ready().await?;
                 planner
                     .state(name)
                     .map_err(|_| SessionError::ModelNotFound(name.to_owned()))?
@@ -916,10 +972,7 @@ impl Service {
     ) -> Result<SliceProjections> {
         let (_, mut st) = self.open(id).await?;
         let loaded = loaded_mut(&mut st)?;
-        let planner = loaded
-            .planner
-            .as_ref()
-            .ok_or_else(|| internal("session planner is busy"))?;
+        let planner = loaded.ready().await?;
         let mesh = planner.state(name)?.mesh()?;
         Ok(slice_projections(&mesh, &at)?)
     }
@@ -941,7 +994,7 @@ async fn compute_volumes(st: &mut State) -> Result<Option<VolumeReport>> {
     let Some(loaded) = st.loaded.as_mut() else {
         return Ok(None);
     };
-    let mut planner = take_planner(loaded)?;
+    let mut planner = loaded.take_planner().await?;
     let (planner, report) = tokio::task::spawn_blocking(move || {
         let r = planner.volumes();
         (planner, r)

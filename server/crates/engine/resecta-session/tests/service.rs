@@ -488,3 +488,56 @@ async fn nifti_uploads_are_read_like_raw_ones() {
     });
     assert_eq!(s.dims, labels.grid().dims());
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn volumes_wait_for_a_pause_but_not_forever() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        ServiceConfig {
+            volumes_delay: Duration::from_millis(80),
+            volumes_max_interval: Duration::from_millis(300),
+            ..config()
+        },
+    ));
+    let id = service.create_session("Volumes").await.unwrap().id;
+    let labels = phantom();
+    service
+        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+        .await
+        .unwrap();
+    service.edit(&id, 0, init_op()).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(400)).await;
+    let mut w = service.watch(&id, None).await.unwrap();
+    next(&mut w).await; // the snapshot
+    let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    let log = Arc::clone(&seen);
+    tokio::spawn(async move {
+        while let Some(Ok(e)) = w.next().await {
+            if matches!(e.body, WatchBody::Volumes { .. }) {
+                log.lock().unwrap().push(std::time::Instant::now());
+            }
+        }
+    });
+    // A drag: an edit every 20 ms for about 1.2 s, never pausing for 80 ms.
+    let start = std::time::Instant::now();
+    let mut k = 0;
+    while start.elapsed() < Duration::from_millis(1200) {
+        let z = if k % 2 == 0 { 4.0 } else { 5.0 };
+        service.edit(&id, 0, drag([-9.0, 5.0, z])).await.unwrap();
+        k += 1;
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let end = std::time::Instant::now();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let seen = seen.lock().unwrap().clone();
+    let during = seen.iter().filter(|t| **t < end).count();
+    // Not after every edit (k ≈ 50), not never: about every 300 ms of the drag.
+    assert!(
+        (1..=8).contains(&during),
+        "{during} volume updates in {k} edits"
+    );
+    assert!(
+        seen.iter().any(|t| *t >= end),
+        "volumes after the drag ended"
+    );
+}
