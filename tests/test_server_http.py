@@ -187,6 +187,10 @@ def test_restart_keeps_acknowledged_http_edits(tmp_path, phantom):
         v = edit(s.http_url, sid, INIT).json()["plan_version"]
         for k in range(5):
             v = edit(s.http_url, sid, drag((-30.0 + k, 1.0, 1.0)), v).json()["plan_version"]
+        metrics = requests.get(f"{s.http_url}/metrics", timeout=10).text
+        assert "resecta_edit_seconds_count 6" in metrics, metrics
+        assert "resecta_edits_in_flight 0" in metrics
+        assert 'resecta_http_requests_total{route="/v1/sessions/{id}/edits",status="200"} 6' in metrics
     finally:
         s.kill()
     s2 = Server(data_dir=data)
@@ -198,3 +202,26 @@ def test_restart_keeps_acknowledged_http_edits(tmp_path, phantom):
         assert requests.get(f"{s2.http_url}/metrics", timeout=10).status_code == 200
     finally:
         s2.stop()
+
+
+def test_idle_sessions_expire_and_limits_come_from_the_config_file(tmp_path):
+    cfg = tmp_path / "resecta.toml"
+    cfg.write_text("[limits]\nmax_sessions = 2\nidle_expiry_s = 1\n")
+    s = Server("--config", str(cfg))
+    try:
+        info = requests.get(f"{s.http_url}/v1/info", timeout=10).json()
+        assert info["limits"]["max_sessions"] == 2
+        a, b = session(s.http_url, "a"), session(s.http_url, "b")
+        problem(requests.post(f"{s.http_url}/v1/sessions", json={"display_name": "c"}, timeout=10),
+                429, "SESSION_QUOTA")
+        import time
+        deadline = time.monotonic() + 20
+        while time.monotonic() < deadline:
+            if requests.get(f"{s.http_url}/v1/sessions", timeout=10).json()["sessions"] == []:
+                break
+            time.sleep(0.5)
+        problem(requests.get(f"{s.http_url}/v1/sessions/{a}", timeout=10), 404, "SESSION_NOT_FOUND")
+        problem(requests.get(f"{s.http_url}/v1/sessions/{b}", timeout=10), 404, "SESSION_NOT_FOUND")
+        assert session(s.http_url, "d")
+    finally:
+        s.stop()

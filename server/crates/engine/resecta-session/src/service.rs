@@ -108,6 +108,22 @@ fn now_ms() -> i64 {
         .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
 }
 
+/// A gauge of operations in progress (queued for their session or running): +1 now, −1 on drop.
+struct InFlight(&'static str);
+
+impl InFlight {
+    fn new(name: &'static str) -> Self {
+        metrics::gauge!(name).increment(1.0);
+        Self(name)
+    }
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        metrics::gauge!(self.0).decrement(1.0);
+    }
+}
+
 fn no_label_map() -> SessionError {
     SessionError::Precondition(Missing::LabelMap, "the session has no label map".into())
 }
@@ -782,6 +798,7 @@ impl Service {
         op: EditOp,
     ) -> Result<EditOutcome> {
         let started = std::time::Instant::now();
+        let _queued = InFlight::new("resecta_edits_in_flight");
         let (s, mut st) = self.open(id).await?;
         if base_version != 0 && base_version != st.version {
             metrics::counter!("resecta_edits_rejected_total", "reason" => "stale_version")
@@ -861,21 +878,43 @@ impl Service {
                 tokio::time::sleep_until(due.into()).await;
             }
             s.volumes_scheduled.store(false, Ordering::Release);
-            let Ok((_, mut st)) = service.open(&s.id).await else {
-                return;
-            };
-            let version = st.version;
             let started = std::time::Instant::now();
-            let volumes = compute_volumes(&mut st).await;
-            metrics::histogram!("resecta_volumes_seconds").record(started.elapsed().as_secs_f64());
-            match volumes {
-                Ok(Some(v)) => {
+            let _running = InFlight::new("resecta_volumes_in_flight");
+            match service.volumes_detached(&s).await {
+                Ok(Some((version, v))) => {
                     let _ = s.hub.publish_volumes(version, v);
                 }
                 Ok(None) => {}
                 Err(e) => tracing::warn!(session = %s.id, error = %e, "volumes failed"),
             }
+            metrics::histogram!("resecta_volumes_seconds").record(started.elapsed().as_secs_f64());
         });
+    }
+
+    /// Volumes of the current plan version computed without holding the session: the session
+    /// is locked only to take the plan's cut inputs and the volumetry engine, and again to give
+    /// the engine back, so edits go on meanwhile. `None` without a label map.
+    async fn volumes_detached(&self, s: &Session) -> Result<Option<(u64, VolumeReport)>> {
+        let (job, version, generation) = {
+            let mut st = Arc::clone(&s.state).lock_owned().await;
+            let version = st.version;
+            let Some(loaded) = st.loaded.as_mut() else {
+                return Ok(None);
+            };
+            let job = loaded.ready().await?.volume_job()?;
+            (job, version, loaded.generation)
+        };
+        let (engine, report) = tokio::task::spawn_blocking(move || job.run())
+            .await
+            .map_err(internal)?;
+        let mut st = Arc::clone(&s.state).lock_owned().await;
+        if let Some(loaded) = st.loaded.as_mut()
+            && loaded.generation == generation
+            && let Some(planner) = loaded.planner.as_mut()
+        {
+            planner.restore_volumetry(engine);
+        }
+        Ok(Some((version, report?)))
     }
 
     /// The current plan's volumes with the plan version they belong to.

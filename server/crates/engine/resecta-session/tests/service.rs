@@ -541,3 +541,58 @@ async fn volumes_wait_for_a_pause_but_not_forever() {
         "volumes after the drag ended"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reconstruction_does_not_hold_up_another_sessions_edits() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        ServiceConfig {
+            psr_depth: 8,
+            ..config()
+        },
+    ));
+    let labels = phantom();
+    let mut ids = Vec::new();
+    for name in ["Busy", "Editing"] {
+        let id = service.create_session(name).await.unwrap().id;
+        service
+            .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+            .await
+            .unwrap();
+        ids.push(id);
+    }
+    let mut v = service
+        .edit(&ids[1], 0, init_op())
+        .await
+        .unwrap()
+        .plan_version;
+    // A depth-8 Poisson reconstruction of session 0 runs on the blocking pool ...
+    let mut rx = service.reconstruct(&ids[0]).await.unwrap();
+    match rx.recv().await.unwrap().unwrap() {
+        ReconstructEvent::Progress { .. } => {}
+        e => panic!("expected progress first, got {e:?}"),
+    }
+    // ... while session 1 is edited and read; none of it waits for the reconstruction.
+    for k in 0..5 {
+        v = service
+            .edit(&ids[1], v, drag([-9.0, 5.0, 4.0 + k as f64]))
+            .await
+            .unwrap()
+            .plan_version;
+    }
+    assert_eq!(service.get_session(&ids[1]).await.unwrap().plan_version, v);
+    let mut finished = false;
+    while let Ok(e) = rx.try_recv() {
+        finished |= matches!(e, Ok(ReconstructEvent::Done { .. }));
+    }
+    assert!(!finished, "the edits waited for the whole reconstruction");
+    // Session 0 itself answers too (its state is not held during the work), and the work ends.
+    assert_eq!(
+        service.get_session(&ids[0]).await.unwrap().state,
+        SessionState::LabelMap
+    );
+    while let Some(e) = rx.recv().await {
+        finished |= matches!(e.unwrap(), ReconstructEvent::Done { .. });
+    }
+    assert!(finished);
+}

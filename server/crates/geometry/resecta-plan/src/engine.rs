@@ -381,17 +381,21 @@ impl Planner {
         self.volumetry.as_mut().ok_or(PlanError::EmptyLiver)
     }
 
+    /// Every resection's net and tumour points: what a volumetry needs of the plan.
+    fn cut_inputs(&self) -> Result<Vec<(ControlNet<Real>, Vec<Vec3>)>, PlanError> {
+        self.plan()
+            .resections
+            .iter()
+            .map(|r| Ok((r.net()?, self.state(&r.name)?.target.centroids.clone())))
+            .collect()
+    }
+
     /// Runs `f` on the volumetry engine with every resection's net and tumour points.
     fn run_cuts<T>(
         &mut self,
         f: impl FnOnce(&mut Volumetry, &[(&ControlNet<Real>, &[Vec3])]) -> Result<T, VolumetryError>,
     ) -> Result<T, PlanError> {
-        let inputs: Vec<(ControlNet<Real>, Vec<Vec3>)> = self
-            .plan()
-            .resections
-            .iter()
-            .map(|r| Ok((r.net()?, self.state(&r.name)?.target.centroids.clone())))
-            .collect::<Result<_, PlanError>>()?;
+        let inputs = self.cut_inputs()?;
         let engine = self.volumetry_engine()?;
         let cuts: Vec<(&ControlNet<Real>, &[Vec3])> =
             inputs.iter().map(|(n, p)| (n, p.as_slice())).collect();
@@ -400,21 +404,64 @@ impl Planner {
 
     /// Resected and remnant volumes of every resection and of the plan.
     pub fn volumes(&mut self) -> Result<VolumeReport, PlanError> {
-        let names: Vec<String> = self
-            .plan()
-            .resections
-            .iter()
-            .map(|r| r.name.clone())
-            .collect();
-        let threshold = self.flr_threshold_pct;
-        let multi = self.run_cuts(|v, cuts| v.cuts(cuts))?;
-        Ok(volume_report(&names, &multi, threshold))
+        let job = self.volume_job()?;
+        let (engine, report) = job.run();
+        self.restore_volumetry(engine);
+        report
+    }
+
+    /// The volumetry of the current plan as a job that runs without the planner (so that edits
+    /// go on meanwhile): it takes the volumetry engine along; give it back with
+    /// [`Planner::restore_volumetry`] (until then a volumetry on the planner builds a new one).
+    pub fn volume_job(&mut self) -> Result<VolumeJob, PlanError> {
+        let inputs = self.cut_inputs()?;
+        self.volumetry_engine()?;
+        let engine = self.volumetry.take().ok_or(PlanError::EmptyLiver)?;
+        Ok(VolumeJob {
+            engine,
+            names: self
+                .plan()
+                .resections
+                .iter()
+                .map(|r| r.name.clone())
+                .collect(),
+            inputs,
+            threshold: self.flr_threshold_pct,
+        })
+    }
+
+    /// Takes back the engine of a [`VolumeJob`] (one built for the same anatomy).
+    pub fn restore_volumetry(&mut self, engine: Volumetry) {
+        self.volumetry = Some(engine);
     }
 
     /// The resected regions as a label map on the liver grid: 0 outside the functional liver,
     /// 1 remnant, 2 + i resected by resection i.
     pub fn resected_labels(&mut self) -> Result<Volume<u8>, PlanError> {
         self.run_cuts(|v, cuts| v.resected_labels(cuts))
+    }
+}
+
+/// A volumetry of one plan version, detached from its [`Planner`].
+#[derive(Debug)]
+pub struct VolumeJob {
+    engine: Volumetry,
+    names: Vec<String>,
+    inputs: Vec<(ControlNet<Real>, Vec<Vec3>)>,
+    threshold: Real,
+}
+
+impl VolumeJob {
+    /// The volumes, and the engine to give back to the planner.
+    pub fn run(mut self) -> (Volumetry, Result<VolumeReport, PlanError>) {
+        let cuts: Vec<(&ControlNet<Real>, &[Vec3])> =
+            self.inputs.iter().map(|(n, p)| (n, p.as_slice())).collect();
+        let report = self
+            .engine
+            .cuts(&cuts)
+            .map(|multi| volume_report(&self.names, &multi, self.threshold))
+            .map_err(PlanError::from);
+        (self.engine, report)
     }
 }
 

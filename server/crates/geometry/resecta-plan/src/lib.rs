@@ -14,13 +14,14 @@ pub mod surface;
 
 pub use anatomy::{Anatomy, Tumour};
 pub use engine::{
-    DEFAULT_FLR_THRESHOLD_PCT, Planner, ResectionState, ResectionVolume, TargetModel, VolumeReport,
+    DEFAULT_FLR_THRESHOLD_PCT, Planner, ResectionState, ResectionVolume, TargetModel, VolumeJob,
+    VolumeReport,
 };
 pub use error::PlanError;
 pub use history::{History, LogEntry};
 pub use init::{Initialisation, initialise, plane_from, slicing_plane};
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
 pub use resecta_margin::{MarginClass, Verdict};
-pub use resecta_volumetry::IncompleteCut;
+pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};
 pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};
