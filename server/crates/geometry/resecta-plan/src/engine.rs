@@ -382,7 +382,7 @@ impl Planner {
     }
 
     /// Every resection's net and tumour points: what a volumetry needs of the plan.
-    fn cut_inputs(&self) -> Result<Vec<(ControlNet<Real>, Vec<Vec3>)>, PlanError> {
+    fn cut_inputs(&self) -> Result<Vec<CutInput>, PlanError> {
         self.plan()
             .resections
             .iter()
@@ -442,12 +442,15 @@ impl Planner {
     }
 }
 
+/// A resection's control net and the tumour points on its resected side.
+type CutInput = (ControlNet<Real>, Vec<Vec3>);
+
 /// A volumetry of one plan version, detached from its [`Planner`].
 #[derive(Debug)]
 pub struct VolumeJob {
     engine: Volumetry,
     names: Vec<String>,
-    inputs: Vec<(ControlNet<Real>, Vec<Vec3>)>,
+    inputs: Vec<CutInput>,
     threshold: Real,
 }
 
