@@ -449,11 +449,16 @@ pub async fn watch(
         ),
     };
     let w = app.service.watch(&id, last.or(q.since_seq)).await?;
-    let events = stream::unfold(Some(w), |w| async move {
-        let mut w = w?;
-        match w.next().await? {
-            Ok(e) => Some((wire::watch_event(&e), Some(w))),
-            Err(e) => Some((wire::error_event(&Problem::from(e)), None)),
+    let events = stream::unfold(Some((w, id)), |state| async move {
+        let (mut w, id) = state?;
+        match w.next().await {
+            Some(Ok(e)) => Some((wire::watch_event(&e), Some((w, id)))),
+            Some(Err(e)) => Some((wire::error_event(&Problem::from(e)), None)),
+            // The hub closes when the session is deleted or expires, as on the gRPC face.
+            None => {
+                let gone = Problem::from(resecta_session::SessionError::UnknownSession(id));
+                Some((wire::error_event(&gone), None))
+            }
         }
     });
     Ok(sse(app.keep_alive, events))

@@ -506,10 +506,17 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     )
     .await;
     let end = tokio::time::timeout(Duration::from_secs(10), async {
-        while w.next().await.is_some() {}
+        let mut last = None;
+        while let Some(e) = w.next_event().await {
+            last = Some(e);
+        }
+        last
     })
-    .await;
-    assert!(end.is_ok());
+    .await
+    .expect("the stream ends");
+    let last = end.expect("an error event last");
+    assert_eq!(last.event.as_deref(), Some("error"));
+    assert_eq!(last.json()["code"], "SESSION_NOT_FOUND");
 }
 
 /// The next `delta` event (volumes and models events are skipped).
