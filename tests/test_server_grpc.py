@@ -104,6 +104,13 @@ def test_server_info_health_and_session_lifecycle(server, stubs):
     assert info.api_version == "resecta.v1"
     assert info.limits.max_chunk_bytes == 4 << 20
     assert requests.get(f"{server.http_url}/healthz", timeout=10).status_code == 200
+    # Request ids: the client's is echoed, else the server makes one.
+    _, call = stub.ListSessions.with_call(pb.ListSessionsRequest(),
+                                          metadata=md() + [("x-request-id", "e2e-req-42")])
+    assert ("x-request-id", "e2e-req-42") in call.initial_metadata()
+    _, call = stub.ListSessions.with_call(pb.ListSessionsRequest(), metadata=md())
+    made = dict(call.initial_metadata())["x-request-id"]
+    assert len(made) == 36 and made.count("-") == 4, made
     sid = new_session(pb, stub)
     assert [s.id for s in stub.ListSessions(pb.ListSessionsRequest(), metadata=md()).sessions] == [sid]
     assert stub.GetSession(pb.GetSessionRequest(session_id=sid), metadata=md()).session.plan_version == 0

@@ -19,6 +19,8 @@ use resecta_session::Service;
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
 use serde::Serialize;
 use tokio::sync::watch;
+use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
+use tower_http::trace::TraceLayer;
 
 pub use config::{DEFAULT_GRPC, DEFAULT_HTTP, ServeArgs, ServerConfig, TlsFiles};
 pub use demo::{DEMO_SESSION_NAME, seed_demo};
@@ -87,9 +89,8 @@ pub async fn run(
     };
 
     // gRPC face.
-    let mut builder = tonic::transport::Server::builder()
-        .trace_fn(telemetry::grpc_span)
-        .http2_keepalive_interval(Some(Duration::from_secs(30)));
+    let mut builder =
+        tonic::transport::Server::builder().http2_keepalive_interval(Some(Duration::from_secs(30)));
     if let Some(t) = &tls {
         builder = builder
             .tls_config(t.grpc.clone())
@@ -100,8 +101,22 @@ pub async fn run(
     // ACK: 40 ms per edit otherwise.
     let incoming =
         tonic::transport::server::TcpIncoming::from(grpc_listener).with_nodelay(Some(true));
+    // Request ids: the client's `x-request-id` (if sane) or a new one, echoed in the response
+    // metadata and carried by the call's log span, as on the HTTP face.
+    let layers = tower::ServiceBuilder::new()
+        .map_request(telemetry::sane_request_id)
+        .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
+        .layer(PropagateRequestIdLayer::x_request_id())
+        .layer(
+            TraceLayer::new_for_grpc()
+                .make_span_with(telemetry::grpc_span)
+                .on_response(telemetry::grpc_response)
+                // Client errors are logged once, with their status, by `grpc_response`.
+                .on_failure(()),
+        );
     let grpc = tokio::spawn(
         builder
+            .layer(layers)
             .add_routes(routes)
             .serve_with_incoming_shutdown(incoming, stopped(stop_rx.clone())),
     );

@@ -1,6 +1,7 @@
 //! Logs, metrics and TLS material of the process.
 
 use std::sync::OnceLock;
+use std::time::Duration;
 
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 use tracing_subscriber::EnvFilter;
@@ -43,16 +44,42 @@ pub fn metrics_handle() -> Option<&'static PrometheusHandle> {
         .as_ref()
 }
 
-/// The tracing span of one gRPC call: method and request id (the client's `x-request-id`, or
-/// a new one). Never request contents.
-pub fn grpc_span(req: &http::Request<()>) -> tracing::Span {
+/// The tracing span of one gRPC call: method and request id (set by the request-id layer from
+/// the client's `x-request-id`, or new). Never request contents.
+pub fn grpc_span<B>(req: &http::Request<B>) -> tracing::Span {
     let id = req
         .headers()
         .get("x-request-id")
         .and_then(|v| v.to_str().ok())
-        .filter(|v| v.len() <= 64)
-        .map_or_else(|| uuid::Uuid::new_v4().to_string(), str::to_owned);
+        .unwrap_or("-");
     tracing::info_span!("grpc", method = %req.uri().path(), request_id = %id)
+}
+
+/// Logs the end of a gRPC call's response head: its status (`ok` when it comes in the
+/// trailers, as for successful calls) and latency.
+pub fn grpc_response<B>(res: &http::Response<B>, latency: Duration, _span: &tracing::Span) {
+    let status = res
+        .headers()
+        .get("grpc-status")
+        .and_then(|v| v.to_str().ok())
+        .unwrap_or("ok");
+    tracing::info!(
+        grpc_status = status,
+        latency_ms = latency.as_secs_f64() * 1e3,
+        "response"
+    );
+}
+
+/// A client's `x-request-id` when it is short printable ASCII; otherwise the layer makes one.
+pub fn sane_request_id<B>(mut req: http::Request<B>) -> http::Request<B> {
+    let ok = req
+        .headers()
+        .get("x-request-id")
+        .is_some_and(|v| v.len() <= 64 && v.as_bytes().iter().all(|b| b.is_ascii_graphic()));
+    if !ok {
+        req.headers_mut().remove("x-request-id");
+    }
+    req
 }
 
 /// TLS set-up of both faces from one certificate chain and key.
