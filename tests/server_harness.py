@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import grpc
+import pytest
 
 from conftest import ROOT, resecta_bin
 
@@ -92,3 +93,20 @@ def wait_for(predicate, timeout=60.0, every=0.1):
             return value
         time.sleep(every)
     raise AssertionError("condition not met in time")
+
+
+@pytest.fixture(scope="module")
+def phantom(tmp_path_factory):
+    """The small phantom as NIfTI (module-wide: the server tests upload it many times)."""
+    out = tmp_path_factory.mktemp("phantom")
+    subprocess.run([resecta_bin(), "phantom", "--out", str(out), "--preset", "small", "--json"],
+                   check=True, capture_output=True)
+    return out / "phantom.nii.gz"
+
+
+@pytest.fixture
+def server(tmp_path):
+    """A durable server for one test."""
+    s = Server(data_dir=tmp_path / "data")
+    yield s
+    s.stop()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import requests
 
-from server_harness import Server, generate_stubs, wait_for
+from server_harness import Server, generate_stubs, phantom, server, wait_for  # noqa: F401 (fixtures)
 
 TOKEN = "e2e-token-0123456789abcdef"
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
@@ -18,23 +18,6 @@ ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
 @pytest.fixture(scope="module")
 def stubs(tmp_path_factory):
     return generate_stubs(tmp_path_factory.mktemp("stubs"))
-
-
-@pytest.fixture(scope="module")
-def phantom(tmp_path_factory):
-    import subprocess
-    from conftest import resecta_bin
-    out = tmp_path_factory.mktemp("phantom")
-    subprocess.run([resecta_bin(), "phantom", "--out", str(out), "--preset", "small", "--json"],
-                   check=True, capture_output=True)
-    return out / "phantom.nii.gz"
-
-
-@pytest.fixture
-def server(tmp_path):
-    s = Server(data_dir=tmp_path / "data")
-    yield s
-    s.stop()
 
 
 def md(token=None, version="v1"):

@@ -11,26 +11,9 @@ import pytest
 import requests
 
 from mesh_wire import apply_delta, decode_mesh
-from server_harness import Server
+from server_harness import Server, phantom, server  # noqa: F401 (fixtures)
 
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
-
-
-@pytest.fixture(scope="module")
-def phantom(tmp_path_factory):
-    import subprocess
-    from conftest import resecta_bin
-    out = tmp_path_factory.mktemp("phantom")
-    subprocess.run([resecta_bin(), "phantom", "--out", str(out), "--preset", "small", "--json"],
-                   check=True, capture_output=True)
-    return out / "phantom.nii.gz"
-
-
-@pytest.fixture
-def server(tmp_path):
-    s = Server(data_dir=tmp_path / "data")
-    yield s
-    s.stop()
 
 
 def problem(r, status, code):
