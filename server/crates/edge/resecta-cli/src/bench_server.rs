@@ -275,6 +275,26 @@ async fn upload(
     Ok(())
 }
 
+async fn create_session(
+    client: &mut Client,
+    token: Option<&str>,
+    display_name: &str,
+) -> Result<String, CliError> {
+    client
+        .create_session(request(
+            CreateSessionRequest {
+                display_name: display_name.into(),
+            },
+            token,
+        ))
+        .await
+        .map_err(failed("create session"))?
+        .into_inner()
+        .session
+        .map(|s| s.id)
+        .ok_or_else(|| CliError::Failed("create session: no session in the answer".into()))
+}
+
 async fn edit(
     client: &mut Client,
     token: Option<&str>,
@@ -326,19 +346,7 @@ async fn planning_session(
     let mut client = PlanningServiceClient::new(channel.clone())
         .max_decoding_message_size(1 << 30)
         .max_encoding_message_size(64 << 20);
-    let id = client
-        .create_session(request(
-            CreateSessionRequest {
-                display_name: "load benchmark".into(),
-            },
-            token,
-        ))
-        .await
-        .map_err(failed("create session"))?
-        .into_inner()
-        .session
-        .map(|s| s.id)
-        .ok_or_else(|| CliError::Failed("create session: no session in the answer".into()))?;
+    let id = create_session(&mut client, token, "load benchmark").await?;
     upload(&mut client, token, &id, map).await?;
     // The demo patient's resection: around the large tumour, towards the left lobe.
     let init = edit(
@@ -639,19 +647,7 @@ async fn uploads(channel: &Channel, token: Option<&str>, runs: usize) -> Result<
     let mut times = Vec::new();
     let mut ready = Vec::new();
     for _ in 0..runs.max(1) {
-        let id = client
-            .create_session(request(
-                CreateSessionRequest {
-                    display_name: "upload benchmark".into(),
-                },
-                token,
-            ))
-            .await
-            .map_err(failed("create session"))?
-            .into_inner()
-            .session
-            .map(|s| s.id)
-            .unwrap_or_default();
+        let id = create_session(&mut client, token, "upload benchmark").await?;
         let t = Instant::now();
         upload(&mut client, token, &id, &map).await?;
         times.push(t.elapsed().as_secs_f64());

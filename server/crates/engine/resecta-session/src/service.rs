@@ -919,10 +919,11 @@ impl Service {
 
     /// The current plan's volumes with the plan version they belong to.
     pub async fn volumes(&self, id: &str) -> Result<Versioned<VolumeReport>> {
-        let (_, mut st) = self.open(id).await?;
-        let value = compute_volumes(&mut st).await?.ok_or_else(no_label_map)?;
+        let (s, st) = self.open(id).await?;
+        drop(st);
+        let (plan_version, value) = self.volumes_detached(&s).await?.ok_or_else(no_label_map)?;
         Ok(Versioned {
-            plan_version: st.version,
+            plan_version,
             value,
         })
     }
@@ -1026,22 +1027,6 @@ impl Service {
 
 fn loaded_mut(st: &mut State) -> Result<&mut Loaded> {
     st.loaded.as_mut().ok_or_else(no_label_map)
-}
-
-/// Volumes of the current plan (`None` without a label map), on the blocking pool.
-async fn compute_volumes(st: &mut State) -> Result<Option<VolumeReport>> {
-    let Some(loaded) = st.loaded.as_mut() else {
-        return Ok(None);
-    };
-    let mut planner = loaded.take_planner().await?;
-    let (planner, report) = tokio::task::spawn_blocking(move || {
-        let r = planner.volumes();
-        (planner, r)
-    })
-    .await
-    .map_err(internal)?;
-    loaded.planner = Some(planner);
-    Ok(Some(report?))
 }
 
 /// Applies `op`, then makes its record durable; on a storage failure the planner is rebuilt
