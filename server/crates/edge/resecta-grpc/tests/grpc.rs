@@ -516,13 +516,15 @@ async fn malformed_uploads_are_refused_and_store_nothing() {
     call.abort();
     let _ = call.await;
     tokio::time::sleep(Duration::from_millis(300)).await;
-    drop(tx);
     let s = session(&mut c, &id).await;
     assert_eq!(
         (s.state, s.plan_version),
         (pb::SessionState::Empty as i32, 0)
     );
     assert!(s.label_map.is_none());
+    // Only now may the body end: dropping it earlier could let the transport, which still holds
+    // the aborted call's body, finish the stream after all.
+    drop(tx);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

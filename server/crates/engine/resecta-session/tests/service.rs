@@ -528,7 +528,13 @@ async fn volumes_wait_for_a_pause_but_not_forever() {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let end = std::time::Instant::now();
-    tokio::time::sleep(Duration::from_millis(500)).await;
+    // The update after the pause (patient: other tests may load the cores).
+    for _ in 0..100 {
+        if seen.lock().unwrap().iter().any(|t| *t >= end) {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
     let seen = seen.lock().unwrap().clone();
     let during = seen.iter().filter(|t| **t < end).count();
     // Not after every edit (k ≈ 50), not never: about every 300 ms of the drag.
