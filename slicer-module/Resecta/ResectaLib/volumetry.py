@@ -1,0 +1,70 @@
+"""The volumetry table as plain rows (the Widget draws them; tests compare them).
+
+Rows: total functional liver, then each resection's resected volume, then all resected together
+and the future liver remnant (FLR), each with ml and % of the total; an FLR warning when the
+remnant falls below the threshold, and the reason when a cut does not divide the liver (then the
+remnant is unknown, shown as "—").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+DASH = "—"
+
+
+@dataclasses.dataclass(frozen=True)
+class Row:
+    label: str
+    ml: float | None
+    pct: float | None
+    warning: bool = False
+
+    def cells(self) -> tuple[str, str, str]:
+        ml = DASH if self.ml is None else f"{self.ml:.1f}"
+        pct = DASH if self.pct is None else f"{self.pct:.1f}"
+        return self.label, ml, pct
+
+
+@dataclasses.dataclass(frozen=True)
+class VolumeTable:
+    rows: tuple[Row, ...]
+    plan_version: int
+    flr_warning: bool
+    messages: tuple[str, ...]
+
+    def row(self, label: str) -> Row:
+        for r in self.rows:
+            if r.label == label:
+                return r
+        raise KeyError(label)
+
+
+EMPTY = VolumeTable((), 0, False, ("No volumes yet",))
+
+
+def table(volumes) -> VolumeTable:
+    """From the client's `Volumes` (or anything with the same attributes)."""
+    total = float(volumes.total_ml)
+
+    def pct(ml):
+        return None if ml is None or total <= 0 else 100.0 * ml / total
+
+    rows = [Row("Total liver", total, 100.0 if total > 0 else None)]
+    messages = []
+    for r in volumes.resections:
+        rows.append(Row(f"Resected by {r.name}", r.resected_ml,
+                        r.resected_pct if r.resected_pct is not None else pct(r.resected_ml)))
+        if not r.complete_cut:
+            messages.append(f"{r.name}: incomplete cut"
+                            + (f" ({r.incomplete_reason})" if r.incomplete_reason else ""))
+    if len(volumes.resections) != 1:
+        rows.append(Row("Resected (all)", volumes.resected_ml, pct(volumes.resected_ml)))
+    flr = bool(volumes.flr_warning)
+    remnant_pct = volumes.remnant_pct if volumes.remnant_pct is not None else pct(volumes.remnant_ml)
+    rows.append(Row("Remnant (FLR)", volumes.remnant_ml, remnant_pct, warning=flr))
+    if flr:
+        messages.append(f"FLR warning: remnant {remnant_pct:.1f} % < "
+                        f"{volumes.flr_threshold_pct:g} % of the liver")
+    return VolumeTable(tuple(rows), int(getattr(volumes, "plan_version", 0)), flr,
+                       tuple(messages))
