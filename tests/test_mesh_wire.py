@@ -1,4 +1,4 @@
-"""The reference decoder (tests/mesh_wire.py) against golden messages of the Rust encoder
+"""The reference decoder (resecta_client.wire, clients/python) against golden messages of the Rust encoder
 (server/crates/engine/resecta-delta/tests/golden.rs): bit-identical to what Rust decodes, within
 the quantisation bounds of what was encoded, and ValueError on truncated or corrupted input."""
 
@@ -7,17 +7,19 @@ import os
 import shutil
 import struct
 import subprocess
+import sys
 from collections.abc import Callable, Mapping
 from functools import partial
 from pathlib import Path
 from typing import Any
 
-import mesh_wire as mw
 import numpy as np
 import pytest
 import zstandard
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
+from resecta_client import wire as mw  # noqa: E402
 NORMAL_BOUND_RAD = 5e-5  # stated octahedral bound (resecta_delta::Quantise::normals)
 ATTRS = (
     ("positions", "positions"),
@@ -136,6 +138,10 @@ def test_deltas_apply_like_rust_and_within_bounds(golden: Any) -> None:
         assert after["triangles"].tolist() == base["triangles"].tolist()
         assert_same(after, case["decoded"], case["file"])
         assert_close(after, case["source"], case, case["changed"])
+        # In place: the same values, written into the held arrays themselves.
+        positions = base["positions"]
+        assert mw.apply_delta(base, buf, in_place=True) is base and base["positions"] is positions
+        assert_same(base, case["decoded"], case["file"])
 
 
 def uncompressed(buf: bytes) -> bytes:

@@ -3,6 +3,7 @@ error codes as the gRPC face, the OpenAPI document, server-sent watch events, re
 import base64
 import json
 import subprocess
+import sys
 import urllib.parse
 
 import nibabel as nib
@@ -10,8 +11,11 @@ import numpy as np
 import pytest
 import requests
 
-from mesh_wire import apply_delta, decode_mesh
+from conftest import ROOT
 from server_harness import Server, phantom, server  # noqa: F401 (fixtures)
+
+sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
+from resecta_client.wire import apply_delta, decode_mesh  # noqa: E402
 
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
 

@@ -1,16 +1,17 @@
-"""Reference decoder of the resecta mesh wire format (docs/wire/mesh-delta.md).
+"""Decoder of the resecta mesh wire format (docs/wire/mesh-delta.md), the reference one.
 
 `decode_mesh` reads a snapshot (magic ``RSMS``), `decode_delta` a delta (magic ``RSDL``) and
 `apply_delta` applies a delta to a decoded snapshot. Bad input raises `WireError` (a
 `ValueError`) naming the problem; nothing is allocated beyond what the message's length and the
-limits allow. Needs numpy, and the `zstandard` package only for compressed messages.
+limits allow. Needs numpy, and the `zstandard` package only for compressed messages (the `zstd` extra).
+`tests/test_mesh_wire.py` checks it against golden messages of the Rust encoder.
 """
 
 from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from typing import TypedDict, TypeVar
+from typing import TypedDict
 
 import numpy as np
 import numpy.typing as npt
@@ -49,7 +50,6 @@ MAX_TRIANGLES = 16 << 20
 F32 = npt.NDArray[np.float32]
 U32 = npt.NDArray[np.uint32]
 U8 = npt.NDArray[np.uint8]
-_A = TypeVar("_A", bound=np.ndarray)
 
 
 class WireError(ValueError):
@@ -320,34 +320,51 @@ def decode_delta(buf: bytes | bytearray | memoryview, *, max_vertices: int = MAX
     )
 
 
-def _updated(held: _A, rows: np.ndarray | None, changed: U32) -> _A:
-    """A copy of `held` with `rows` written at `changed`."""
-    new = held.copy()
-    if rows is not None:
-        new[changed] = rows
-    return new
+_ATTRS = ("positions", "normals", "margin", "classes")
 
 
-def apply_delta(
-    mesh: Mesh, buf: bytes | bytearray | memoryview, *, max_vertices: int = MAX_VERTICES
-) -> Mesh:
-    """The mesh after a delta made against it; `mesh` itself is not modified. Header fields
-    and triangles stay those of the snapshot (a delta never changes topology)."""
-    d = decode_delta(buf, max_vertices=max_vertices)
+def check_delta(mesh: Mesh, d: Delta) -> None:
+    """Raises `WireError` unless the decoded delta `d` applies to `mesh` (same vertex count, no
+    attribute the mesh lacks)."""
     n = len(mesh["positions"])
     if d["vertex_count"] != n:
         raise WireError(f"vertex count differs: {d['vertex_count']} in the delta, {n} held")
-    for what in ("positions", "normals", "margin", "classes"):
-        held, rows = mesh[what], d[what]
+    for what in _ATTRS:
+        held, rows = mesh[what], d[what]  # type: ignore[literal-required]
         if held is None and rows is not None:
             raise WireError(f"{what} present in the delta but not in the mesh")
         if held is not None and len(held) != n:
             raise WireError(f"mesh {what} has {len(held)} entries, expected {n}")
+
+
+def write_delta(mesh: Mesh, d: Delta) -> None:
+    """Writes the rows of a checked delta (`check_delta`) into `mesh`'s arrays, in place."""
     c = d["changed"]
-    out = mesh.copy()
-    out["positions"] = _updated(mesh["positions"], d["positions"], c)
-    out["normals"] = None if mesh["normals"] is None else _updated(mesh["normals"], d["normals"], c)
-    out["margin"] = None if mesh["margin"] is None else _updated(mesh["margin"], d["margin"], c)
-    out["classes"] = None if mesh["classes"] is None else _updated(mesh["classes"], d["classes"], c)
-    out["triangles"] = mesh["triangles"].copy()
+    for what in _ATTRS:
+        rows = d[what]  # type: ignore[literal-required]
+        if rows is not None:
+            mesh[what][c] = rows  # type: ignore[literal-required,index]
+
+
+def apply_delta(
+    mesh: Mesh,
+    buf: bytes | bytearray | memoryview,
+    *,
+    max_vertices: int = MAX_VERTICES,
+    in_place: bool = False,
+) -> Mesh:
+    """The mesh after a delta made against it. Header fields and triangles stay those of the
+    snapshot (a delta never changes topology). By default `mesh` is not modified and the result
+    holds copies; with `in_place` the changed rows are written into `mesh`'s own arrays (after
+    the whole delta is decoded and checked, so a bad delta leaves them unchanged) and `mesh` is
+    returned."""
+    d = decode_delta(buf, max_vertices=max_vertices)
+    check_delta(mesh, d)
+    out = mesh
+    if not in_place:
+        out = mesh.copy()
+        for what in (*_ATTRS, "triangles"):
+            held = mesh[what]  # type: ignore[literal-required]
+            out[what] = None if held is None else held.copy()  # type: ignore[literal-required]
+    write_delta(out, d)
     return out

@@ -1,0 +1,107 @@
+"""Python client of the resecta liver-resection planning server (gRPC, `resecta.v1`).
+
+    from resecta_client import Client
+
+    with Client("127.0.0.1:50051", token=None) as client:
+        session = client.create_session("case 12")
+        session.upload_label_map(labels_kji, ijk_to_ras, {"parenchyma": [1], "tumor": [2]})
+        models = session.reconstruct("psr", progress=lambda f, stage: print(f, stage))
+        r = session.init_from_end_point("r1", end_point=(-30, 0, 0))
+        print(r["r1"].verdict.min_margin_mm, session.volumes().remnant_pct)
+
+See README.md for the API, the array convention and the exceptions.
+"""
+
+from .client import API_VERSION, CHUNK_BYTES, Client, Session, Watch
+from .errors import (
+    AuthError,
+    Cancelled,
+    DeadlineExceeded,
+    FailedPrecondition,
+    InvalidArgument,
+    NotFound,
+    QuotaExceeded,
+    ResectaError,
+    ServerError,
+    ServerUnavailable,
+    SessionNotFound,
+    StaleVersion,
+    VersionMismatch,
+)
+from .geometry import compose, decompose, label_bytes
+from .scene import LiveScene, SceneUpdate, SurfaceState
+from .types import (
+    ControlGroup,
+    EditResult,
+    LabelCount,
+    LabelMapSummary,
+    MarginClass,
+    Method,
+    ModelFormat,
+    ModelInfo,
+    Polyline,
+    Resection,
+    ResectionStatus,
+    ResectionVolume,
+    ServerInfo,
+    ServerLimits,
+    SessionInfo,
+    SessionState,
+    Slices,
+    SurfaceKind,
+    Target,
+    Verdict,
+    Volumes,
+)
+from .wire import WireError
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "API_VERSION",
+    "CHUNK_BYTES",
+    "AuthError",
+    "Cancelled",
+    "Client",
+    "ControlGroup",
+    "DeadlineExceeded",
+    "EditResult",
+    "FailedPrecondition",
+    "InvalidArgument",
+    "LabelCount",
+    "LabelMapSummary",
+    "LiveScene",
+    "MarginClass",
+    "Method",
+    "ModelFormat",
+    "ModelInfo",
+    "NotFound",
+    "Polyline",
+    "QuotaExceeded",
+    "ResectaError",
+    "Resection",
+    "ResectionStatus",
+    "ResectionVolume",
+    "SceneUpdate",
+    "ServerError",
+    "ServerInfo",
+    "ServerLimits",
+    "ServerUnavailable",
+    "Session",
+    "SessionInfo",
+    "SessionNotFound",
+    "SessionState",
+    "Slices",
+    "StaleVersion",
+    "SurfaceKind",
+    "SurfaceState",
+    "Target",
+    "Verdict",
+    "VersionMismatch",
+    "Volumes",
+    "WireError",
+    "Watch",
+    "compose",
+    "decompose",
+    "label_bytes",
+]

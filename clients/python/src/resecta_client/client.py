@@ -1,0 +1,613 @@
+"""`Client` (a connection to a resecta server) and `Session` (one planning session: upload,
+reconstruction, resection edits, volumes, plans, exports, slices, watch)."""
+
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import grpc
+
+from . import wire
+from ._gen import label_map_pb2, reconstruction_pb2, resection_pb2
+from ._gen import planning_service_pb2 as pb
+from ._gen import planning_service_pb2_grpc as pb_grpc
+from .errors import Cancelled, ServerUnavailable, from_rpc_error
+from .geometry import Axes, decompose, label_bytes
+from .scene import LiveScene, SceneUpdate
+from .types import (
+    ControlGroup,
+    EditResult,
+    LabelMapSummary,
+    Method,
+    ModelFormat,
+    ModelInfo,
+    Point,
+    ServerInfo,
+    SessionInfo,
+    Slices,
+    Target,
+    Volumes,
+    role_map,
+    vec3,
+)
+
+API_VERSION = "v1"
+"""The `resecta-api-version` this client speaks."""
+CHUNK_BYTES = 4 << 20
+"""Data per upload chunk (the server's `MAX_CHUNK_BYTES`)."""
+DEFAULT_RECEIVE_BYTES = 4 << 20  # gRPC's default, raised to the server's max_message_bytes
+
+ProgressCallback = Callable[[float, str], None]
+"""Called with (fraction done in [0, 1], stage name) during a reconstruction."""
+Roles = Mapping[str, "Iterable[int] | int"]
+"""Role → label value(s), e.g. ``{"parenchyma": [1], "tumor": [2], "portal": [3]}``."""
+TargetLike = Target | Iterable[int] | None
+"""A `Target`, or tumour label values, or None for every tumour."""
+
+
+def _target(t: TargetLike) -> resection_pb2.Target:
+    if t is None:
+        return resection_pb2.Target()
+    return t.to_pb() if isinstance(t, Target) else resection_pb2.Target(labels=[int(x) for x in t])
+
+
+def _read_pem(ca_cert: str | os.PathLike[str] | bytes | None) -> bytes | None:
+    if ca_cert is None or isinstance(ca_cert, bytes):
+        return ca_cert
+    return Path(ca_cert).read_bytes()
+
+
+class Client:
+    """A connection to a resecta planning server over gRPC.
+
+    ``Client("127.0.0.1:50051", token=...)``; with ``tls=True`` (implied by `ca_cert`) the
+    channel is TLS, verified against `ca_cert` (a PEM file path or PEM bytes; None: the system's
+    roots). Every call sends ``authorization: Bearer <token>`` (when a token is given) and
+    ``resecta-api-version: v1``; `timeout` (seconds) bounds every unary call, streaming calls
+    take their own. The receive limit is raised to the server's ``max_message_bytes`` after the
+    first `server_info` (made lazily before the first other call). Use as a context manager or
+    call `close`. Thread-safe: one client may serve several threads.
+
+    `api_version` is for tests of the server's version check; leave it alone.
+    """
+
+    def __init__(
+        self,
+        address: str,
+        token: str | None = None,
+        *,
+        tls: bool = False,
+        ca_cert: str | os.PathLike[str] | bytes | None = None,
+        timeout: float = 30.0,
+        api_version: str = API_VERSION,
+    ) -> None:
+        self.address = address
+        self.timeout = timeout
+        self.tls = tls or ca_cert is not None
+        self._root_certs = _read_pem(ca_cert)
+        self._metadata: tuple[tuple[str, str], ...] = (("resecta-api-version", api_version),)
+        if token:
+            self._metadata += (("authorization", f"Bearer {token}"),)
+        self._lock = threading.Lock()
+        self._info: ServerInfo | None = None
+        self._receive = DEFAULT_RECEIVE_BYTES
+        self._channel = self._open(self._receive)
+        self._stub = pb_grpc.PlanningServiceStub(self._channel)
+
+    # --- plumbing ---------------------------------------------------------------------------
+
+    def _open(self, receive_bytes: int) -> grpc.Channel:
+        options = [
+            ("grpc.max_receive_message_length", receive_bytes),
+            ("grpc.max_send_message_length", max(receive_bytes, CHUNK_BYTES + (1 << 20))),
+        ]
+        if self.tls:
+            creds = grpc.ssl_channel_credentials(root_certificates=self._root_certs)
+            return grpc.secure_channel(self.address, creds, options=options)
+        return grpc.insecure_channel(self.address, options=options)
+
+    def _ready(self) -> pb_grpc.PlanningServiceStub:
+        """The stub, after the receive limit has been raised to the server's."""
+        if self._info is None:
+            self.server_info()
+        return self._stub
+
+    def _call(self, method: str, request: Any, *, timeout: float | None = None) -> Any:
+        """A unary call with the client's metadata; gRPC errors become `ResectaError`s."""
+        stub = self._ready()
+        try:
+            return getattr(stub, method)(
+                request, metadata=self._metadata, timeout=self.timeout if timeout is None else timeout
+            )
+        except grpc.RpcError as e:
+            raise from_rpc_error(e) from None
+
+    def _stream(self, method: str, request: Any, *, timeout: float | None = None) -> Any:
+        """A server-streaming call (an iterator that is also a `grpc.Call`)."""
+        return getattr(self._ready(), method)(request, metadata=self._metadata, timeout=timeout)
+
+    def close(self) -> None:
+        """Closes the channel (open streams end with `Cancelled`)."""
+        self._channel.close()
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- server and sessions ----------------------------------------------------------------
+
+    def server_info(self) -> ServerInfo:
+        """The server's version, API version, capabilities and limits (a fresh call). Raises
+        `ServerUnavailable` when the server cannot be reached, `AuthError` on a bad token."""
+        try:
+            r = self._stub.GetServerInfo(pb.GetServerInfoRequest(), metadata=self._metadata, timeout=self.timeout)
+        except grpc.RpcError as e:
+            raise from_rpc_error(e) from None
+        info = ServerInfo.from_pb(r)
+        with self._lock:
+            self._info = info
+            wanted = info.limits.max_message_bytes
+            if wanted > self._receive:
+                old, self._receive = self._channel, wanted
+                self._channel = self._open(wanted)
+                self._stub = pb_grpc.PlanningServiceStub(self._channel)
+                old.close()
+        return info
+
+    def create_session(self, display_name: str = "") -> Session:
+        """A new empty session. Do not put patient identifiers in `display_name` on a shared
+        server. Raises `QuotaExceeded` beyond the server's session quota."""
+        r = self._call("CreateSession", pb.CreateSessionRequest(display_name=display_name))
+        return Session(self, SessionInfo.from_pb(r.session))
+
+    def list_sessions(self) -> list[SessionInfo]:
+        """Every session, most recently used first."""
+        return [SessionInfo.from_pb(s) for s in self._call("ListSessions", pb.ListSessionsRequest()).sessions]
+
+    def get_session(self, session_id: str) -> SessionInfo:
+        """One session's metadata (`SessionNotFound` for an unknown or expired id)."""
+        return SessionInfo.from_pb(self._call("GetSession", pb.GetSessionRequest(session_id=session_id)).session)
+
+    def session(self, session_id: str) -> Session:
+        """A handle on an existing session (checked: `SessionNotFound` otherwise)."""
+        return Session(self, self.get_session(session_id))
+
+    def delete_session(self, session_id: str) -> None:
+        """Deletes a session with its label map, models and plan."""
+        self._call("DeleteSession", pb.DeleteSessionRequest(session_id=session_id))
+
+
+class Session:
+    """One planning session on the server, and this client's last known plan version.
+
+    Edits send `base_version` = the last plan version this handle saw (from its own calls and
+    from its watches), so that an edit made while someone else changed the plan fails with
+    `StaleVersion` instead of overwriting it; pass ``base_version=0`` to skip the check, or an
+    explicit version. Every edit returns an `EditResult` and advances `plan_version`.
+    """
+
+    def __init__(self, client: Client, info: SessionInfo) -> None:
+        self.client = client
+        self.id = info.id
+        self._lock = threading.Lock()
+        self._info = info
+        self._version = info.plan_version
+
+    def __repr__(self) -> str:
+        return f"Session(id={self.id!r}, plan_version={self.plan_version})"
+
+    @property
+    def plan_version(self) -> int:
+        """The last plan version this handle saw."""
+        return self._version
+
+    @plan_version.setter
+    def plan_version(self, version: int) -> None:
+        with self._lock:
+            self._version = version
+
+    def _saw(self, version: int) -> None:
+        with self._lock:
+            self._version = max(self._version, version)
+
+    def info(self) -> SessionInfo:
+        """The session's metadata now; resets `plan_version` to the server's."""
+        info = self.client.get_session(self.id)
+        with self._lock:
+            self._info, self._version = info, info.plan_version
+        return info
+
+    def delete(self) -> None:
+        """Deletes the session on the server."""
+        self.client.delete_session(self.id)
+
+    # --- label map ----------------------------------------------------------------------------
+
+    def _upload(self, first: pb.UploadLabelMapRequest, data: bytes | memoryview) -> LabelMapSummary:
+        view = memoryview(data)
+
+        def chunks() -> Iterator[pb.UploadLabelMapRequest]:
+            yield first
+            for k in range(0, len(view), CHUNK_BYTES):
+                yield pb.UploadLabelMapRequest(data=bytes(view[k : k + CHUNK_BYTES]))
+
+        stub = self.client._ready()
+        try:
+            r = stub.UploadLabelMap(chunks(), metadata=self.client._metadata, timeout=max(self.client.timeout, 600))
+        except grpc.RpcError as e:
+            raise from_rpc_error(e) from None
+        self.info()
+        return LabelMapSummary.from_pb(r.label_map)
+
+    def upload_label_map(self, labels: Any, ijk_to_ras: Any, roles: Roles, *, axes: Axes = "kji") -> LabelMapSummary:
+        """Uploads a label map from a 3-D integer array indexed [k, j, i] (Slicer's
+        `arrayFromVolume` layout; ``axes="ijk"`` for [i, j, k]) with its 4×4 IJK→RAS matrix
+        (array-like or vtkMatrix4x4; oblique, anisotropic and flipped grids are fine) and the role
+        map. Replaces the session's label map (models must be rebuilt) and returns the server's
+        summary. See `resecta_client.geometry` for the conventions."""
+        origin, spacing, direction = decompose(ijk_to_ras)
+        dims, data_type, data = label_bytes(labels, axes)
+        header = label_map_pb2.RawLabelMapHeader(
+            session_id=self.id,
+            dims=list(dims),
+            spacing=list(spacing),
+            origin=list(origin),
+            direction=direction.reshape(-1).tolist(),
+            data_type=data_type,
+            roles=role_map(roles),
+            total_bytes=len(data),
+        )
+        return self._upload(pb.UploadLabelMapRequest(raw=header), data)
+
+    def upload_label_map_file(self, file: str | os.PathLike[str] | bytes, roles: Roles, *, format: str = "auto") -> LabelMapSummary:
+        """Uploads a label-map file (a path, or its bytes): NIfTI (``.nii``/``.nii.gz``), NRRD,
+        Slicer ``.seg.nrrd`` or MetaImage ``.mha``; `format` ``"auto"`` (detected from the
+        bytes), ``"nifti"``, ``"nrrd"``, ``"seg_nrrd"`` or ``"metaimage"``."""
+        data = file if isinstance(file, bytes) else Path(file).read_bytes()
+        name = f"LABEL_MAP_FORMAT_{format.upper()}"
+        if name not in label_map_pb2.LabelMapFormat.keys() or name.endswith("UNSPECIFIED"):
+            raise ValueError(f"unknown label-map format {format!r}")
+        header = label_map_pb2.FileLabelMapHeader(
+            session_id=self.id,
+            format=label_map_pb2.LabelMapFormat.Value(name),
+            roles=role_map(roles),
+            total_bytes=len(data),
+        )
+        return self._upload(pb.UploadLabelMapRequest(file=header), data)
+
+    # --- reconstruction -----------------------------------------------------------------------
+
+    def reconstruct(
+        self,
+        method: Method | str = Method.PSR,
+        *,
+        psr_depth: int | None = None,
+        smoothing: float | None = None,
+        decimation: float | None = None,
+        progress: ProgressCallback | None = None,
+        on_model: Callable[[ModelInfo], None] | None = None,
+        cancel: threading.Event | None = None,
+        timeout: float | None = None,
+    ) -> list[ModelInfo]:
+        """Builds the surface models of the label map and returns them once all are built.
+
+        `progress(fraction, stage)` is called for every progress event and `on_model(info)` for
+        every model as it comes, from this thread. Setting `cancel` (from any thread) cancels
+        the work on the server, which keeps the previous models, and raises `Cancelled`.
+        `FailedPrecondition` without a label map."""
+        options = reconstruction_pb2.ReconstructOptions(psr_depth=psr_depth, smoothing=smoothing, decimation=decimation)
+        request = pb.ReconstructRequest(session_id=self.id, method=Method.parse(method).to_pb(), options=options)
+        call = self.client._stream("Reconstruct", request, timeout=timeout)
+        done = threading.Event()
+        if cancel is not None:
+
+            def canceller() -> None:
+                while not done.is_set():
+                    if cancel.wait(0.05):
+                        call.cancel()
+                        return
+
+            threading.Thread(target=canceller, name="resecta-reconstruct-cancel", daemon=True).start()
+        models: list[ModelInfo] = []
+        try:
+            for event in call:
+                kind = event.WhichOneof("event")
+                if kind == "progress" and progress is not None:
+                    progress(event.progress.fraction, event.progress.stage)
+                elif kind == "model":
+                    models.append(ModelInfo.from_pb(event.model))
+                    if on_model is not None:
+                        on_model(models[-1])
+                elif kind == "done":
+                    if progress is not None:
+                        progress(1.0, "done")
+        except grpc.RpcError as e:
+            err = from_rpc_error(e)
+            if cancel is not None and cancel.is_set():
+                raise Cancelled("reconstruction cancelled", code="CANCELLED", status=grpc.StatusCode.CANCELLED) from None
+            raise err from None
+        finally:
+            done.set()
+        return models
+
+    # --- resection edits ----------------------------------------------------------------------
+
+    def _edit(self, base_version: int | None, **op: Any) -> EditResult:
+        base = self.plan_version if base_version is None else base_version
+        r = EditResult.from_pb(self.client._call("Edit", pb.EditRequest(session_id=self.id, base_version=base, **op)))
+        self._saw(r.plan_version)
+        return r
+
+    def init_from_end_point(
+        self, name: str, end_point: Point, *, target: TargetLike = None, grid: tuple[int, int] = (4, 4), base_version: int | None = None
+    ) -> EditResult:
+        """Adds a resection from an end point (thesis Alg. 1–2): the plane halfway between the
+        target tumour's centroid and `end_point`, and a planar m×n control grid over the
+        liver's contour on it."""
+        op = resection_pb2.InitFromEndPoint(name=name, target=_target(target), end_point=vec3(end_point), grid_m=grid[0], grid_n=grid[1])
+        return self._edit(base_version, init_from_end_point=op)
+
+    def init_from_plane(
+        self,
+        name: str,
+        plane_point: Point,
+        plane_normal: Point,
+        *,
+        target: TargetLike = None,
+        grid: tuple[int, int] = (4, 4),
+        base_version: int | None = None,
+    ) -> EditResult:
+        """Adds a resection on a plane (its normal pointing away from the tumour)."""
+        op = resection_pb2.InitFromPlane(
+            name=name, target=_target(target), plane_point=vec3(plane_point), plane_normal=vec3(plane_normal), grid_m=grid[0], grid_n=grid[1]
+        )
+        return self._edit(base_version, init_from_plane=op)
+
+    def set_control_point(self, name: str, i: int, j: int, point: Point, *, base_version: int | None = None) -> EditResult:
+        """Moves control point P_ij (row i along u, column j along v) to `point`."""
+        op = resection_pb2.SetControlPoint(name=name, i=i, j=j, point=vec3(point))
+        return self._edit(base_version, set_control_point=op)
+
+    def set_control_points(self, name: str, points: Any, *, base_version: int | None = None) -> EditResult:
+        """Replaces every control point: an (m, n, 3) or (m·n, 3) array, row-major (entry
+        i·n + j is P_ij)."""
+        import numpy as np
+
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        op = resection_pb2.SetControlPoints(name=name, points=[vec3(p) for p in pts])
+        return self._edit(base_version, set_control_points=op)
+
+    def move_group(
+        self, name: str, delta: Point, *, group: ControlGroup | str | None = None, ring: int | None = None, base_version: int | None = None
+    ) -> EditResult:
+        """Moves a group of control points by `delta`: a named `group` (``"inner"``,
+        ``"outer"``, ``"all"``) or `ring` k (the points k grid steps from the border)."""
+        if (group is None) == (ring is None):
+            raise ValueError("move_group needs exactly one of group= and ring=")
+        sel: dict[str, Any] = {"ring": ring} if ring is not None else {"group": ControlGroup.parse(group).to_pb()}  # type: ignore[arg-type]
+        return self._edit(base_version, move_group=resection_pb2.MoveGroup(name=name, delta=vec3(delta), **sel))
+
+    def translate(self, name: str, delta: Point, *, base_version: int | None = None) -> EditResult:
+        """Moves the whole surface by `delta` (mm)."""
+        return self._edit(base_version, translate=resection_pb2.Translate(name=name, delta=vec3(delta)))
+
+    def rotate(self, name: str, axis: Point, angle_deg: float, *, centre: Point | None = None, base_version: int | None = None) -> EditResult:
+        """Rotates every control point by `angle_deg` (right-handed) about `axis` through
+        `centre` (default: the control points' centroid)."""
+        op = resection_pb2.Rotate(name=name, axis=vec3(axis), angle_deg=angle_deg)
+        if centre is not None:
+            op.centre.CopyFrom(vec3(centre))
+        return self._edit(base_version, rotate=op)
+
+    def set_margin(self, name: str, margin_mm: float, *, base_version: int | None = None) -> EditResult:
+        """Sets the safety margin, mm, in (0, 100]."""
+        return self._edit(base_version, set_margin=resection_pb2.SetMargin(name=name, margin_mm=margin_mm))
+
+    def set_band(self, name: str, band_mm: float, *, base_version: int | None = None) -> EditResult:
+        """Sets the warning band beyond the margin, mm, in [0, 100]."""
+        return self._edit(base_version, set_band=resection_pb2.SetBand(name=name, band_mm=band_mm))
+
+    def set_resolution(self, name: str, ru: int, rv: int, *, base_version: int | None = None) -> EditResult:
+        """Sets the surface samples along u and v (2..=500 each)."""
+        return self._edit(base_version, set_resolution=resection_pb2.SetResolution(name=name, ru=ru, rv=rv))
+
+    def set_target(self, name: str, target: TargetLike, *, base_version: int | None = None) -> EditResult:
+        """Replaces the target tumours (None: every tumour)."""
+        return self._edit(base_version, set_target=resection_pb2.SetTarget(name=name, target=_target(target)))
+
+    def delete_resection(self, name: str, *, base_version: int | None = None) -> EditResult:
+        """Removes a resection from the plan."""
+        return self._edit(base_version, delete_resection=resection_pb2.DeleteResection(name=name))
+
+    def undo(self, *, base_version: int | None = None) -> EditResult:
+        """Takes back the session's last edit (any resection's; `FailedPrecondition`
+        NOTHING_TO_UNDO when there is none)."""
+        return self._edit(base_version, undo=resection_pb2.Undo())
+
+    def redo(self, *, base_version: int | None = None) -> EditResult:
+        """Restores the last undone edit (NOTHING_TO_REDO when there is none)."""
+        return self._edit(base_version, redo=resection_pb2.Redo())
+
+    # --- volumes, plans, exports, slices ------------------------------------------------------
+
+    def volumes(self, *, timeout: float | None = None) -> Volumes:
+        """Resected and remnant volumes of the current plan."""
+        r = self.client._call("GetVolumes", pb.GetVolumesRequest(session_id=self.id), timeout=timeout)
+        return Volumes.from_pb(r.volumes, r.plan_version)
+
+    def export_plan(self) -> str:
+        """The current plan as `resecta-plan/1` JSON text."""
+        r = self.client._call("ExportPlan", pb.ExportPlanRequest(session_id=self.id))
+        self._saw(r.plan_version)
+        return str(r.plan_json)
+
+    def import_plan(self, plan: str | Mapping[str, Any], *, base_version: int | None = None) -> int:
+        """Replaces the plan by a `resecta-plan/1` document (JSON text or a dict); one undoable
+        edit with the same `base_version` rule as the edits. Returns the new plan version."""
+        text = plan if isinstance(plan, str) else json.dumps(plan)
+        base = self.plan_version if base_version is None else base_version
+        r = self.client._call("ImportPlan", pb.ImportPlanRequest(session_id=self.id, plan_json=text, base_version=base))
+        self._saw(r.plan_version)
+        return int(r.plan_version)
+
+    def export_model(self, name: str, format: ModelFormat | str = ModelFormat.VTP, *, resection: bool = False, timeout: float | None = None) -> bytes:
+        """A model's (or with ``resection=True`` a resection's) mesh as the bytes of a file in
+        `format` (``"vtp"``, ``"vtk"``, ``"stl"``, ``"ply"``, ``"obj"``; RAS coordinates)."""
+        which = {"resection": name} if resection else {"model": name}
+        request = pb.ExportModelRequest(session_id=self.id, format=ModelFormat.parse(format).to_pb(), **which)
+        out = bytearray()
+        try:
+            for chunk in self.client._stream("ExportModel", request, timeout=timeout or max(self.client.timeout, 120)):
+                out += chunk.data
+        except grpc.RpcError as e:
+            raise from_rpc_error(e) from None
+        return bytes(out)
+
+    def slices(
+        self, name: str, *, axial: float | None = None, coronal: float | None = None, sagittal: float | None = None, resection: bool = False
+    ) -> Slices:
+        """Contours of a model (or resection) on the axial (RAS z), coronal (y) and sagittal (x)
+        planes given."""
+        which = {"resection": name} if resection else {"model": name}
+        request = pb.GetSlicesRequest(session_id=self.id, axial=axial, coronal=coronal, sagittal=sagittal, **which)
+        return Slices.from_pb(self.client._call("GetSlices", request))
+
+    # --- watch --------------------------------------------------------------------------------
+
+    def watch(
+        self,
+        *,
+        since_seq: int | None = None,
+        scene: LiveScene | None = None,
+        allow_zstd: bool | None = None,
+        allow_quantized: bool = False,
+        reconnect: int = 3,
+    ) -> Watch:
+        """Follows the session: an iterator of `SceneUpdate`s, applied to `Watch.scene` before
+        each is yielded. See `Watch`."""
+        return Watch(self, since_seq=since_seq, scene=scene, allow_zstd=allow_zstd, allow_quantized=allow_quantized, reconnect=reconnect)
+
+
+class Watch:
+    """An iterator over a session's Watch stream, applying every event to `scene` (a
+    `LiveScene`, new or given) and yielding what changed (`SceneUpdate`).
+
+    It starts with a snapshot, or, with `since_seq` and the `scene` built so far, with the
+    events after that sequence number (the server sends a snapshot instead when it no longer
+    has them). When the connection drops (UNAVAILABLE) it reconnects up to `reconnect` times in
+    a row with ``since_seq = scene.seq``; when a delta does not fit the scene it asks for a
+    fresh snapshot. `stop()` ends the iteration from any thread (the blocked `next` returns
+    with StopIteration). Plan versions seen advance the session's `plan_version`. Compressed
+    payloads are asked for when the `zstandard` package is importable (`allow_zstd`), quantised
+    ones only with `allow_quantized`.
+    """
+
+    def __init__(
+        self,
+        session: Session,
+        *,
+        since_seq: int | None = None,
+        scene: LiveScene | None = None,
+        allow_zstd: bool | None = None,
+        allow_quantized: bool = False,
+        reconnect: int = 3,
+    ) -> None:
+        self.session = session
+        self.scene = scene if scene is not None else LiveScene()
+        self._since = since_seq
+        self._zstd = wire.zstandard is not None if allow_zstd is None else allow_zstd
+        self._quantized = allow_quantized
+        self._reconnect = reconnect
+        self._lock = threading.Lock()
+        self._stopped = False
+        self._call: Any = None
+
+    @property
+    def last_seq(self) -> int | None:
+        """The `seq` of the last applied event (resume from it with ``since_seq``)."""
+        return self.scene.seq
+
+    def __iter__(self) -> Watch:
+        return self
+
+    def __enter__(self) -> Watch:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def stop(self) -> None:
+        """Ends the iteration; safe from any thread, and more than once."""
+        with self._lock:
+            self._stopped = True
+            call = self._call
+        if call is not None:
+            call.cancel()
+
+    def _open(self) -> Any:
+        request = pb.WatchRequest(
+            session_id=self.session.id, since_seq=self._since, allow_zstd=self._zstd, allow_quantized=self._quantized
+        )
+        call = self.session.client._stream("Watch", request)
+        with self._lock:
+            if self._stopped:
+                call.cancel()
+            self._call = call
+        return call
+
+    def __next__(self) -> SceneUpdate:
+        failures = 0
+        while True:
+            if self._stopped:
+                raise StopIteration
+            call = self._call
+            try:
+                if call is None:
+                    call = self._open()
+                msg = next(call)
+            except StopIteration:
+                with self._lock:
+                    self._call = None
+                    self._stopped = True
+                raise
+            except grpc.RpcError as e:
+                with self._lock:
+                    self._call = None
+                if self._stopped:
+                    raise StopIteration from None
+                err = from_rpc_error(e)
+                if isinstance(err, ServerUnavailable) and failures < self._reconnect:
+                    failures += 1
+                    self._since = self.scene.seq
+                    time.sleep(min(0.2 * 2**failures, 2.0))
+                    continue
+                raise err from None
+            failures = 0
+            try:
+                update = self.scene.apply(msg)
+            except wire.WireError:
+                # The scene cannot follow this stream: start again from a snapshot.
+                call.cancel()
+                with self._lock:
+                    self._call = None
+                self._since = None
+                continue
+            if update is not None:
+                self.session._saw(update.plan_version)
+                return update
+
+    def updates(self, until: Callable[[SceneUpdate], bool]) -> Iterator[SceneUpdate]:
+        """Yields updates until (and including) the first for which `until(update)` is true."""
+        for u in self:
+            yield u
+            if until(u):
+                return
+

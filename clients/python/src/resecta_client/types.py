@@ -1,0 +1,481 @@
+"""The results and parameters of the client API as plain dataclasses (no protobuf), with the
+conversions from and to the `resecta.v1` messages. Coordinates are RAS millimetres, volumes ml,
+areas mm², angles degrees, times milliseconds since the Unix epoch."""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, TypeAlias
+
+import numpy as np
+import numpy.typing as npt
+
+from ._gen import common_pb2, label_map_pb2, reconstruction_pb2, resection_pb2, session_pb2
+from ._gen import planning_service_pb2, surface_pb2, volumes_pb2
+from .geometry import compose
+
+F64: TypeAlias = npt.NDArray[np.float64]
+F32: TypeAlias = npt.NDArray[np.float32]
+Point: TypeAlias = Sequence[float] | npt.ArrayLike
+"""Anything of 3 numbers: a tuple, a list, a numpy array (RAS mm)."""
+
+ROLES = ("parenchyma", "tumor", "portal", "hepatic", "vessel")
+"""The roles of a role map (`RoleMap` in proto/resecta/v1/common.proto)."""
+
+
+class _Named(str, enum.Enum):
+    """A str enum mapped onto a protobuf enum `<PREFIX>_<VALUE>`."""
+
+    @classmethod
+    def parse(cls, value: str | _Named) -> Any:
+        try:
+            return cls(value.lower() if isinstance(value, str) else value)
+        except ValueError:
+            allowed = ", ".join(m.value for m in cls)
+            raise ValueError(f"unknown {cls.__name__} {value!r} (one of {allowed})") from None
+
+    def to_pb(self) -> int:
+        pb_enum, prefix = self._pb()
+        return int(pb_enum.Value(f"{prefix}_{self.name}"))
+
+    @classmethod
+    def from_pb(cls, number: int) -> Any:
+        pb_enum, prefix = cls._pb()
+        return cls[pb_enum.Name(number).removeprefix(f"{prefix}_")]
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        """The protobuf enum and its value prefix."""
+        raise NotImplementedError
+
+
+class SessionState(_Named):
+    """What a session holds: nothing yet, a label map, or built models (ready to plan)."""
+
+    UNSPECIFIED = "unspecified"
+    EMPTY = "empty"
+    LABEL_MAP = "label_map"
+    READY = "ready"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return session_pb2.SessionState, "SESSION_STATE"
+
+
+class SurfaceKind(_Named):
+    """What a surface shows."""
+
+    UNSPECIFIED = "unspecified"
+    PARENCHYMA = "parenchyma"
+    TUMOR = "tumor"
+    PORTAL = "portal"
+    HEPATIC = "hepatic"
+    VESSEL = "vessel"
+    RESECTION = "resection"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return surface_pb2.SurfaceKind, "SURFACE_KIND"
+
+
+class Method(_Named):
+    """Reconstruction method: MCSD for every model, or PSR for the liver (tumours and vessels by
+    MCSD)."""
+
+    MCSD = "mcsd"
+    PSR = "psr"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return reconstruction_pb2.ReconstructionMethod, "RECONSTRUCTION_METHOD"
+
+
+class ModelFormat(_Named):
+    """File format of an exported mesh."""
+
+    VTP = "vtp"
+    VTK = "vtk"
+    STL = "stl"
+    PLY = "ply"
+    OBJ = "obj"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return surface_pb2.ModelFormat, "MODEL_FORMAT"
+
+
+class ControlGroup(_Named):
+    """A named group of control points: the inner points, the border ring, or all."""
+
+    INNER = "inner"
+    OUTER = "outer"
+    ALL = "all"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return resection_pb2.ControlGroup, "CONTROL_GROUP"
+
+
+
+
+class MarginClass(enum.IntEnum):
+    """Per-vertex margin class of a resection surface (`SurfaceState.classes`)."""
+
+    OUTSIDE = 0
+    """Outside the liver (does not count)."""
+    SAFE = 1
+    WARNING = 2
+    """Within the warning band beyond the margin."""
+    VIOLATION = 3
+    """Closer to a target tumour than the margin."""
+
+
+# --- conversions of small geometry ---------------------------------------------------------
+
+
+def vec3(p: Point) -> common_pb2.Vec3:
+    """A `Vec3` of 3 finite numbers (ValueError otherwise)."""
+    a = np.asarray(p, dtype=np.float64).reshape(-1)
+    if a.shape != (3,):
+        raise ValueError(f"a point needs 3 coordinates, got {a.size}")
+    return common_pb2.Vec3(x=float(a[0]), y=float(a[1]), z=float(a[2]))
+
+
+def _xyz(v: common_pb2.Vec3) -> F64:
+    return np.array([v.x, v.y, v.z], dtype=np.float64)
+
+
+def role_map(roles: Mapping[str, Iterable[int] | int]) -> common_pb2.RoleMap:
+    """A `RoleMap` from a dict role → label value(s), e.g. ``{"parenchyma": [1], "tumor": 2}``."""
+    unknown = set(roles) - set(ROLES)
+    if unknown:
+        raise ValueError(f"unknown roles {sorted(unknown)} (known: {', '.join(ROLES)})")
+    return common_pb2.RoleMap(
+        **{r: [v] if isinstance(v, int) else [int(x) for x in v] for r, v in roles.items()}
+    )
+
+
+def _roles(m: common_pb2.RoleMap) -> dict[str, list[int]]:
+    return {r: list(getattr(m, r)) for r in ROLES if getattr(m, r)}
+
+
+# --- server, sessions, label maps ----------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ServerLimits:
+    """Limits the server enforces (0: no limit of that kind)."""
+
+    max_voxels: int
+    max_sessions: int
+    max_upload_bytes: int
+    max_chunk_bytes: int
+    max_message_bytes: int
+    max_resections: int
+    max_control_points: int
+    max_resolution: int
+    session_idle_timeout_s: int
+
+
+@dataclass(frozen=True)
+class ServerInfo:
+    """The server's identity, the API it speaks (``"resecta.v1"``), capabilities (``gpu``,
+    ``tls``, ``auth``, ``zstd``, ``quantized``, ``psr``) and limits."""
+
+    server_version: str
+    api_version: str
+    capabilities: tuple[str, ...]
+    limits: ServerLimits
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.GetServerInfoResponse) -> ServerInfo:
+        lim = m.limits
+        limits = ServerLimits(**{f: getattr(lim, f) for f in ServerLimits.__dataclass_fields__})
+        return cls(m.server_version, m.api_version, tuple(m.capabilities), limits)
+
+
+@dataclass(frozen=True)
+class LabelCount:
+    """Voxels of one label value, and their volume."""
+
+    label: int
+    voxels: int
+    volume_ml: float
+
+
+@dataclass(frozen=True)
+class LabelMapSummary:
+    """What the server made of an uploaded label map: its grid (`direction` has unit columns,
+    the RAS directions of i, j, k), roles and label counts."""
+
+    dims: tuple[int, int, int]
+    spacing: tuple[float, float, float]
+    origin: tuple[float, float, float]
+    direction: F64  # (3, 3)
+    roles: dict[str, list[int]]
+    labels: tuple[LabelCount, ...]
+    liver_volume_ml: float
+
+    @property
+    def ijk_to_ras(self) -> F64:
+        """The 4×4 IJK→RAS matrix (Slicer's IJKToRAS): ``direction · diag(spacing)``, origin."""
+        return compose(self.origin, self.spacing, self.direction)
+
+    @classmethod
+    def from_pb(cls, m: label_map_pb2.LabelMapSummary) -> LabelMapSummary:
+        return cls(
+            dims=tuple(m.dims),  # type: ignore[arg-type]
+            spacing=tuple(m.spacing),  # type: ignore[arg-type]
+            origin=tuple(m.origin),  # type: ignore[arg-type]
+            direction=np.array(m.direction, dtype=np.float64).reshape(3, 3),
+            roles=_roles(m.roles),
+            labels=tuple(LabelCount(c.label, c.voxels, c.volume_ml) for c in m.labels),
+            liver_volume_ml=m.liver_volume_ml,
+        )
+
+
+@dataclass(frozen=True)
+class SessionInfo:
+    """One session's metadata."""
+
+    id: str
+    display_name: str
+    created_ms: int
+    last_access_ms: int
+    state: SessionState
+    plan_version: int
+    label_map: LabelMapSummary | None
+
+    @classmethod
+    def from_pb(cls, m: session_pb2.Session) -> SessionInfo:
+        return cls(
+            id=m.id,
+            display_name=m.display_name,
+            created_ms=m.created_ms,
+            last_access_ms=m.last_access_ms,
+            state=SessionState.from_pb(m.state),
+            plan_version=m.plan_version,
+            label_map=LabelMapSummary.from_pb(m.label_map) if m.HasField("label_map") else None,
+        )
+
+
+# --- reconstruction --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """One surface model a reconstruction built (its mesh comes with `watch` or
+    `export_model`)."""
+
+    name: str
+    kind: SurfaceKind
+    label: int
+    triangle_count: int
+    vertex_count: int
+    volume_ml: float
+
+    @classmethod
+    def from_pb(cls, m: reconstruction_pb2.ModelInfo) -> ModelInfo:
+        kind = SurfaceKind.from_pb(m.kind)
+        return cls(m.name, kind, m.label, m.triangle_count, m.vertex_count, m.volume_ml)
+
+
+# --- resections ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Target:
+    """Which tumours a resection keeps its margin from and removes: tumour `labels` (empty: all)
+    and `points` picking single components (empty: every component of the labels)."""
+
+    labels: tuple[int, ...] = ()
+    points: tuple[tuple[float, float, float], ...] = ()
+
+    def to_pb(self) -> resection_pb2.Target:
+        return resection_pb2.Target(labels=list(self.labels), points=[vec3(p) for p in self.points])
+
+    @classmethod
+    def from_pb(cls, m: resection_pb2.Target) -> Target:
+        return cls(tuple(m.labels), tuple((p.x, p.y, p.z) for p in m.points))
+
+
+@dataclass(frozen=True)
+class Resection:
+    """A virtual resection: a tensor-product Bézier surface. `control_points` has shape
+    (m, n, 3): entry [i, j] is P_ij (i along u); ``control_points.reshape(-1, 3)`` is the
+    row-major order of the plan file and of the wire (index i·n + j)."""
+
+    name: str
+    control_points: F64
+    margin_mm: float
+    band_mm: float
+    target: Target
+    resolution: tuple[int, int]
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """(m, n): control points along u and v."""
+        return self.control_points.shape[0], self.control_points.shape[1]
+
+    @classmethod
+    def from_pb(cls, m: resection_pb2.Resection) -> Resection:
+        cps = np.array([(p.x, p.y, p.z) for p in m.control_points], dtype=np.float64)
+        return cls(
+            name=m.name,
+            control_points=cps.reshape(m.grid_m, m.grid_n, 3),
+            margin_mm=m.margin_mm,
+            band_mm=m.band_mm,
+            target=Target.from_pb(m.target),
+            resolution=(m.ru, m.rv),
+        )
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The global margin verdict of one resection: the smallest distance of its surface inside
+    the liver to a target tumour (None when no part is inside), where (`point`, surface
+    parameters `uv`), whether it violates the margin, and the violating / warning / inside
+    areas."""
+
+    min_margin_mm: float | None
+    point: F64 | None
+    uv: tuple[float, float] | None
+    violation: bool
+    violating_area_mm2: float
+    warning_area_mm2: float
+    inside_area_mm2: float
+
+    @classmethod
+    def from_pb(cls, m: resection_pb2.Verdict) -> Verdict:
+        has = m.HasField("min_margin_mm")
+        return cls(
+            min_margin_mm=m.min_margin_mm if has else None,
+            point=_xyz(m.point) if has and m.HasField("point") else None,
+            uv=(m.u, m.v) if m.HasField("u") and m.HasField("v") else None,
+            violation=m.violation,
+            violating_area_mm2=m.violating_area_mm2,
+            warning_area_mm2=m.warning_area_mm2,
+            inside_area_mm2=m.inside_area_mm2,
+        )
+
+
+@dataclass(frozen=True)
+class ResectionStatus:
+    """A resection with its verdict, after an edit."""
+
+    resection: Resection
+    verdict: Verdict
+
+
+@dataclass(frozen=True)
+class EditResult:
+    """The outcome of an edit: the plan version now, the resections it added or changed (with
+    their verdicts) and the names it removed."""
+
+    plan_version: int
+    resections: tuple[ResectionStatus, ...]
+    removed: tuple[str, ...]
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.EditResponse) -> EditResult:
+        res = tuple(
+            ResectionStatus(Resection.from_pb(r.resection), Verdict.from_pb(r.verdict))
+            for r in m.resections
+        )
+        return cls(m.plan_version, res, tuple(m.removed))
+
+    def __getitem__(self, name: str) -> ResectionStatus:
+        """The status of the resection `name` (KeyError if the edit did not touch it)."""
+        for r in self.resections:
+            if r.resection.name == name:
+                return r
+        raise KeyError(name)
+
+
+# --- volumes, slices ---------------------------------------------------------------------------
+
+
+def _opt(m: Any, name: str) -> Any:
+    return getattr(m, name) if m.HasField(name) else None
+
+
+@dataclass(frozen=True)
+class ResectionVolume:
+    """One resection's share of the liver; volumes are None unless the cut is complete."""
+
+    name: str
+    resected_ml: float | None
+    resected_pct: float | None
+    complete_cut: bool
+    incomplete_reason: str
+    incomplete_point: F64 | None
+
+
+@dataclass(frozen=True)
+class Volumes:
+    """Resected and remnant volumes of the functional liver (every role but tumour) for
+    `plan_version`; remnant and resected values are None when some cut is incomplete."""
+
+    plan_version: int
+    total_ml: float
+    remnant_ml: float | None
+    remnant_pct: float | None
+    resected_ml: float | None
+    flr_threshold_pct: float
+    flr_warning: bool | None
+    complete: bool
+    resections: tuple[ResectionVolume, ...] = field(default=())
+
+    @classmethod
+    def from_pb(cls, m: volumes_pb2.VolumeReport, plan_version: int) -> Volumes:
+        res = tuple(
+            ResectionVolume(
+                name=r.name,
+                resected_ml=_opt(r, "resected_ml"),
+                resected_pct=_opt(r, "resected_pct"),
+                complete_cut=r.complete_cut,
+                incomplete_reason=r.incomplete_reason,
+                incomplete_point=_xyz(r.incomplete_point) if r.HasField("incomplete_point") else None,
+            )
+            for r in m.resections
+        )
+        return cls(
+            plan_version=plan_version,
+            total_ml=m.total_ml,
+            remnant_ml=_opt(m, "remnant_ml"),
+            remnant_pct=_opt(m, "remnant_pct"),
+            resected_ml=_opt(m, "resected_ml"),
+            flr_threshold_pct=m.flr_threshold_pct,
+            flr_warning=_opt(m, "flr_warning"),
+            complete=m.complete,
+            resections=res,
+        )
+
+
+@dataclass(frozen=True)
+class Polyline:
+    """One connected piece of a contour: points (n, 3) float32 RAS mm, closed or open."""
+
+    points: F32
+    closed: bool
+
+    @classmethod
+    def from_pb(cls, m: surface_pb2.Polyline) -> Polyline:
+        pts = np.frombuffer(m.points, dtype="<f4").astype(np.float32).reshape(-1, 3)
+        return cls(pts, m.closed)
+
+
+@dataclass(frozen=True)
+class Slices:
+    """Contours of a surface on the axial, coronal and sagittal planes asked for (empty when a
+    plane was not asked for or does not cut the surface)."""
+
+    axial: tuple[Polyline, ...]
+    coronal: tuple[Polyline, ...]
+    sagittal: tuple[Polyline, ...]
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.GetSlicesResponse) -> Slices:
+        return cls(*(tuple(Polyline.from_pb(p) for p in getattr(m, k)) for k in ("axial", "coronal", "sagittal")))
