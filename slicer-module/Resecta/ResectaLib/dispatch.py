@@ -55,7 +55,7 @@ class ThreadDispatcher:
     Logic uses separate dispatchers or the coalescer where order matters). `call_soon` may be
     used from any thread (e.g. the watch thread) to run something on the main thread."""
 
-    def __init__(self, workers: int = 2):
+    def __init__(self, workers: int = 1):
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=workers,
                                                            thread_name_prefix="resecta")
         self._queue: queue.SimpleQueue[Callable[[], None]] = queue.SimpleQueue()
@@ -68,7 +68,7 @@ class ThreadDispatcher:
             try:
                 result = fn()
             except BaseException as exc:  # noqa: BLE001 - delivered on the main thread
-                self._queue.put(lambda: self._deliver_error(exc, on_error))
+                self._queue.put(lambda exc=exc: self._deliver_error(exc, on_error))
                 return None
             if on_done is not None:
                 self._queue.put(lambda: on_done(result))
