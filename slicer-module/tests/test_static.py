@@ -1,0 +1,184 @@
+"""Checks that need neither Slicer nor a server: the module's files are well formed and agree
+with each other (Python compiles, the .ui is Qt Designer XML holding every widget the Widget
+uses, the parameter node's fields are bound in the .ui, CMake lists every file, metadata and
+icon are present, dependencies are imported lazily)."""
+
+import ast
+import py_compile
+import re
+import struct
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+EXT = Path(__file__).resolve().parent.parent
+MODULE = EXT / "Resecta"
+UI = MODULE / "Resources" / "UI" / "Resecta.ui"
+LIB = MODULE / "ResectaLib"
+PY_FILES = sorted(p for p in EXT.rglob("*.py") if "__pycache__" not in p.parts)
+
+
+@pytest.mark.parametrize("path", PY_FILES, ids=lambda p: str(p.relative_to(EXT)))
+def test_python_compiles(path, tmp_path):
+    ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    py_compile.compile(str(path), cfile=str(tmp_path / "out.pyc"), doraise=True)
+
+
+def _ui_widgets():
+    root = ET.parse(UI).getroot()
+    assert root.tag == "ui" and root.get("version") == "4.0"
+    widgets = {w.get("name"): w for w in root.iter("widget")}
+    return root, widgets
+
+
+def _module_ast():
+    return ast.parse((MODULE / "Resecta.py").read_text(encoding="utf-8"))
+
+
+def test_ui_is_designer_xml_with_custom_widgets_declared():
+    root, widgets = _ui_widgets()
+    assert root.find("class").text == "Resecta"
+    top = root.find("widget")
+    assert top.get("class") == "qMRMLWidget" and top.get("name") == "Resecta"
+    declared = {c.find("class").text for c in root.iter("customwidget")}
+    used = {w.get("class") for w in widgets.values()}
+    qt = {c for c in used if c.startswith("Q")}
+    assert used - qt <= declared, f"custom widgets not declared: {used - qt - declared}"
+    names = [w.get("name") for w in root.iter("widget")]
+    assert len(names) == len(set(names)), "duplicate widget names"
+
+
+def test_every_widget_the_module_uses_is_in_the_ui():
+    _root, widgets = _ui_widgets()
+    text = (MODULE / "Resecta.py").read_text(encoding="utf-8")
+    used = set(re.findall(r"self\.ui\.([A-Za-z_][A-Za-z0-9_]*)", text))
+    assert used, "the Widget uses no UI element?"
+    missing = sorted(used - set(widgets))
+    assert not missing, f"Resecta.py uses widgets missing from Resecta.ui: {missing}"
+
+
+def test_parameter_node_fields_are_bound_in_the_ui():
+    _root, widgets = _ui_widgets()
+    bound = {}
+    for name, w in widgets.items():
+        for p in w.findall("property"):
+            if p.get("name") == "SlicerParameterName":
+                bound[p.find("string").text] = name
+    cls = next(n for n in _module_ast().body
+               if isinstance(n, ast.ClassDef) and n.name == "ResectaParameterNode")
+    fields = {s.target.id for s in cls.body if isinstance(s, ast.AnnAssign)}
+    assert set(bound) <= fields, f"the .ui binds unknown parameters {set(bound) - fields}"
+    assert "sessionId" not in bound
+    assert not any("token" in f.lower() for f in fields), "the token must not be in the scene"
+
+
+def test_module_follows_the_scripted_module_template():
+    tree = _module_ast()
+    classes = {n.name: n for n in tree.body if isinstance(n, ast.ClassDef)}
+    bases = {name: [ast.unparse(b) for b in c.bases] for name, c in classes.items()}
+    assert bases["Resecta"] == ["ScriptedLoadableModule"]
+    assert "ScriptedLoadableModuleWidget" in bases["ResectaWidget"]
+    assert bases["ResectaLogic"] == ["ScriptedLoadableModuleLogic"]
+    assert bases["ResectaTest"] == ["ScriptedLoadableModuleTest"]
+    decorators = [ast.unparse(d) for d in classes["ResectaParameterNode"].decorator_list]
+    assert decorators == ["parameterNodeWrapper"]
+    methods = {n.name for n in classes["ResectaTest"].body if isinstance(n, ast.FunctionDef)}
+    assert {"setUp", "runTest"} <= methods
+    widget_src = ast.unparse(classes["ResectaWidget"])
+    assert 'loadUI(self.resourcePath("UI/Resecta.ui"))' in widget_src.replace("'", '"')
+    assert "pip_install" not in widget_src, "installing belongs in ResectaLib.deps"
+    logic_src = ast.unparse(classes["ResectaLogic"])
+    for gui in ("QMessageBox", "confirmOkCancelDisplay", "errorDisplay", "QFileDialog"):
+        assert gui not in logic_src, f"the Logic opens a dialog ({gui})"
+
+
+def _module_level_imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.Import):
+            out |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            out.add(node.module.split(".")[0])
+    return out
+
+
+@pytest.mark.parametrize("path", [MODULE / "Resecta.py", *sorted(LIB.glob("*.py"))],
+                         ids=lambda p: p.name)
+def test_dependencies_are_not_imported_at_module_import(path):
+    lazy = {"grpc", "google", "resecta_client", "zstandard"}
+    found = _module_level_imports(path) & lazy
+    assert not found, f"{path.name} imports {found} at import time (installed on first use)"
+
+
+@pytest.mark.parametrize("path", sorted(LIB.glob("*.py")), ids=lambda p: p.name)
+def test_lib_has_no_qt_nor_slicer_gui(path):
+    text = path.read_text(encoding="utf-8")
+    tree = ast.parse(text)
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            names |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names.add(node.module)
+    assert not names & {"qt", "ctk", "PythonQt", "slicer.util", "slicer.ScriptedLoadableModule"}
+    if path.name != "deps.py":  # deps calls slicer.util.pip_install, inside Slicer only
+        assert "slicer.util" not in text and "slicer.app" not in text
+
+
+def test_cmake_lists_every_module_file():
+    cmake = (MODULE / "CMakeLists.txt").read_text(encoding="utf-8")
+    listed = {line.strip().replace("${MODULE_NAME}", "Resecta") for line in cmake.splitlines()}
+    for p in [MODULE / "Resecta.py", *LIB.glob("*.py")]:
+        rel = str(p.relative_to(MODULE))
+        assert rel in listed, f"{rel} is not in Resecta/CMakeLists.txt"
+    for res in (MODULE / "Resources").rglob("*"):
+        if res.is_file():
+            rel = str(res.relative_to(MODULE))
+            assert rel in listed, f"{rel} is not in Resecta/CMakeLists.txt"
+            assert res.exists()
+    assert "slicerMacroBuildScriptedModule" in cmake and "WITH_GENERIC_TESTS" in cmake
+    top = (EXT / "CMakeLists.txt").read_text(encoding="utf-8")
+    assert "add_subdirectory(Resecta)" in top and "find_package(Slicer REQUIRED)" in top
+    for key in ("EXTENSION_HOMEPAGE", "EXTENSION_CATEGORY", "EXTENSION_DESCRIPTION",
+                "EXTENSION_ICONURL", "EXTENSION_DEPENDS"):
+        assert f"set({key} " in top
+
+
+def test_extension_description_file():
+    fields = {}
+    for line in (EXT / "Resecta.s4ext").read_text(encoding="utf-8").splitlines():
+        if line.strip() and not line.startswith("#"):
+            key, _, value = line.partition(" ")
+            fields[key] = value.strip()
+    for key in ("scm", "scmurl", "scmrevision", "depends", "build_subdirectory", "homepage",
+                "contributors", "category", "iconurl", "status", "description", "enabled"):
+        assert fields.get(key), f"Resecta.s4ext lacks {key}"
+
+
+@pytest.mark.parametrize("path", [EXT / "Resecta.png", MODULE / "Resources" / "Icons" / "Resecta.png"],
+                         ids=lambda p: str(p.relative_to(EXT)))
+def test_icons_are_128px_png(path):
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    width, height = struct.unpack(">II", data[16:24])
+    assert (width, height) == (128, 128)
+
+
+def test_requirements_match_the_dependency_list():
+    import sys
+
+    sys.path.insert(0, str(MODULE))
+    from ResectaLib import deps
+
+    lines = [l.strip() for l in (MODULE / "Resources" / "requirements.txt").read_text().splitlines()
+             if l.strip() and not l.startswith("#")]
+    assert set(lines) == {r for m, r in deps.PACKAGES.items() if m != "resecta_client"}
+
+
+def test_readme_pictures_exist():
+    text = (EXT / "README.md").read_text(encoding="utf-8")
+    pictures = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", text)
+    assert len(pictures) >= 2
+    for p in pictures:
+        assert (EXT / p).is_file(), f"README shows {p}, which is missing"
