@@ -26,6 +26,7 @@ from .errors import (
     ServerUnavailable,
     SessionNotFound,
     StaleVersion,
+    Unsupported,
     VersionMismatch,
 )
 from .geometry import compose, decompose, label_bytes
@@ -53,6 +54,7 @@ from .types import (
     Verdict,
     Volumes,
 )
+from .vtk_adapter import to_vtk_polydata, vtk_available
 from .wire import WireError
 
 __version__ = "0.1.0"
@@ -96,6 +98,7 @@ __all__ = [
     "SurfaceKind",
     "SurfaceState",
     "Target",
+    "Unsupported",
     "Verdict",
     "VersionMismatch",
     "Volumes",
@@ -104,4 +107,6 @@ __all__ = [
     "compose",
     "decompose",
     "label_bytes",
+    "to_vtk_polydata",
+    "vtk_available",
 ]

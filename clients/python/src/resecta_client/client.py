@@ -95,6 +95,8 @@ class Client:
         if token:
             self._metadata += (("authorization", f"Bearer {token}"),)
         self._lock = threading.Lock()
+        self._boot = threading.Lock()
+        self._retired: list[grpc.Channel] = []  # channels replaced by a larger receive limit
         self._info: ServerInfo | None = None
         self._receive = DEFAULT_RECEIVE_BYTES
         self._channel = self._open(self._receive)
@@ -115,7 +117,9 @@ class Client:
     def _ready(self) -> pb_grpc.PlanningServiceStub:
         """The stub, after the receive limit has been raised to the server's."""
         if self._info is None:
-            self.server_info()
+            with self._boot:
+                if self._info is None:
+                    self.server_info()
         return self._stub
 
     def _call(self, method: str, request: Any, *, timeout: float | None = None) -> Any:
@@ -134,7 +138,8 @@ class Client:
 
     def close(self) -> None:
         """Closes the channel (open streams end with `Cancelled`)."""
-        self._channel.close()
+        for channel in (*self._retired, self._channel):
+            channel.close()
 
     def __enter__(self) -> Client:
         return self
@@ -156,10 +161,10 @@ class Client:
             self._info = info
             wanted = info.limits.max_message_bytes
             if wanted > self._receive:
-                old, self._receive = self._channel, wanted
-                self._channel = self._open(wanted)
+                # Calls in flight on the old channel finish there; it closes with the client.
+                self._retired.append(self._channel)
+                self._receive, self._channel = wanted, self._open(wanted)
                 self._stub = pb_grpc.PlanningServiceStub(self._channel)
-                old.close()
         return info
 
     def create_session(self, display_name: str = "") -> Session:

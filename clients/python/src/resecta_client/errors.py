@@ -91,6 +91,11 @@ class DeadlineExceeded(ResectaError):
     """The call took longer than its timeout."""
 
 
+class Unsupported(ResectaError):
+    """The server does not offer this (UNIMPLEMENTED, code UNSUPPORTED), e.g. a reconstruction
+    method or slices of a model that this server build lacks."""
+
+
 class ServerError(ResectaError):
     """A storage failure (STORAGE: retry) or a bug in the server (INTERNAL)."""
 
@@ -102,6 +107,7 @@ _BY_CODE: dict[str, type[ResectaError]] = {
     "RESECTION_NOT_FOUND": NotFound,
     "MODEL_NOT_FOUND": NotFound,
     "STALE_VERSION": StaleVersion,
+    "UNSUPPORTED": Unsupported,
 }
 _BY_STATUS: dict[grpc.StatusCode, type[ResectaError]] = {
     grpc.StatusCode.UNAUTHENTICATED: AuthError,
@@ -114,6 +120,7 @@ _BY_STATUS: dict[grpc.StatusCode, type[ResectaError]] = {
     grpc.StatusCode.FAILED_PRECONDITION: FailedPrecondition,
     grpc.StatusCode.CANCELLED: Cancelled,
     grpc.StatusCode.DEADLINE_EXCEEDED: DeadlineExceeded,
+    grpc.StatusCode.UNIMPLEMENTED: Unsupported,
     grpc.StatusCode.INTERNAL: ServerError,
     grpc.StatusCode.UNKNOWN: ServerError,
 }

@@ -143,8 +143,8 @@ def vec3(p: Point) -> common_pb2.Vec3:
     return common_pb2.Vec3(x=float(a[0]), y=float(a[1]), z=float(a[2]))
 
 
-def _xyz(v: common_pb2.Vec3) -> F64:
-    return np.array([v.x, v.y, v.z], dtype=np.float64)
+def _xyz(v: common_pb2.Vec3) -> tuple[float, float, float]:
+    return (v.x, v.y, v.z)
 
 
 def role_map(roles: Mapping[str, Iterable[int] | int]) -> common_pb2.RoleMap:
@@ -205,7 +205,7 @@ class LabelCount:
     volume_ml: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LabelMapSummary:
     """What the server made of an uploaded label map: its grid (`direction` has unit columns,
     the RAS directions of i, j, k), roles and label counts."""
@@ -301,7 +301,7 @@ class Target:
         return cls(tuple(m.labels), tuple((p.x, p.y, p.z) for p in m.points))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Resection:
     """A virtual resection: a tensor-product Bézier surface. `control_points` has shape
     (m, n, 3): entry [i, j] is P_ij (i along u); ``control_points.reshape(-1, 3)`` is the
@@ -340,7 +340,7 @@ class Verdict:
     areas."""
 
     min_margin_mm: float | None
-    point: F64 | None
+    point: tuple[float, float, float] | None
     uv: tuple[float, float] | None
     violation: bool
     violating_area_mm2: float
@@ -410,7 +410,7 @@ class ResectionVolume:
     resected_pct: float | None
     complete_cut: bool
     incomplete_reason: str
-    incomplete_point: F64 | None
+    incomplete_point: tuple[float, float, float] | None
 
 
 @dataclass(frozen=True)
@@ -454,7 +454,7 @@ class Volumes:
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Polyline:
     """One connected piece of a contour: points (n, 3) float32 RAS mm, closed or open."""
 
