@@ -18,9 +18,10 @@ ROOT = Path(__file__).resolve().parents[3]
 sys.path.insert(0, str(ROOT / "tests"))
 sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # also works when pip-installed
 
-import resecta_client as rc  # noqa: E402
-from server_harness import Server, phantom, server  # noqa: E402,F401 (fixtures)
 from conftest import resecta_bin  # noqa: E402  (tests/conftest.py)
+from server_harness import Server, phantom, server  # noqa: E402,F401 (fixtures)
+
+import resecta_client as rc  # noqa: E402
 
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
 DEMO_ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3], "hepatic": [4]}
@@ -86,7 +87,9 @@ def read_ply(data: bytes) -> dict[str, np.ndarray]:
 
 def status_details(code: str, current: int | None = None) -> bytes:
     """A `google.rpc.Status` with one ErrorInfo detail, encoded by hand."""
-    info = rc.errors.error_pb2.ErrorInfo(code=code, field="x.y", current_plan_version=current).SerializeToString()
+    info = rc.errors.error_pb2.ErrorInfo(
+        code=code, field="x.y", current_plan_version=current
+    ).SerializeToString()
 
     def ld(number: int, payload: bytes) -> bytes:
         return bytes([number << 3 | 2, len(payload)]) + payload

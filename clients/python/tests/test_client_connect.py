@@ -48,7 +48,9 @@ def test_version_mismatch() -> None:
             assert c.server_info().api_version == "resecta.v1"  # answered whatever the header says
             with pytest.raises(rc.VersionMismatch) as e:
                 c.list_sessions()
-        assert e.value.code == "API_VERSION_MISMATCH" and e.value.status == grpc.StatusCode.FAILED_PRECONDITION
+        assert (
+            e.value.code == "API_VERSION_MISMATCH" and e.value.status == grpc.StatusCode.FAILED_PRECONDITION
+        )
         assert "v2" in e.value.message and "v1" in e.value.message
     finally:
         s.stop()
@@ -67,7 +69,12 @@ def test_session_lifecycle(client: rc.Client) -> None:
     s = client.create_session("lifecycle")
     assert s.plan_version == 0
     info = s.info()
-    assert (info.id, info.display_name, info.state, info.label_map) == (s.id, "lifecycle", rc.SessionState.EMPTY, None)
+    assert (info.id, info.display_name, info.state, info.label_map) == (
+        s.id,
+        "lifecycle",
+        rc.SessionState.EMPTY,
+        None,
+    )
     assert [x.id for x in client.list_sessions()] == [s.id]
     assert client.session(s.id).id == s.id
     s.delete()
@@ -90,7 +97,7 @@ def test_concurrent_calls_share_one_client(client: rc.Client) -> None:
         try:
             for _ in range(5):
                 client.create_session("t").delete()
-        except BaseException as e:  # noqa: BLE001
+        except BaseException as e:
             errors.append(e)
 
     threads = [threading.Thread(target=work) for _ in range(4)]
@@ -134,7 +141,11 @@ class _FakeCall(grpc.RpcError, grpc.Call):  # type: ignore[misc]
 
 def test_error_info_trailer_decoding() -> None:
     info = error_info(status_details("STALE_VERSION", 7))
-    assert info is not None and (info.code, info.field, info.current_plan_version) == ("STALE_VERSION", "x.y", 7)
+    assert info is not None and (info.code, info.field, info.current_plan_version) == (
+        "STALE_VERSION",
+        "x.y",
+        7,
+    )
     assert error_info(b"\xff\xff") is None  # malformed: fall back to the status
     e = from_rpc_error(_FakeCall(grpc.StatusCode.ABORTED, status_details("STALE_VERSION", 7)))
     assert isinstance(e, rc.StaleVersion) and e.current_version == 7 and e.field == "x.y"
@@ -142,3 +153,25 @@ def test_error_info_trailer_decoding() -> None:
     assert isinstance(e, rc.QuotaExceeded) and e.code == "SESSION_QUOTA"
     e = from_rpc_error(_FakeCall(grpc.StatusCode.INVALID_ARGUMENT, None))
     assert isinstance(e, rc.InvalidArgument) and isinstance(e, ValueError) and e.code == "INVALID_ARGUMENT"
+
+
+def test_tls_with_a_custom_ca(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    trustme = pytest.importorskip("trustme")
+    ca = trustme.CA()
+    cert = ca.issue_cert("127.0.0.1", "localhost")
+    cert_file, key_file, ca_file = tmp_path / "server.crt", tmp_path / "server.key", tmp_path / "ca.pem"
+    cert.private_key_pem.write_to_path(str(key_file))
+    cert.cert_chain_pems[0].write_to_path(str(cert_file))
+    ca.cert_pem.write_to_path(str(ca_file))
+    s = Server("--tls-cert", str(cert_file), "--tls-key", str(key_file))
+    try:
+        for root in (ca_file, str(ca_file), ca_file.read_bytes()):
+            with rc.Client(s.grpc_addr, ca_cert=root) as c:
+                assert c.tls and "tls" in c.server_info().capabilities
+                assert c.create_session("tls").id
+        with rc.Client(s.grpc_addr, tls=True, timeout=10) as untrusted, pytest.raises(rc.ServerUnavailable):
+            untrusted.server_info()  # not in the system's roots
+        with rc.Client(s.grpc_addr, timeout=10) as plain, pytest.raises(rc.ServerUnavailable):
+            plain.server_info()
+    finally:
+        s.stop()

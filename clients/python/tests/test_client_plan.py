@@ -26,7 +26,9 @@ def test_every_edit_and_undo_redo(ready: rc.Session) -> None:
     cps = res.control_points.copy()
 
     moved = s.set_control_point("r1", 1, 2, cps[1, 2] + [2.0, 3.0, 0.0])["r1"].resection.control_points
-    assert np.allclose(moved[1, 2], cps[1, 2] + [2, 3, 0]) and np.allclose(np.delete(moved.reshape(-1, 3), 6, 0), np.delete(cps.reshape(-1, 3), 6, 0))
+    assert np.allclose(moved[1, 2], cps[1, 2] + [2, 3, 0]) and np.allclose(
+        np.delete(moved.reshape(-1, 3), 6, 0), np.delete(cps.reshape(-1, 3), 6, 0)
+    )
     assert np.allclose(s.set_control_points("r1", cps)["r1"].resection.control_points, cps)
     inner = s.move_group("r1", (1.0, 0.0, 0.0), group="inner")["r1"].resection.control_points
     assert np.allclose(inner[1:3, 1:3], cps[1:3, 1:3] + [1, 0, 0]) and np.allclose(inner[0], cps[0])

@@ -82,8 +82,12 @@ def test_decompose_oblique_anisotropic_and_flipped() -> None:
 
 def test_label_bytes_layout_and_types() -> None:
     a = np.arange(24, dtype=np.int16).reshape(2, 3, 4)  # [k, j, i]
-    dims, dtype, data = label_bytes(a)
-    assert dims == (4, 3, 2) and data == a.astype("<i2").tobytes()
+    dims, data_type, data = label_bytes(a)
+    assert (
+        dims == (4, 3, 2)
+        and data_type == rc.geometry.label_map_pb2.DATA_TYPE_INT16
+        and data == a.astype("<i2").tobytes()
+    )
     assert label_bytes(a.transpose(2, 1, 0), axes="ijk")[2] == data  # [i, j, k] gives the same bytes
     assert label_bytes(a.astype(np.int64))[1:] == label_bytes(a.astype(np.uint8))[1:]  # narrowed
     assert label_bytes(a.astype(np.float32) * 1000)[1] == rc.geometry.label_map_pb2.DATA_TYPE_UINT16
@@ -119,7 +123,10 @@ def test_upload_numpy_oblique_anisotropic(client: rc.Client) -> None:
         session.reconstruct("psr")
         assert session.volumes().total_ml == pytest.approx(ANALYTIC_ML, rel=VOLUME_TOLERANCE)
         liver = snapshot(session).surfaces["parenchyma"].positions
-        assert np.allclose(liver.min(0), lo, atol=2.0) and np.allclose(liver.max(0), hi, atol=2.0), (liver.min(0), lo)
+        assert np.allclose(liver.min(0), lo, atol=2.0) and np.allclose(liver.max(0), hi, atol=2.0), (
+            liver.min(0),
+            lo,
+        )
         tumour = snapshot(session).surfaces["tumor_1"].positions
         assert np.allclose(tumour.mean(0), TUMOUR[0], atol=0.5)
 
@@ -135,8 +142,11 @@ def test_upload_files(client: rc.Client, phantom: Path, tmp_path: Path) -> None:
     assert {c.label: c.voxels for c in summary.labels} == expected
     assert s.upload_label_map_file(phantom.read_bytes(), ROLES, format="nifti").labels == summary.labels
     for name in ("phantom.nrrd", "phantom.seg.nrrd", "phantom.mha"):
-        subprocess.run([resecta_bin(), "phantom", "--out", str(tmp_path), "--preset", "small", "--name", name],
-                       check=True, capture_output=True)
+        subprocess.run(
+            [resecta_bin(), "phantom", "--out", str(tmp_path), "--preset", "small", "--name", name],
+            check=True,
+            capture_output=True,
+        )
         got = s.upload_label_map_file(tmp_path / name, ROLES)
         assert np.allclose(got.ijk_to_ras, summary.ijk_to_ras, atol=1e-4), name
         assert sum(c.voxels for c in got.labels) == sum(expected.values()), name

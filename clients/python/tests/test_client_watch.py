@@ -117,7 +117,12 @@ def test_resume_with_since_seq_and_stop_from_another_thread(ready: rc.Session) -
         next(fresh)
         ref = fresh.scene.surfaces["r1"]
     got = scene.surfaces["r1"]
-    for a, b in ((got.positions, ref.positions), (got.normals, ref.normals), (got.margins, ref.margins), (got.classes, ref.classes)):
+    for a, b in (
+        (got.positions, ref.positions),
+        (got.normals, ref.normals),
+        (got.margins, ref.margins),
+        (got.classes, ref.classes),
+    ):
         assert np.array_equal(a, b)
     assert got.resection is not None and got.resection.band_mm == 2.0
 
@@ -125,7 +130,10 @@ def test_resume_with_since_seq_and_stop_from_another_thread(ready: rc.Session) -
 def rsms(positions: np.ndarray, triangles: np.ndarray) -> bytes:
     """A minimal uncompressed snapshot (positions only) in the wire format."""
     payload = triangles.astype("<u4").tobytes() + positions.astype("<f4").tobytes()
-    return struct.pack("<4sHHIII", b"RSMS", 1, wire.POSITIONS, len(positions), len(triangles), len(payload)) + payload
+    return (
+        struct.pack("<4sHHIII", b"RSMS", 1, wire.POSITIONS, len(positions), len(triangles), len(payload))
+        + payload
+    )
 
 
 def rsdl(n: int, changed: list[int], rows: np.ndarray) -> bytes:
@@ -137,7 +145,9 @@ def rsdl(n: int, changed: list[int], rows: np.ndarray) -> bytes:
 def test_scene_snapshot_parts_and_bad_deltas() -> None:
     tri = np.array([[0, 1, 2]])
     pts = np.eye(3, dtype=np.float32)
-    part1 = watch_pb2.Snapshot(models=[rc.types.surface_pb2.Surface(name="a", kind=2, label=2, mesh=rsms(pts, tri))])
+    part1 = watch_pb2.Snapshot(
+        models=[rc.types.surface_pb2.Surface(name="a", kind=2, label=2, mesh=rsms(pts, tri))]
+    )
     part2 = watch_pb2.Snapshot(
         resections=[watch_pb2.ResectionSurface(name="r", full_mesh=rsms(pts + 1, tri))], complete=True
     )
@@ -149,17 +159,25 @@ def test_scene_snapshot_parts_and_bad_deltas() -> None:
     assert scene.models["a"].label == 2 and scene.resections["r"].positions[0].tolist() == [2, 1, 1]
     good = rsdl(3, [1], np.array([[9.0, 9.0, 9.0]]))
     for name, data in (("missing", good), ("r", rsdl(4, [1], np.zeros((1, 3)))), ("r", good[:-4])):
-        msg = pb.WatchResponse(seq=5, plan_version=3, delta=watch_pb2.Delta(resections=[watch_pb2.ResectionSurface(name=name, mesh_delta=data)]))
+        msg = pb.WatchResponse(
+            seq=5,
+            plan_version=3,
+            delta=watch_pb2.Delta(resections=[watch_pb2.ResectionSurface(name=name, mesh_delta=data)]),
+        )
         with pytest.raises(wire.WireError):
             scene.apply(msg)
         assert scene.seq == 4 and scene.resections["r"].positions[1].tolist() == [1, 2, 1]
-    msg = pb.WatchResponse(seq=5, plan_version=3, delta=watch_pb2.Delta(resections=[watch_pb2.ResectionSurface(name="r", mesh_delta=good)]))
+    msg = pb.WatchResponse(
+        seq=5,
+        plan_version=3,
+        delta=watch_pb2.Delta(resections=[watch_pb2.ResectionSurface(name="r", mesh_delta=good)]),
+    )
     assert scene.apply(msg).changed == {"r"} and scene.resections["r"].positions[1].tolist() == [9, 9, 9]
 
 
 def test_vtk_polydata(ready: rc.Session) -> None:
     if not rc.vtk_available():
-        print("SKIP: vtk is not installed (pip install 'resecta-client[vtk]'); vtkPolyData conversion not tested")
+        print("SKIP: vtk is not installed (pip install 'resecta-client[vtk]'): no vtkPolyData test")
         pytest.skip("vtk is not installed")
     s = ready
     v = s.init_from_end_point("r1", END).plan_version

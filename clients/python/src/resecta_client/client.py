@@ -153,7 +153,9 @@ class Client:
         """The server's version, API version, capabilities and limits (a fresh call). Raises
         `ServerUnavailable` when the server cannot be reached, `AuthError` on a bad token."""
         try:
-            r = self._stub.GetServerInfo(pb.GetServerInfoRequest(), metadata=self._metadata, timeout=self.timeout)
+            r = self._stub.GetServerInfo(
+                pb.GetServerInfoRequest(), metadata=self._metadata, timeout=self.timeout
+            )
         except grpc.RpcError as e:
             raise from_rpc_error(e) from None
         info = ServerInfo.from_pb(r)
@@ -179,7 +181,9 @@ class Client:
 
     def get_session(self, session_id: str) -> SessionInfo:
         """One session's metadata (`SessionNotFound` for an unknown or expired id)."""
-        return SessionInfo.from_pb(self._call("GetSession", pb.GetSessionRequest(session_id=session_id)).session)
+        return SessionInfo.from_pb(
+            self._call("GetSession", pb.GetSessionRequest(session_id=session_id)).session
+        )
 
     def session(self, session_id: str) -> Session:
         """A handle on an existing session (checked: `SessionNotFound` otherwise)."""
@@ -246,13 +250,17 @@ class Session:
 
         stub = self.client._ready()
         try:
-            r = stub.UploadLabelMap(chunks(), metadata=self.client._metadata, timeout=max(self.client.timeout, 600))
+            r = stub.UploadLabelMap(
+                chunks(), metadata=self.client._metadata, timeout=max(self.client.timeout, 600)
+            )
         except grpc.RpcError as e:
             raise from_rpc_error(e) from None
         self.info()
         return LabelMapSummary.from_pb(r.label_map)
 
-    def upload_label_map(self, labels: Any, ijk_to_ras: Any, roles: Roles, *, axes: Axes = "kji") -> LabelMapSummary:
+    def upload_label_map(
+        self, labels: Any, ijk_to_ras: Any, roles: Roles, *, axes: Axes = "kji"
+    ) -> LabelMapSummary:
         """Uploads a label map from a 3-D integer array indexed [k, j, i] (Slicer's
         `arrayFromVolume` layout; ``axes="ijk"`` for [i, j, k]) with its 4×4 IJK→RAS matrix
         (array-like or vtkMatrix4x4; oblique, anisotropic and flipped grids are fine) and the role
@@ -272,7 +280,9 @@ class Session:
         )
         return self._upload(pb.UploadLabelMapRequest(raw=header), data)
 
-    def upload_label_map_file(self, file: str | os.PathLike[str] | bytes, roles: Roles, *, format: str = "auto") -> LabelMapSummary:
+    def upload_label_map_file(
+        self, file: str | os.PathLike[str] | bytes, roles: Roles, *, format: str = "auto"
+    ) -> LabelMapSummary:
         """Uploads a label-map file (a path, or its bytes): NIfTI (``.nii``/``.nii.gz``), NRRD,
         Slicer ``.seg.nrrd`` or MetaImage ``.mha``; `format` ``"auto"`` (detected from the
         bytes), ``"nifti"``, ``"nrrd"``, ``"seg_nrrd"`` or ``"metaimage"``."""
@@ -308,8 +318,12 @@ class Session:
         every model as it comes, from this thread. Setting `cancel` (from any thread) cancels
         the work on the server, which keeps the previous models, and raises `Cancelled`.
         `FailedPrecondition` without a label map."""
-        options = reconstruction_pb2.ReconstructOptions(psr_depth=psr_depth, smoothing=smoothing, decimation=decimation)
-        request = pb.ReconstructRequest(session_id=self.id, method=Method.parse(method).to_pb(), options=options)
+        options = reconstruction_pb2.ReconstructOptions(
+            psr_depth=psr_depth, smoothing=smoothing, decimation=decimation
+        )
+        request = pb.ReconstructRequest(
+            session_id=self.id, method=Method.parse(method).to_pb(), options=options
+        )
         call = self.client._stream("Reconstruct", request, timeout=timeout)
         done = threading.Event()
         if cancel is not None:
@@ -331,13 +345,14 @@ class Session:
                     models.append(ModelInfo.from_pb(event.model))
                     if on_model is not None:
                         on_model(models[-1])
-                elif kind == "done":
-                    if progress is not None:
-                        progress(1.0, "done")
+                elif kind == "done" and progress is not None:
+                    progress(1.0, "done")
         except grpc.RpcError as e:
             err = from_rpc_error(e)
             if cancel is not None and cancel.is_set():
-                raise Cancelled("reconstruction cancelled", code="CANCELLED", status=grpc.StatusCode.CANCELLED) from None
+                raise Cancelled(
+                    "reconstruction cancelled", code="CANCELLED", status=grpc.StatusCode.CANCELLED
+                ) from None
             raise err from None
         finally:
             done.set()
@@ -347,17 +362,27 @@ class Session:
 
     def _edit(self, base_version: int | None, **op: Any) -> EditResult:
         base = self.plan_version if base_version is None else base_version
-        r = EditResult.from_pb(self.client._call("Edit", pb.EditRequest(session_id=self.id, base_version=base, **op)))
+        r = EditResult.from_pb(
+            self.client._call("Edit", pb.EditRequest(session_id=self.id, base_version=base, **op))
+        )
         self._saw(r.plan_version)
         return r
 
     def init_from_end_point(
-        self, name: str, end_point: Point, *, target: TargetLike = None, grid: tuple[int, int] = (4, 4), base_version: int | None = None
+        self,
+        name: str,
+        end_point: Point,
+        *,
+        target: TargetLike = None,
+        grid: tuple[int, int] = (4, 4),
+        base_version: int | None = None,
     ) -> EditResult:
         """Adds a resection from an end point (thesis Alg. 1–2): the plane halfway between the
         target tumour's centroid and `end_point`, and a planar m×n control grid over the
         liver's contour on it."""
-        op = resection_pb2.InitFromEndPoint(name=name, target=_target(target), end_point=vec3(end_point), grid_m=grid[0], grid_n=grid[1])
+        op = resection_pb2.InitFromEndPoint(
+            name=name, target=_target(target), end_point=vec3(end_point), grid_m=grid[0], grid_n=grid[1]
+        )
         return self._edit(base_version, init_from_end_point=op)
 
     def init_from_plane(
@@ -372,11 +397,18 @@ class Session:
     ) -> EditResult:
         """Adds a resection on a plane (its normal pointing away from the tumour)."""
         op = resection_pb2.InitFromPlane(
-            name=name, target=_target(target), plane_point=vec3(plane_point), plane_normal=vec3(plane_normal), grid_m=grid[0], grid_n=grid[1]
+            name=name,
+            target=_target(target),
+            plane_point=vec3(plane_point),
+            plane_normal=vec3(plane_normal),
+            grid_m=grid[0],
+            grid_n=grid[1],
         )
         return self._edit(base_version, init_from_plane=op)
 
-    def set_control_point(self, name: str, i: int, j: int, point: Point, *, base_version: int | None = None) -> EditResult:
+    def set_control_point(
+        self, name: str, i: int, j: int, point: Point, *, base_version: int | None = None
+    ) -> EditResult:
         """Moves control point P_ij (row i along u, column j along v) to `point`."""
         op = resection_pb2.SetControlPoint(name=name, i=i, j=j, point=vec3(point))
         return self._edit(base_version, set_control_point=op)
@@ -391,20 +423,38 @@ class Session:
         return self._edit(base_version, set_control_points=op)
 
     def move_group(
-        self, name: str, delta: Point, *, group: ControlGroup | str | None = None, ring: int | None = None, base_version: int | None = None
+        self,
+        name: str,
+        delta: Point,
+        *,
+        group: ControlGroup | str | None = None,
+        ring: int | None = None,
+        base_version: int | None = None,
     ) -> EditResult:
         """Moves a group of control points by `delta`: a named `group` (``"inner"``,
         ``"outer"``, ``"all"``) or `ring` k (the points k grid steps from the border)."""
         if (group is None) == (ring is None):
             raise ValueError("move_group needs exactly one of group= and ring=")
-        sel: dict[str, Any] = {"ring": ring} if ring is not None else {"group": ControlGroup.parse(group).to_pb()}  # type: ignore[arg-type]
-        return self._edit(base_version, move_group=resection_pb2.MoveGroup(name=name, delta=vec3(delta), **sel))
+        sel: dict[str, Any] = (
+            {"ring": ring} if ring is not None else {"group": ControlGroup.parse(group).to_pb()}
+        )  # type: ignore[arg-type]
+        return self._edit(
+            base_version, move_group=resection_pb2.MoveGroup(name=name, delta=vec3(delta), **sel)
+        )
 
     def translate(self, name: str, delta: Point, *, base_version: int | None = None) -> EditResult:
         """Moves the whole surface by `delta` (mm)."""
         return self._edit(base_version, translate=resection_pb2.Translate(name=name, delta=vec3(delta)))
 
-    def rotate(self, name: str, axis: Point, angle_deg: float, *, centre: Point | None = None, base_version: int | None = None) -> EditResult:
+    def rotate(
+        self,
+        name: str,
+        axis: Point,
+        angle_deg: float,
+        *,
+        centre: Point | None = None,
+        base_version: int | None = None,
+    ) -> EditResult:
         """Rotates every control point by `angle_deg` (right-handed) about `axis` through
         `centre` (default: the control points' centroid)."""
         op = resection_pb2.Rotate(name=name, axis=vec3(axis), angle_deg=angle_deg)
@@ -459,30 +509,49 @@ class Session:
         edit with the same `base_version` rule as the edits. Returns the new plan version."""
         text = plan if isinstance(plan, str) else json.dumps(plan)
         base = self.plan_version if base_version is None else base_version
-        r = self.client._call("ImportPlan", pb.ImportPlanRequest(session_id=self.id, plan_json=text, base_version=base))
+        r = self.client._call(
+            "ImportPlan", pb.ImportPlanRequest(session_id=self.id, plan_json=text, base_version=base)
+        )
         self._saw(r.plan_version)
         return int(r.plan_version)
 
-    def export_model(self, name: str, format: ModelFormat | str = ModelFormat.VTP, *, resection: bool = False, timeout: float | None = None) -> bytes:
+    def export_model(
+        self,
+        name: str,
+        format: ModelFormat | str = ModelFormat.VTP,
+        *,
+        resection: bool = False,
+        timeout: float | None = None,
+    ) -> bytes:
         """A model's (or with ``resection=True`` a resection's) mesh as the bytes of a file in
         `format` (``"vtp"``, ``"vtk"``, ``"stl"``, ``"ply"``, ``"obj"``; RAS coordinates)."""
         which = {"resection": name} if resection else {"model": name}
         request = pb.ExportModelRequest(session_id=self.id, format=ModelFormat.parse(format).to_pb(), **which)
         out = bytearray()
         try:
-            for chunk in self.client._stream("ExportModel", request, timeout=timeout or max(self.client.timeout, 120)):
+            for chunk in self.client._stream(
+                "ExportModel", request, timeout=timeout or max(self.client.timeout, 120)
+            ):
                 out += chunk.data
         except grpc.RpcError as e:
             raise from_rpc_error(e) from None
         return bytes(out)
 
     def slices(
-        self, name: str, *, axial: float | None = None, coronal: float | None = None, sagittal: float | None = None, resection: bool = False
+        self,
+        name: str,
+        *,
+        axial: float | None = None,
+        coronal: float | None = None,
+        sagittal: float | None = None,
+        resection: bool = False,
     ) -> Slices:
         """Contours of a model (or resection) on the axial (RAS z), coronal (y) and sagittal (x)
         planes given."""
         which = {"resection": name} if resection else {"model": name}
-        request = pb.GetSlicesRequest(session_id=self.id, axial=axial, coronal=coronal, sagittal=sagittal, **which)
+        request = pb.GetSlicesRequest(
+            session_id=self.id, axial=axial, coronal=coronal, sagittal=sagittal, **which
+        )
         return Slices.from_pb(self.client._call("GetSlices", request))
 
     # --- watch --------------------------------------------------------------------------------
@@ -498,7 +567,14 @@ class Session:
     ) -> Watch:
         """Follows the session: an iterator of `SceneUpdate`s, applied to `Watch.scene` before
         each is yielded. See `Watch`."""
-        return Watch(self, since_seq=since_seq, scene=scene, allow_zstd=allow_zstd, allow_quantized=allow_quantized, reconnect=reconnect)
+        return Watch(
+            self,
+            since_seq=since_seq,
+            scene=scene,
+            allow_zstd=allow_zstd,
+            allow_quantized=allow_quantized,
+            reconnect=reconnect,
+        )
 
 
 class Watch:
@@ -559,7 +635,10 @@ class Watch:
 
     def _open(self) -> Any:
         request = pb.WatchRequest(
-            session_id=self.session.id, since_seq=self._since, allow_zstd=self._zstd, allow_quantized=self._quantized
+            session_id=self.session.id,
+            since_seq=self._since,
+            allow_zstd=self._zstd,
+            allow_quantized=self._quantized,
         )
         call = self.session.client._stream("Watch", request)
         with self._lock:
@@ -615,4 +694,3 @@ class Watch:
             yield u
             if until(u):
                 return
-

@@ -56,7 +56,9 @@ def as_matrix(ijk_to_ras: Any) -> npt.NDArray[np.float64]:
     return m
 
 
-def decompose(ijk_to_ras: Any) -> tuple[tuple[float, float, float], tuple[float, float, float], npt.NDArray[np.float64]]:
+def decompose(
+    ijk_to_ras: Any,
+) -> tuple[tuple[float, float, float], tuple[float, float, float], npt.NDArray[np.float64]]:
     """(origin, spacing, direction) of an IJK→RAS matrix: ``M[:3, :3] = direction ·
     diag(spacing)``. Spacing is the length of each column (so always > 0); a flipped axis
     (Slicer's negative spacing, or a left-handed grid) stays in the sign of its direction column.

@@ -83,7 +83,9 @@ def _color(m: surface_pb2.Surface) -> tuple[float, float, float, float] | None:
     return (c.r, c.g, c.b, c.a) if m.HasField("color") else None
 
 
-def _from_mesh(name: str, kind: SurfaceKind, label: int, color: tuple[float, float, float, float] | None, data: bytes) -> SurfaceState:
+def _from_mesh(
+    name: str, kind: SurfaceKind, label: int, color: tuple[float, float, float, float] | None, data: bytes
+) -> SurfaceState:
     m = wire.decode_mesh(data)
     s = SurfaceState(name, kind, label, color, m["positions"], m["normals"], m["triangles"])
     s._set_mesh(m)
@@ -185,7 +187,9 @@ class LiveScene:
         for r, full, delta in staged:
             s = self.surfaces.get(r.name)
             if full is not None:
-                new = SurfaceState(r.name, SurfaceKind.RESECTION, 0, None, full["positions"], None, full["triangles"])
+                new = SurfaceState(
+                    r.name, SurfaceKind.RESECTION, 0, None, full["positions"], None, full["triangles"]
+                )
                 new._set_mesh(full)
                 new.revision = s.revision + 1 if s else 0
                 self.surfaces[r.name] = s = new
@@ -202,7 +206,9 @@ class LiveScene:
             changed.add(r.name)
         removed = frozenset(n for n in msg.delta.removed if self.surfaces.pop(n, None) is not None)
         self._advance(msg)
-        return SceneUpdate(msg.seq, msg.plan_version, "delta", frozenset(changed), frozenset(rebuilt), removed)
+        return SceneUpdate(
+            msg.seq, msg.plan_version, "delta", frozenset(changed), frozenset(rebuilt), removed
+        )
 
     def to_vtk_polydata(self, name: str) -> object:
         """`resecta_client.vtk_adapter.to_vtk_polydata` of the surface `name` (needs `vtk`)."""
@@ -210,4 +216,3 @@ class LiveScene:
 
         with self.lock:
             return to_vtk_polydata(self.surfaces[name])
-

@@ -12,8 +12,16 @@ from typing import Any, TypeAlias
 import numpy as np
 import numpy.typing as npt
 
-from ._gen import common_pb2, label_map_pb2, reconstruction_pb2, resection_pb2, session_pb2
-from ._gen import planning_service_pb2, surface_pb2, volumes_pb2
+from ._gen import (
+    common_pb2,
+    label_map_pb2,
+    planning_service_pb2,
+    reconstruction_pb2,
+    resection_pb2,
+    session_pb2,
+    surface_pb2,
+    volumes_pb2,
+)
 from .geometry import compose
 
 F64: TypeAlias = npt.NDArray[np.float64]
@@ -25,7 +33,7 @@ ROLES = ("parenchyma", "tumor", "portal", "hepatic", "vessel")
 """The roles of a role map (`RoleMap` in proto/resecta/v1/common.proto)."""
 
 
-class _Named(str, enum.Enum):
+class _Named(enum.StrEnum):
     """A str enum mapped onto a protobuf enum `<PREFIX>_<VALUE>`."""
 
     @classmethod
@@ -116,8 +124,6 @@ class ControlGroup(_Named):
     @classmethod
     def _pb(cls) -> tuple[Any, str]:
         return resection_pb2.ControlGroup, "CONTROL_GROUP"
-
-
 
 
 class MarginClass(enum.IntEnum):
@@ -381,8 +387,7 @@ class EditResult:
     @classmethod
     def from_pb(cls, m: planning_service_pb2.EditResponse) -> EditResult:
         res = tuple(
-            ResectionStatus(Resection.from_pb(r.resection), Verdict.from_pb(r.verdict))
-            for r in m.resections
+            ResectionStatus(Resection.from_pb(r.resection), Verdict.from_pb(r.verdict)) for r in m.resections
         )
         return cls(m.plan_version, res, tuple(m.removed))
 
@@ -478,4 +483,6 @@ class Slices:
 
     @classmethod
     def from_pb(cls, m: planning_service_pb2.GetSlicesResponse) -> Slices:
-        return cls(*(tuple(Polyline.from_pb(p) for p in getattr(m, k)) for k in ("axial", "coronal", "sagittal")))
+        return cls(
+            *(tuple(Polyline.from_pb(p) for p in getattr(m, k)) for k in ("axial", "coronal", "sagittal"))
+        )

@@ -36,7 +36,9 @@ def to_vtk_polydata(surface: SurfaceState, polydata: Any = None) -> Any:
     tri = np.ascontiguousarray(surface.triangles, np.int64)
     cells = vtkCellArray()
     offsets = np.arange(0, 3 * len(tri) + 1, 3, dtype=np.int64)
-    cells.SetData(ns.numpy_to_vtkIdTypeArray(offsets, deep=True), ns.numpy_to_vtkIdTypeArray(tri.reshape(-1), deep=True))
+    cells.SetData(
+        ns.numpy_to_vtkIdTypeArray(offsets, deep=True), ns.numpy_to_vtkIdTypeArray(tri.reshape(-1), deep=True)
+    )
     pd.SetPolys(cells)
     data = pd.GetPointData()
     for name in ("Normals", "margin_mm", "margin_class"):

@@ -132,8 +132,7 @@ def _payload(buf: bytes, h: Header, expected: int) -> bytes:
     """The payload (decompressed when ZSTD), checked to be exactly `expected` bytes."""
     if h.payload_bytes != expected:
         raise WireError(
-            f"payload size {h.payload_bytes} bytes in the header, "
-            f"but the counts and flags give {expected}"
+            f"payload size {h.payload_bytes} bytes in the header, but the counts and flags give {expected}"
         )
     body = buf[HEADER_BYTES:]
     if not h.has(ZSTD):
@@ -166,9 +165,7 @@ class _Reader:
     def take(self, what: str, dtype: str, count: int) -> np.ndarray:
         size = np.dtype(dtype).itemsize * count
         if self.pos + size > len(self.data):
-            raise WireError(
-                f"truncated: {what} needs {size} bytes, {len(self.data) - self.pos} available"
-            )
+            raise WireError(f"truncated: {what} needs {size} bytes, {len(self.data) - self.pos} available")
         out = np.frombuffer(self.data, dtype, count, self.pos)
         self.pos += size
         return out.astype(out.dtype.newbyteorder("="))  # a native, writable copy
@@ -292,9 +289,7 @@ def decode_delta(buf: bytes | bytearray | memoryview, *, max_vertices: int = MAX
     if h.has(INDEX_LIST):
         changed = raw.view("<u4").astype(np.uint32)
         if m and (changed[-1] >= n or np.any(np.diff(changed.astype(np.int64)) <= 0)):
-            raise WireError(
-                f"changed-vertex set: indices not ascending or not below the vertex count {n}"
-            )
+            raise WireError(f"changed-vertex set: indices not ascending or not below the vertex count {n}")
     else:
         bits = np.unpackbits(raw, bitorder="little")  # bit i of the set is vertex i
         if bits[n:].any():
