@@ -16,6 +16,7 @@ from vtk.util import numpy_support
 GRID_M_ATTRIBUTE = "Resecta.GridM"
 GRID_N_ATTRIBUTE = "Resecta.GridN"
 RESECTION_ATTRIBUTE = "Resecta.Resection"
+SESSION_ATTRIBUTE = "Resecta.SessionId"
 
 
 def index(i: int, j: int, n: int) -> int:
@@ -32,11 +33,27 @@ def label(i: int, j: int) -> str:
     return f"P{i},{j}"
 
 
-def make_grid_node(scene, resection: str, points: np.ndarray, m: int, n: int, name: str = ""):
+def find_grid_node(scene, resection: str, session_id: str | None = None):
+    """The control-grid markups node of `resection` (of `session_id` when given), or None."""
+    cls = "vtkMRMLMarkupsFiducialNode"
+    for i in range(scene.GetNumberOfNodesByClass(cls)):
+        node = scene.GetNthNodeByClass(i, cls)
+        if node.GetAttribute(RESECTION_ATTRIBUTE) != resection:
+            continue
+        if session_id is not None and node.GetAttribute(SESSION_ATTRIBUTE) not in (None, session_id):
+            continue
+        return node
+    return None
+
+
+def make_grid_node(scene, resection: str, points: np.ndarray, m: int, n: int, name: str = "",
+                   session_id: str | None = None):
     """A markups fiducial node with the m·n control points of `resection` (row-major)."""
     node = scene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode",
                                    name or f"Resecta {resection} control points")
     node.SetAttribute(RESECTION_ATTRIBUTE, resection)
+    if session_id:
+        node.SetAttribute(SESSION_ATTRIBUTE, session_id)
     node.CreateDefaultDisplayNodes()
     display = node.GetDisplayNode()
     display.SetSelectedColor(0.1, 0.45, 0.95)

@@ -536,10 +536,12 @@ class PlanningSession:
         m, n = cp.shape[0], cp.shape[1]
         node = self.grids.get(name)
         if node is None or self.scene.GetNodeByID(node.GetID()) is None:
-            node = controlgrid.make_grid_node(self.scene, name, cp.reshape(-1, 3), m, n)
+            node = controlgrid.find_grid_node(self.scene, name, self.session_id)
+            if node is None:
+                node = controlgrid.make_grid_node(self.scene, name, cp.reshape(-1, 3), m, n,
+                                                  session_id=self.session_id)
             self.grids[name] = node
             self._observe_grid(name, node)
-            return
         if self._grid_busy(name):
             return
         if node.GetNumberOfControlPoints() == m * n and controlgrid.grid_shape(node) == (m, n) \
