@@ -436,8 +436,8 @@ class Session:
         if (group is None) == (ring is None):
             raise ValueError("move_group needs exactly one of group= and ring=")
         sel: dict[str, Any] = (
-            {"ring": ring} if ring is not None else {"group": ControlGroup.parse(group).to_pb()}
-        )  # type: ignore[arg-type]
+            {"ring": ring} if group is None else {"group": ControlGroup.parse(group).to_pb()}
+        )
         return self._edit(
             base_version, move_group=resection_pb2.MoveGroup(name=name, delta=vec3(delta), **sel)
         )
@@ -604,7 +604,7 @@ class Watch:
         self.session = session
         self.scene = scene if scene is not None else LiveScene()
         self._since = since_seq
-        self._zstd = wire.zstandard is not None if allow_zstd is None else allow_zstd
+        self._zstd = wire.ZSTD_AVAILABLE if allow_zstd is None else allow_zstd
         self._quantized = allow_quantized
         self._reconnect = reconnect
         self._lock = threading.Lock()

@@ -173,7 +173,9 @@ def error_info(status_details: bytes) -> error_pb2.ErrorInfo | None:
             parts = dict(_fields(detail))
             if parts.get(1) == ERROR_INFO_TYPE.encode():
                 value = parts.get(2, b"")
-                return error_pb2.ErrorInfo.FromString(value if isinstance(value, bytes) else b"")
+                info = error_pb2.ErrorInfo()
+                info.ParseFromString(value if isinstance(value, bytes) else b"")
+                return info
     except Exception:  # a malformed trailer: fall back to the status code
         return None
     return None

@@ -69,10 +69,14 @@ def decompose(
     if np.any(spacing <= 0) or abs(np.linalg.det(a / np.where(spacing > 0, spacing, 1))) < 1e-9:
         raise ValueError("the IJK→RAS matrix is singular (an index axis has no direction)")
     direction = a / spacing
-    return tuple(m[:3, 3].tolist()), tuple(spacing.tolist()), direction  # type: ignore[return-value]
+    ox, oy, oz = m[:3, 3].tolist()
+    sx, sy, sz = spacing.tolist()
+    return (ox, oy, oz), (sx, sy, sz), direction
 
 
-def label_bytes(labels: npt.ArrayLike, axes: Axes = "kji") -> tuple[tuple[int, int, int], int, bytes]:
+def label_bytes(
+    labels: npt.ArrayLike, axes: Axes = "kji"
+) -> tuple[tuple[int, int, int], label_map_pb2.DataType, bytes]:
     """((I, J, K), the wire's DataType, the voxels as little-endian bytes with i fastest) of a
     3-D integer label array (see the module's array convention). Integer types the wire has are
     sent as they are; bool, 64-bit and float arrays holding whole numbers in 0..65535 are sent

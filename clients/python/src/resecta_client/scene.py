@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from . import wire
+from ._gen import planning_service_pb2 as pb
 from ._gen import surface_pb2, watch_pb2
 from .types import F32, Resection, SessionInfo, SurfaceKind, Verdict, Volumes
 
@@ -120,7 +121,7 @@ class LiveScene:
         """The resection surfaces, with margins, classes, parameters and verdicts."""
         return {n: s for n, s in self.surfaces.items() if s.is_resection}
 
-    def apply(self, msg: watch_pb2.WatchResponse) -> SceneUpdate | None:
+    def apply(self, msg: pb.WatchResponse) -> SceneUpdate | None:
         """Applies one Watch message; returns what changed, or None for a snapshot part that is
         not the last (a snapshot takes effect with its last part). Raises `wire.WireError` when a
         mesh or a delta does not decode or does not fit the held surface; the scene is then
@@ -144,10 +145,10 @@ class LiveScene:
                 return SceneUpdate(msg.seq, msg.plan_version, "volumes", volumes_changed=True)
         return None
 
-    def _advance(self, msg: watch_pb2.WatchResponse) -> None:
+    def _advance(self, msg: pb.WatchResponse) -> None:
         self.seq, self.plan_version = msg.seq, msg.plan_version
 
-    def _apply_snapshot(self, msg: watch_pb2.WatchResponse, parts: list[watch_pb2.Snapshot]) -> SceneUpdate:
+    def _apply_snapshot(self, msg: pb.WatchResponse, parts: list[watch_pb2.Snapshot]) -> SceneUpdate:
         surfaces: dict[str, SurfaceState] = {}
         session, volumes = self.session, None
         for p in parts:
@@ -170,7 +171,7 @@ class LiveScene:
         names = frozenset(surfaces)
         return SceneUpdate(msg.seq, msg.plan_version, "snapshot", names, names, removed, True)
 
-    def _apply_delta(self, msg: watch_pb2.WatchResponse) -> SceneUpdate:
+    def _apply_delta(self, msg: pb.WatchResponse) -> SceneUpdate:
         # Decode everything first, so that a bad message leaves the scene as it was.
         staged: list[tuple[watch_pb2.ResectionSurface, wire.Mesh | None, wire.Delta | None]] = []
         for r in msg.delta.resections:

@@ -232,9 +232,9 @@ class LabelMapSummary:
     @classmethod
     def from_pb(cls, m: label_map_pb2.LabelMapSummary) -> LabelMapSummary:
         return cls(
-            dims=tuple(m.dims),  # type: ignore[arg-type]
-            spacing=tuple(m.spacing),  # type: ignore[arg-type]
-            origin=tuple(m.origin),  # type: ignore[arg-type]
+            dims=(m.dims[0], m.dims[1], m.dims[2]),
+            spacing=(m.spacing[0], m.spacing[1], m.spacing[2]),
+            origin=(m.origin[0], m.origin[1], m.origin[2]),
             direction=np.array(m.direction, dtype=np.float64).reshape(3, 3),
             roles=_roles(m.roles),
             labels=tuple(LabelCount(c.label, c.voxels, c.volume_ml) for c in m.labels),

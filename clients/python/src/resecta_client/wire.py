@@ -21,6 +21,9 @@ try:
 except ImportError:  # only compressed messages need it
     zstandard = None  # type: ignore[assignment]
 
+ZSTD_AVAILABLE = zstandard is not None
+"""Whether compressed (ZSTD) messages can be decoded here."""
+
 MESH_MAGIC = b"RSMS"
 DELTA_MAGIC = b"RSDL"
 VERSION = 1
@@ -338,7 +341,7 @@ def write_delta(mesh: Mesh, d: Delta) -> None:
     for what in _ATTRS:
         rows = d[what]  # type: ignore[literal-required]
         if rows is not None:
-            mesh[what][c] = rows  # type: ignore[literal-required,index]
+            mesh[what][c] = rows  # type: ignore[literal-required]
 
 
 def apply_delta(
