@@ -154,7 +154,16 @@ def labelmap_from_segmentation(segmentation_node, role_table: dict[str, str],
     merged = slicer.vtkOrientedImageData()
     mode = (slicer.vtkSegmentation.EXTENT_UNION_OF_EFFECTIVE_SEGMENTS_PADDED if pad
             else slicer.vtkSegmentation.EXTENT_UNION_OF_EFFECTIVE_SEGMENTS)
-    if not segmentation_node.GenerateMergedLabelmapForAllSegments(merged, mode, None, ids, values):
+    # Without a reference geometry (segmentations made by scripts, or imported without a
+    # reference volume) the merge would log an error looking for one: give it the first mapped
+    # segment's own grid instead (Slicer's segmentations normally have one).
+    geometry = None
+    name = slicer.vtkSegmentationConverter.GetReferenceImageGeometryParameterName()
+    if name not in (seg.SerializeAllConversionParameters() or ""):
+        geometry = slicer.vtkOrientedImageData()
+        segmentation_node.GetBinaryLabelmapRepresentation(ids.GetValue(0), geometry)
+    if not segmentation_node.GenerateMergedLabelmapForAllSegments(merged, mode, geometry, ids,
+                                                                  values):
         raise ValueError("the segments could not be merged into one labelmap")
     labels, ijk_to_ras = oriented_image_to_array(merged)
     # A segmentation under a linear transform: the upload is in world RAS.
