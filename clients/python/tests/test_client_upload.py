@@ -75,6 +75,12 @@ def test_decompose_oblique_anisotropic_and_flipped() -> None:
     flipped = m.copy()
     flipped[:3, 0] *= -1
     assert np.allclose(decompose(flipped)[2][:, 0], -direction[:, 0]) and decompose(flipped)[1][0] > 0
+    if rc.vtk_available():  # Slicer's GetIJKToRASMatrix gives a vtkMatrix4x4
+        from vtkmodules.vtkCommonMath import vtkMatrix4x4
+
+        vm = vtkMatrix4x4()
+        vm.DeepCopy(m.reshape(-1).tolist())
+        assert np.allclose(decompose(vm)[2], direction)
     for bad in (np.zeros((4, 4)), np.eye(3), np.diag([1.0, 1.0, 0.0, 1.0])):
         with pytest.raises(ValueError):
             decompose(bad)
@@ -172,6 +178,14 @@ def test_reconstruct_with_progress(client: rc.Client, phantom: Path) -> None:
     fractions = [f for f, _ in progress]
     assert fractions == sorted(fractions) and fractions[-1] == 1.0 and progress[-1][1] == "done"
     assert s.info().state is rc.SessionState.READY
+
+    # A callback that raises ends the call (the server's work is cancelled) and propagates.
+    def fail(info: rc.ModelInfo) -> None:
+        raise KeyError(info.name)
+
+    with pytest.raises(KeyError):
+        s.reconstruct("psr", on_model=fail)
+    assert [m.name for m in s.reconstruct("psr")] == [m.name for m in models]
 
 
 def test_reconstruct_cancelled_keeps_previous_models(client: rc.Client, demo_phantom: Path) -> None:

@@ -195,3 +195,30 @@ def test_vtk_polydata(ready: rc.Session) -> None:
         assert same is pd and pd.GetPoint(0) == pytest.approx(tuple(r1.positions[0].tolist()))
         liver = w.scene.to_vtk_polydata("parenchyma")
         assert liver.GetPointData().GetScalars() is None and liver.GetNumberOfPolys() > 0
+
+
+def test_compressed_and_quantised_payloads_decode_like_exact_ones(ready: rc.Session) -> None:
+    # The server may send exact, uncompressed payloads anyway (today it does); the decoder's
+    # handling of ZSTD / POSITIONS_U16 / NORMALS_OCT16 is checked on golden messages in
+    # tests/test_mesh_wire.py.
+    s = ready
+    s.init_from_end_point("r1", END)
+    v = s.set_control_point("r1", 2, 1, (-25.0, 4.0, 3.0)).plan_version
+    scenes = []
+    for zstd, quantised in ((False, False), (True, True)):
+        with s.watch(allow_zstd=zstd, allow_quantized=quantised) as w:
+            next(w)
+            v2 = s.translate("r1", (0.5, 0.0, 0.0)).plan_version
+            until_version(w, v2)
+            scenes.append(w.scene)
+        v = s.translate("r1", (-0.5, 0.0, 0.0)).plan_version
+    exact, packed = (sc.surfaces["r1"] for sc in scenes)
+    extent = float(np.ptp(exact.positions, axis=0).max())
+    # Quantised positions are within half a step (extent / 65534) of the exact ones plus an ulp.
+    assert np.abs(packed.positions - exact.positions).max() <= extent / 131068 + 1e-4
+    assert np.array_equal(packed.triangles, exact.triangles) and np.array_equal(packed.classes, exact.classes)
+    liver_exact, liver_packed = (sc.surfaces["parenchyma"].positions for sc in scenes)
+    assert (
+        np.abs(liver_packed - liver_exact).max() <= float(np.ptp(liver_exact, axis=0).max()) / 131068 + 1e-4
+    )
+    assert v > 0

@@ -315,8 +315,9 @@ class Session:
         """Builds the surface models of the label map and returns them once all are built.
 
         `progress(fraction, stage)` is called for every progress event and `on_model(info)` for
-        every model as it comes, from this thread. Setting `cancel` (from any thread) cancels
-        the work on the server, which keeps the previous models, and raises `Cancelled`.
+        every model as it comes, from this thread (an exception from them cancels the work and
+        propagates). Setting `cancel` (from any thread) cancels the work on the server, which
+        keeps the previous models, and raises `Cancelled`.
         `FailedPrecondition` without a label map."""
         options = reconstruction_pb2.ReconstructOptions(
             psr_depth=psr_depth, smoothing=smoothing, decimation=decimation
@@ -356,6 +357,7 @@ class Session:
             raise err from None
         finally:
             done.set()
+            call.cancel()  # a no-op after `done`; stops the server's work if a callback raised
         return models
 
     # --- resection edits ----------------------------------------------------------------------
