@@ -15,7 +15,7 @@ from resecta_client import wire
 from resecta_client._gen import planning_service_pb2 as pb
 from resecta_client._gen import watch_pb2
 
-from .conftest import read_ply
+from .conftest import Proxy, read_ply
 
 END = (-30.0, 0.0, 0.0)
 
@@ -222,3 +222,25 @@ def test_compressed_and_quantised_payloads_decode_like_exact_ones(ready: rc.Sess
         np.abs(liver_packed - liver_exact).max() <= float(np.ptp(liver_exact, axis=0).max()) / 131068 + 1e-4
     )
     assert v > 0
+
+
+def test_reconnects_after_a_dropped_connection(ready: rc.Session, server) -> None:  # type: ignore[no-untyped-def]
+    proxy = Proxy(server.grpc_addr)
+    try:
+        with rc.Client(proxy.address, timeout=30) as c:
+            s = c.session(ready.id)
+            s.init_from_end_point("r1", END)
+            with s.watch(reconnect=5) as w:
+                assert next(w).kind == "snapshot"
+                seq = w.last_seq
+                proxy.drop()  # the stream breaks; edits go on meanwhile
+                v = ready.translate("r1", (0.0, 0.0, 2.0), base_version=0).plan_version
+                updates = until_version(w, v)
+                assert w.reconnects >= 1
+                assert updates[0].kind == "delta" and updates[0].seq > seq, "not resumed with since_seq"
+                assert all(u.kind != "snapshot" for u in updates)
+            with ready.watch() as fresh:
+                next(fresh)
+                assert np.array_equal(w.scene.surfaces["r1"].positions, fresh.scene.surfaces["r1"].positions)
+    finally:
+        proxy.close()

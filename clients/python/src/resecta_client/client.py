@@ -612,6 +612,8 @@ class Watch:
         self._lock = threading.Lock()
         self._stopped = False
         self._call: Any = None
+        self.reconnects = 0
+        """How many times the stream was reopened after a dropped connection."""
 
     @property
     def last_seq(self) -> int | None:
@@ -672,6 +674,7 @@ class Watch:
                 err = from_rpc_error(e)
                 if isinstance(err, ServerUnavailable) and failures < self._reconnect:
                     failures += 1
+                    self.reconnects += 1
                     self._since = self.scene.seq
                     time.sleep(min(0.2 * 2**failures, 2.0))
                     continue
