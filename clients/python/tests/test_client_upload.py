@@ -22,7 +22,7 @@ CENTRE = np.array([5.0, -12.0, 30.0])
 TUMOUR = (CENTRE + [10.0, 5.0, 0.0], 8.0)
 # Functional liver (every role but tumour): the ellipsoid less the tumour ball inside it.
 ANALYTIC_ML = (4 / 3 * math.pi * RADII.prod() - 4 / 3 * math.pi * TUMOUR[1] ** 3) / 1000
-VOLUME_TOLERANCE = 0.01  # relative: voxelisation of a 40×30×25 mm ellipsoid on ~1–2 mm voxels
+VOLUME_TOLERANCE = 0.005  # relative; voxelising this ellipsoid on 1.3×0.9×2.1 mm voxels: 0.09 % measured
 
 
 def rotation(ax: float, ay: float, az: float) -> np.ndarray:

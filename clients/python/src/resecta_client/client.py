@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 import os
 import threading
-import time
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -610,7 +609,7 @@ class Watch:
         self._quantized = allow_quantized
         self._reconnect = reconnect
         self._lock = threading.Lock()
-        self._stopped = False
+        self._stopped = threading.Event()
         self._call: Any = None
         self.reconnects = 0
         """How many times the stream was reopened after a dropped connection."""
@@ -632,7 +631,7 @@ class Watch:
     def stop(self) -> None:
         """Ends the iteration; safe from any thread, and more than once."""
         with self._lock:
-            self._stopped = True
+            self._stopped.set()
             call = self._call
         if call is not None:
             call.cancel()
@@ -646,7 +645,7 @@ class Watch:
         )
         call = self.session.client._stream("Watch", request)
         with self._lock:
-            if self._stopped:
+            if self._stopped.is_set():
                 call.cancel()
             self._call = call
         return call
@@ -654,7 +653,7 @@ class Watch:
     def __next__(self) -> SceneUpdate:
         failures = 0
         while True:
-            if self._stopped:
+            if self._stopped.is_set():
                 raise StopIteration
             call = self._call
             try:
@@ -664,19 +663,19 @@ class Watch:
             except StopIteration:
                 with self._lock:
                     self._call = None
-                    self._stopped = True
+                    self._stopped.set()
                 raise
             except grpc.RpcError as e:
                 with self._lock:
                     self._call = None
-                if self._stopped:
+                if self._stopped.is_set():
                     raise StopIteration from None
                 err = from_rpc_error(e)
                 if isinstance(err, ServerUnavailable) and failures < self._reconnect:
                     failures += 1
                     self.reconnects += 1
                     self._since = self.scene.seq
-                    time.sleep(min(0.2 * 2**failures, 2.0))
+                    self._stopped.wait(min(0.2 * 2**failures, 2.0))  # stop() cuts the wait short
                     continue
                 raise err from None
             failures = 0
