@@ -120,51 +120,54 @@ def test_logic_drives_a_plan(Resecta, scene, planning_server, phantom, tmp_path)
     def wait(predicate, timeout=60):
         return logic.session.dispatcher.wait_until(predicate, timeout)
 
-    infos = []
-    logic.connect(planning_server.grpc_addr, onDone=infos.append)
-    wait(lambda: infos)
-    assert logic.connected and infos[0].api_version == "resecta.v1"
-    _lm, seg = load_phantom_segmentation(scene, phantom)
-    rows = logic.roleTable(seg)
-    assert [r[2] for r in rows] == ["ignore"] * 3  # "Label_1"...: nothing to guess from
-    roles = {sid: role for (sid, _n, _g), role in zip(rows, ["parenchyma", "tumor", "portal"])}
-    built = []
-    logic.buildModels(seg, roles, "psr", onDone=built.append)
-    wait(lambda: built and logic.modelsReady and logic.tumours(), 120)
-    tumour = logic.tumours()[0]
-    end = logic.session.tumour_centroid(tumour) + [-40.0, 0, 0]
-    logic.preview(tumour, end)
-    logic.newResection("r1", tumour, end, marginMm=8.0, bandMm=3.0)
-    wait(lambda: logic.resectionNames() == ["r1"] and logic.resectionParameters("r1").margin_mm == 8.0)
-    assert logic.resectionParameters("r1").band_mm == 3.0
-    logic.setMarginAndBand("r1", 9.0, 3.0)
-    wait(lambda: logic.resectionParameters("r1").margin_mm == 9.0)
-    cp = logic.resectionParameters("r1").control_points.copy()
-    logic.moveGroup("r1", "outer", (0, 0, 1.0))
-    wait(lambda: not np.allclose(logic.resectionParameters("r1").control_points, cp))
-    edits = logic.session.acknowledged_edits
-    logic.translate("r1", (1.0, 0, 0))
-    logic.rotate("r1", "normal", 3.0)
-    wait(lambda: logic.session.acknowledged_edits == edits + 2)
-    rotated = logic.session.last_edit["r1"].resection.control_points.copy()
-    logic.undo()
-    logic.redo()
-    wait(lambda: logic.session.acknowledged_edits == edits + 4 and not logic.session.errors)
-    wait(lambda: np.allclose(logic.resectionParameters("r1").control_points, rotated))
-    logic.jumpToWorstPoint()
-    assert len(Resecta._markups.jumps) == 1
-    assert np.allclose(Resecta._markups.jumps[0], logic.session.margin_state.point)
-    logic.savePlan(tmp_path / "plan.json")
-    wait(lambda: (tmp_path / "plan.json").is_file())
-    logic.exportResections(tmp_path, "stl")
-    wait(lambda: (tmp_path / "r1.stl").is_file())
-    logic.deleteResection("r1")
-    wait(lambda: logic.resectionNames() == [])
-    logic.loadPlan(tmp_path / "plan.json")
-    wait(lambda: logic.resectionNames() == ["r1"])
-    logic.setOpacity(("parenchyma",), 0.5)
-    assert not logic.session.errors
-    logic.close()
+    try:
+        infos = []
+        logic.connect(planning_server.grpc_addr, onDone=infos.append)
+        wait(lambda: infos)
+        assert logic.connected and infos[0].api_version == "resecta.v1"
+        _lm, seg = load_phantom_segmentation(scene, phantom)
+        rows = logic.roleTable(seg)
+        assert [r[2] for r in rows] == ["ignore"] * 3  # "Label_1"...: nothing to guess from
+        roles = {sid: role for (sid, _n, _g), role in zip(rows, ["parenchyma", "tumor", "portal"])}
+        built = []
+        logic.buildModels(seg, roles, "psr", onDone=built.append)
+        wait(lambda: built and logic.modelsReady and logic.tumours(), 120)
+        tumour = logic.tumours()[0]
+        end = logic.session.tumour_centroid(tumour) + [-40.0, 0, 0]
+        logic.preview(tumour, end)
+        logic.newResection("r1", tumour, end, marginMm=8.0, bandMm=3.0)
+        wait(lambda: logic.resectionNames() == ["r1"] and logic.resectionParameters("r1").margin_mm == 8.0
+             and logic.resectionParameters("r1").band_mm == 3.0)
+        logic.setMarginAndBand("r1", 9.0, 3.0)
+        wait(lambda: logic.resectionParameters("r1").margin_mm == 9.0)
+        cp = logic.resectionParameters("r1").control_points.copy()
+        logic.moveGroup("r1", "outer", (0, 0, 1.0))
+        wait(lambda: not np.allclose(logic.resectionParameters("r1").control_points, cp)
+             and not np.allclose(logic.session.last_edit["r1"].resection.control_points, cp))
+        edits = logic.session.acknowledged_edits
+        logic.translate("r1", (1.0, 0, 0))
+        logic.rotate("r1", "normal", 3.0)
+        wait(lambda: logic.session.acknowledged_edits == edits + 2)
+        rotated = logic.session.last_edit["r1"].resection.control_points.copy()
+        logic.undo()
+        logic.redo()
+        wait(lambda: logic.session.acknowledged_edits == edits + 4 and not logic.session.errors)
+        wait(lambda: np.allclose(logic.resectionParameters("r1").control_points, rotated))
+        logic.jumpToWorstPoint()
+        assert len(Resecta._markups.jumps) == 1
+        assert np.allclose(Resecta._markups.jumps[0], logic.session.margin_state.point)
+        logic.savePlan(tmp_path / "plan.json")
+        wait(lambda: (tmp_path / "plan.json").is_file())
+        logic.exportResections(tmp_path, "stl")
+        wait(lambda: (tmp_path / "r1.stl").is_file())
+        logic.deleteResection("r1")
+        wait(lambda: logic.resectionNames() == [])
+        logic.loadPlan(tmp_path / "plan.json")
+        wait(lambda: logic.resectionNames() == ["r1"])
+        logic.setOpacity(("parenchyma",), 0.5)
+        assert not logic.session.errors
+    finally:
+        logic.close()
     assert not logic.connected
 
 

@@ -126,22 +126,26 @@ def test_edits_from_another_client_reach_the_scene(scene, dispatcher, planning_s
     _lm, seg = load_phantom_segmentation(scene, phantom)
     ids = [seg.GetSegmentation().GetNthSegmentID(i) for i in range(3)]
     s = PlanningSession(scene, dispatcher)
-    s.connect(planning_server.grpc_addr)
-    dispatcher.wait_until(lambda: s.connected, 30)
-    built = []
-    s.upload_and_build(seg, dict(zip(ids, ["parenchyma", "tumor", "portal"])), on_done=built.append)
-    dispatcher.wait_until(lambda: built and s.models_ready, 120)
-    with Client(planning_server.grpc_addr) as other:
-        remote = other.session(s.session_id)
-        remote.init_from_plane("scripted", (-12.0, 0.0, 0.0), (-1.0, 0.0, 0.0))
-        dispatcher.wait_until(lambda: "scripted" in s.grids and s.model_node("scripted"), 30)
-        grid = s.grids["scripted"]
-        remote.translate("scripted", (0.0, 0.0, 3.0))
-        want = remote.export_plan()
-        cps = np.array(json.loads(want)["resections"][0]["control_points"])
-        dispatcher.wait_until(
-            lambda: np.allclose(controlgrid.grid_points(grid), cps, atol=1e-6), 30)
-    assert not s.errors
+    try:
+        s.connect(planning_server.grpc_addr)
+        dispatcher.wait_until(lambda: s.connected, 30)
+        built = []
+        s.upload_and_build(seg, dict(zip(ids, ["parenchyma", "tumor", "portal"])), on_done=built.append)
+        dispatcher.wait_until(lambda: built and s.models_ready, 120)
+        with Client(planning_server.grpc_addr) as other:
+            remote = other.session(s.session_id)
+            remote.init_from_plane("scripted", (-12.0, 0.0, 0.0), (-1.0, 0.0, 0.0))
+            dispatcher.wait_until(lambda: "scripted" in s.grids and s.model_node("scripted"), 30)
+            grid = s.grids["scripted"]
+            remote.translate("scripted", (0.0, 0.0, 3.0))
+            want = remote.export_plan()
+            cps = np.array(json.loads(want)["resections"][0]["control_points"])
+            dispatcher.wait_until(
+                lambda: np.allclose(controlgrid.grid_points(grid), cps, atol=1e-6), 30)
+        assert not s.errors
+    except BaseException:
+        s.close()
+        raise
     node_ids = sorted(n.GetID() for n in models.model_nodes(scene))
     markups = scene.GetNumberOfNodesByClass("vtkMRMLMarkupsFiducialNode")
     sid = s.session_id
