@@ -239,6 +239,10 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
     def _connected(self, info) -> None:
         self.ui.connectionStatusLabel.text = _("Connected: resecta {version}").format(
             version=info.server_version)
+        # A scene saved with a plan remembers its server session: follow it again.
+        sessionId = self._parameterNode.sessionId if self._parameterNode else ""
+        if sessionId:
+            self.logic.openSession(sessionId, onDone=lambda _s: self._updateButtons())
         self._updateButtons()
 
     # --- patient ------------------------------------------------------------------------------
@@ -272,7 +276,11 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self.ui.cancelBuildButton.enabled = True
             self.ui.buildModelsButton.enabled = False
             self.logic.buildModels(p.segmentation, self._roleTableFromUi(), p.method,
-                                   onDone=self._buildFinished)
+                                   onDone=self._buildDone)
+
+    def _buildDone(self, _models) -> None:
+        self._parameterNode.sessionId = self.logic.sessionId or ""
+        self._buildFinished()
 
     def _buildFinished(self, _result=None) -> None:
         self.ui.cancelBuildButton.enabled = False
@@ -529,6 +537,13 @@ class ResectaLogic(ScriptedLoadableModuleLogic):
 
     def connect(self, address, token=None, tls=False, caFile=None, onDone=None):
         self.session.connect(address, token=token, tls=tls, ca_file=caFile, on_done=onDone)
+
+    @property
+    def sessionId(self):
+        return self._session.session_id if self._session is not None else None
+
+    def openSession(self, sessionId, onDone=None):
+        self.session.open_session(sessionId, on_done=onDone)
 
     def roleTable(self, segmentationNode):
         guesses = segmentation.default_role_table(segmentationNode)

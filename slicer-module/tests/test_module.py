@@ -121,6 +121,7 @@ def test_logic_drives_a_plan(Resecta, scene, planning_server, phantom, tmp_path)
         return logic.session.dispatcher.wait_until(predicate, timeout)
 
     try:
+        assert logic.sessionId is None
         infos = []
         logic.connect(planning_server.grpc_addr, onDone=infos.append)
         wait(lambda: infos)
@@ -132,6 +133,7 @@ def test_logic_drives_a_plan(Resecta, scene, planning_server, phantom, tmp_path)
         built = []
         logic.buildModels(seg, roles, "psr", onDone=built.append)
         wait(lambda: built and logic.modelsReady and logic.tumours(), 120)
+        assert logic.sessionId
         tumour = logic.tumours()[0]
         end = logic.session.tumour_centroid(tumour) + [-40.0, 0, 0]
         logic.preview(tumour, end)
