@@ -175,8 +175,18 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
     def enter(self) -> None:
         self.initializeParameterNode()
+        # While the panel is shown, Ctrl+Z / Ctrl+Y undo and redo plan edits. Slicer's own
+        # actions with the same keys (scene undo) lend them to us until exit(), otherwise Qt
+        # would find the shortcut ambiguous and fire neither.
+        mainWindow = slicer.util.mainWindow()
+        self._lentShortcuts = []
         for keys, slot in (("Ctrl+Z", self.onUndo), ("Ctrl+Y", self.onRedo)):
-            shortcut = qt.QShortcut(qt.QKeySequence(keys), slicer.util.mainWindow())
+            sequence = qt.QKeySequence(keys)
+            for action in mainWindow.findChildren(qt.QAction) if mainWindow else []:
+                if action.shortcut == sequence:
+                    self._lentShortcuts.append((action, action.shortcut))
+                    action.shortcut = qt.QKeySequence()
+            shortcut = qt.QShortcut(sequence, mainWindow)
             shortcut.connect("activated()", slot)
             self._shortcuts.append(shortcut)
 
@@ -185,6 +195,9 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             shortcut.disconnect("activated()")
             shortcut.setParent(None)
         self._shortcuts = []
+        for action, sequence in getattr(self, "_lentShortcuts", []):
+            action.shortcut = sequence
+        self._lentShortcuts = []
         if self._parameterNode:
             self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
             self._parameterNodeGuiTag = None
