@@ -14,6 +14,8 @@ the same code serves the module inside Slicer and the pytest suite outside it:
 - `preview`: the slicing contour shown before a resection is created (Algorithm 1's plane)
 - `session`: `PlanningSession`, the Logic proper (server calls on a worker, scene updates on the
   main thread)
+- `deps`: the Python packages installed on first use (never at import)
+- `phantom`, `selftest`: the scenario shared by the pytest suite and the module's self-test
 """
 
 # Submodules are imported by name (`from ResectaLib import session`) so that importing the
