@@ -182,3 +182,32 @@ def test_readme_pictures_exist():
     assert len(pictures) >= 2
     for p in pictures:
         assert (EXT / p).is_file(), f"README shows {p}, which is missing"
+
+
+def _attribute_uses(cls: ast.ClassDef, owner: str) -> set[str]:
+    """Names `x` of every `self.<owner>.x` in the class."""
+    out = set()
+    for node in ast.walk(cls):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute)
+                and node.value.attr == owner and isinstance(node.value.value, ast.Name)
+                and node.value.value.id == "self"):
+            out.add(node.attr)
+    return out
+
+
+def test_widget_calls_only_what_the_logic_has_and_the_logic_only_what_the_session_has():
+    import sys
+
+    sys.path.insert(0, str(MODULE))
+    from ResectaLib.session import PlanningSession
+
+    classes = {n.name: n for n in _module_ast().body if isinstance(n, ast.ClassDef)}
+    logic = classes["ResectaLogic"]
+    logic_members = {n.name for n in logic.body if isinstance(n, ast.FunctionDef)}
+    logic_members |= {"getParameterNode"}  # ScriptedLoadableModuleLogic's, wrapped
+    missing = _attribute_uses(classes["ResectaWidget"], "logic") - logic_members
+    assert not missing, f"the Widget calls Logic members that do not exist: {sorted(missing)}"
+    session_members = set(dir(PlanningSession))
+    session_attrs = {"session", "margin_state", "dispatcher", "client"}  # set in __init__
+    missing = _attribute_uses(logic, "session") - session_members - session_attrs
+    assert not missing, f"the Logic calls PlanningSession members that do not exist: {sorted(missing)}"
