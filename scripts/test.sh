@@ -31,5 +31,5 @@ export WGPU_BACKEND=vulkan
 cargo build --workspace --locked --bins
 cargo nextest run --workspace --locked --profile ci
 
-step "end-to-end tests (pytest against target/debug/resecta)"
-RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests
+step "end-to-end tests, Python client, Slicer module Logic (pytest against target/debug/resecta)"
+RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests clients/python/tests slicer-module/tests
