@@ -85,6 +85,21 @@ class Server:
         return self.proc.stderr.read() if self.proc.poll() is not None else ""
 
 
+def tls_files(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """A throw-away CA and a certificate for 127.0.0.1 / localhost signed by it (trustme; the
+    test is skipped without it), written as PEM into `tmp_path`: returns
+    `(cert_file, key_file, ca_file)` — the first two for `--tls-cert` / `--tls-key`, the CA for
+    the client to pin as its root."""
+    trustme = pytest.importorskip("trustme")
+    ca = trustme.CA()
+    cert = ca.issue_cert("127.0.0.1", "localhost")
+    cert_file, key_file, ca_file = tmp_path / "server.crt", tmp_path / "server.key", tmp_path / "ca.pem"
+    cert.private_key_pem.write_to_path(str(key_file))
+    cert.cert_chain_pems[0].write_to_path(str(cert_file))
+    ca.cert_pem.write_to_path(str(ca_file))
+    return cert_file, key_file, ca_file
+
+
 def wait_for(predicate, timeout=60.0, every=0.1):
     end = time.monotonic() + timeout
     while time.monotonic() < end:

@@ -1,5 +1,6 @@
 """`resecta serve` end to end over gRPC: the real binary, real sockets, generated Python stubs.
 Sessions, upload, reconstruction, edits, watch, bad input, auth, TLS and kill -9 recovery."""
+import signal
 import threading
 import time
 
@@ -9,7 +10,8 @@ import numpy as np
 import pytest
 import requests
 
-from server_harness import Server, generate_stubs, phantom, server, wait_for  # noqa: F401 (fixtures)
+from server_harness import (Server, generate_stubs, phantom, server, tls_files,  # noqa: F401 (fixtures)
+                            wait_for)
 
 TOKEN = "e2e-token-0123456789abcdef"
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
@@ -86,6 +88,11 @@ def test_server_info_health_and_session_lifecycle(server, stubs):
     info = stub.GetServerInfo(pb.GetServerInfoRequest())
     assert info.api_version == "resecta.v1"
     assert info.limits.max_chunk_bytes == 4 << 20
+    # True to this configuration: PSR (the one reconstruction method) and deltas; the default
+    # encoder neither compresses nor quantises, and loopback needs no token. Both faces agree.
+    assert sorted(info.capabilities) == ["psr", "watch-deltas"], info.capabilities
+    http_info = requests.get(f"{server.http_url}/v1/info", timeout=10).json()
+    assert sorted(http_info["capabilities"]) == sorted(info.capabilities)
     assert requests.get(f"{server.http_url}/healthz", timeout=10).status_code == 200
     # Request ids: the client's is echoed, else the server makes one.
     _, call = stub.ListSessions.with_call(pb.ListSessionsRequest(),
@@ -213,13 +220,7 @@ def test_refuses_public_address_without_token(tmp_path):
 
 
 def test_tls_with_a_self_signed_certificate(tmp_path, stubs):
-    trustme = pytest.importorskip("trustme")
-    ca = trustme.CA()
-    cert = ca.issue_cert("127.0.0.1", "localhost")
-    cert_file, key_file, ca_file = tmp_path / "server.crt", tmp_path / "server.key", tmp_path / "ca.pem"
-    cert.private_key_pem.write_to_path(str(key_file))
-    cert.cert_chain_pems[0].write_to_path(str(cert_file))
-    ca.cert_pem.write_to_path(str(ca_file))
+    cert_file, key_file, ca_file = tls_files(tmp_path)
     s = Server("--tls-cert", str(cert_file), "--tls-key", str(key_file))
     try:
         assert s.bound["tls"] is True
@@ -232,6 +233,43 @@ def test_tls_with_a_self_signed_certificate(tmp_path, stubs):
             requests.get(f"{s.http_url}/healthz", timeout=10)  # not in the system's roots
     finally:
         s.stop()
+
+
+def test_sigterm_ends_open_watch_streams_with_unavailable(stubs):
+    """Graceful shutdown does not wait for open streams: a Watch ends with UNAVAILABLE and the
+    process exits 0 within a few seconds."""
+    s = Server()
+    try:
+        pb, stub = client(s, stubs)
+        sid = new_session(pb, stub)
+        watch = stub.Watch(pb.WatchRequest(session_id=sid), metadata=md(), timeout=120)
+        assert next(watch).WhichOneof("event") == "snapshot"
+        seen = {}
+
+        def drain():
+            try:
+                for _ in watch:
+                    pass
+                seen["end"] = "OK"
+            except grpc.RpcError as e:
+                seen["end"] = e.code()
+                seen["details"] = e.details()
+
+        reader = threading.Thread(target=drain, daemon=True)
+        reader.start()
+        time.sleep(0.2)
+        start = time.monotonic()
+        s.proc.send_signal(signal.SIGTERM)
+        code = s.proc.wait(timeout=10)
+        took = time.monotonic() - start
+        reader.join(timeout=10)
+        assert code == 0, s.stderr()
+        assert took < 5, f"exit took {took:.1f} s"
+        assert seen.get("end") == grpc.StatusCode.UNAVAILABLE, seen
+        assert "shutting down" in seen.get("details", ""), seen
+    finally:
+        if s.proc.poll() is None:
+            s.kill()
 
 
 def test_kill_during_edit_burst_loses_nothing_acknowledged(tmp_path, stubs, phantom):

@@ -2,8 +2,11 @@
 error codes as the gRPC face, the OpenAPI document, server-sent watch events, restart recovery."""
 import base64
 import json
+import signal
 import subprocess
 import sys
+import threading
+import time
 import urllib.parse
 
 import nibabel as nib
@@ -139,6 +142,34 @@ def test_edits_watch_and_volumes_over_http(server, phantom, tmp_path):
     plan = requests.get(f"{url}/v1/sessions/{sid}/plan", timeout=10)
     assert plan.headers["resecta-plan-version"] == str(v2)
     assert plan.json()["resections"][0]["control_points"][6] == pytest.approx([-28.0, 3.0, 2.0])
+
+
+def test_sigterm_ends_open_watch_streams(tmp_path):
+    """Graceful shutdown does not wait for open server-sent event streams: a watch ends with an
+    `error` event (503 UNAVAILABLE) and the process exits 0 within a few seconds."""
+    s = Server()
+    try:
+        sid = session(s.http_url)
+        watch = requests.get(f"{s.http_url}/v1/sessions/{sid}/watch", stream=True, timeout=60)
+        events = sse(watch)
+        assert next(events)[1] == "snapshot"
+        rest = []
+        reader = threading.Thread(target=lambda: rest.extend(events), daemon=True)
+        reader.start()
+        time.sleep(0.2)
+        start = time.monotonic()
+        s.proc.send_signal(signal.SIGTERM)
+        code = s.proc.wait(timeout=10)
+        took = time.monotonic() - start
+        reader.join(timeout=10)
+        assert not reader.is_alive(), "the event stream did not end"
+        assert code == 0, s.stderr()
+        assert took < 5, f"exit took {took:.1f} s"
+        assert rest and rest[-1][1] == "error", rest
+        assert rest[-1][2]["status"] == 503 and rest[-1][2]["code"] == "UNAVAILABLE", rest[-1]
+    finally:
+        if s.proc.poll() is None:
+            s.kill()
 
 
 def test_bad_input_over_http(server, phantom):

@@ -10,6 +10,7 @@ mod access;
 pub mod convert;
 pub mod error;
 mod service;
+pub mod shutdown;
 mod upload;
 mod watch;
 
@@ -24,6 +25,7 @@ use tonic::service::Routes;
 
 pub use error::{RpcStatus, WireError, access_status, error_info, session_status};
 pub use service::Planning;
+pub use shutdown::ShutdownSignal;
 
 /// Largest request message the server accepts: one 4 MiB chunk plus room for its header.
 pub const MAX_REQUEST_BYTES: usize = MAX_CHUNK_BYTES + (64 << 10);
@@ -38,9 +40,25 @@ pub(crate) const SNAPSHOT_PART_BYTES: usize = MAX_CHUNK_BYTES;
 /// The gRPC services of the planning server: `resecta.v1.PlanningService` behind `policy`
 /// (token on every call, API version on every call but `GetServerInfo`) with the message size
 /// limits set, `grpc.health.v1.Health` (SERVING for the planning service; no token) and
-/// reflection v1 and v1alpha from the API's descriptor set (no token).
+/// reflection v1 and v1alpha from the API's descriptor set (no token). Its streams end only
+/// by themselves: a server that shuts down gracefully uses [`grpc_routes_until`].
 pub fn grpc_routes(service: Arc<Service>, policy: AccessPolicy) -> Routes {
-    let planning = Planning::new(service, policy.requires_token());
+    routes(Planning::new(service, policy.requires_token()), policy)
+}
+
+/// [`grpc_routes`] whose `Watch` and `Reconstruct` streams end with `UNAVAILABLE` once
+/// `shutdown` turns `true`: tonic's graceful shutdown waits for every open call, and a watch
+/// never ends by itself.
+pub fn grpc_routes_until(
+    service: Arc<Service>,
+    policy: AccessPolicy,
+    shutdown: ShutdownSignal,
+) -> Routes {
+    let planning = Planning::new(service, policy.requires_token()).with_shutdown(shutdown);
+    routes(planning, policy)
+}
+
+fn routes(planning: Planning, policy: AccessPolicy) -> Routes {
     let planning = PlanningServiceServer::new(planning)
         .max_decoding_message_size(MAX_REQUEST_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);

@@ -327,8 +327,13 @@ async fn tokens_and_versions_are_checked_health_and_reflection_are_open() {
         .unwrap()
         .into_inner();
     assert_eq!(info.api_version, "resecta.v1");
-    assert!(
-        info.capabilities.iter().any(|c| c == "auth"),
+    // What this server does with its configuration: PSR, deltas, a token; no compression or
+    // quantisation (the default encoder sends exact, uncompressed payloads).
+    let mut caps = info.capabilities.clone();
+    caps.sort();
+    assert_eq!(
+        caps,
+        ["auth", "psr", "watch-deltas"],
         "{:?}",
         info.capabilities
     );

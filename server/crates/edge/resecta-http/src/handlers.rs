@@ -59,7 +59,29 @@ pub async fn openapi() -> Response {
 }
 
 pub async fn info(State(app): State<App>) -> axum::Json<resecta_session::api::ServerInfo> {
-    axum::Json(app.service.info())
+    let mut info = app.service.info();
+    info.capabilities = capabilities(&app.service, std::mem::take(&mut info.capabilities));
+    axum::Json(info)
+}
+
+/// What this server really does, from the operation layer's list: `zstd` / `quantized` only
+/// when its encoder is configured to compress / quantise mesh payloads (the operation layer
+/// lists `zstd` whatever its configuration), `psr` (its one reconstruction method); each once,
+/// in the order first named. The gRPC face reports the same list.
+fn capabilities(service: &resecta_session::Service, listed: Vec<String>) -> Vec<String> {
+    let encode = &service.config().encode;
+    let mut out: Vec<String> = Vec::with_capacity(listed.len() + 1);
+    for c in listed.into_iter().chain(std::iter::once("psr".to_owned())) {
+        let true_here = match c.as_str() {
+            "zstd" => encode.zstd_level.is_some(),
+            "quantized" => encode.quantise.is_some(),
+            _ => true,
+        };
+        if true_here && !out.contains(&c) {
+            out.push(c);
+        }
+    }
+    out
 }
 
 // ---- sessions ------------------------------------------------------------------------------
@@ -257,13 +279,61 @@ pub async fn upload_label_map(
 
 // ---- reconstruction and edits --------------------------------------------------------------
 
-/// A server-sent event stream with keep-alive comments.
-fn sse(
-    keep_alive: std::time::Duration,
+/// The problem of a stream ended by the server's shutdown.
+fn shutting_down() -> Problem {
+    Problem::new(
+        StatusCode::SERVICE_UNAVAILABLE,
+        "UNAVAILABLE",
+        "the server is shutting down; reconnect later",
+    )
+}
+
+/// Completes once `signal` says the server is shutting down (never without a signal).
+async fn stopping(signal: Option<tokio::sync::watch::Receiver<bool>>) {
+    match signal {
+        // Err: the sender is gone, which also means the server is going away.
+        Some(mut rx) => drop(rx.wait_for(|s| *s).await),
+        None => std::future::pending::<()>().await,
+    }
+}
+
+/// `events`, ended by an `error` event (503 `UNAVAILABLE`) once the server shuts down; `events`
+/// is dropped then, which cancels whatever feeds it.
+fn until_shutdown(
     events: impl Stream<Item = Event> + Send + 'static,
-) -> Sse<impl Stream<Item = Result<Event, Infallible>>> {
+    signal: Option<tokio::sync::watch::Receiver<bool>>,
+) -> impl Stream<Item = Event> + Send + 'static {
     use futures_util::StreamExt;
-    Sse::new(events.map(Ok)).keep_alive(KeepAlive::new().interval(keep_alive))
+    use futures_util::future::{self, Either};
+    type Events = std::pin::Pin<Box<dyn Stream<Item = Event> + Send>>;
+    type Stop = std::pin::Pin<Box<dyn Future<Output = ()> + Send>>;
+    let events: Events = Box::pin(events);
+    let stop: Stop = Box::pin(stopping(signal));
+    stream::unfold(Some((events, stop)), |state| async move {
+        let (mut events, mut stop) = state?;
+        let next = match future::select(events.next(), stop.as_mut()).await {
+            Either::Left((event, _)) => Some(event),
+            Either::Right(((), _)) => None,
+        };
+        match next {
+            Some(Some(event)) => Some((event, Some((events, stop)))),
+            Some(None) => None,
+            None => {
+                drop(events);
+                Some((wire::error_event(&shutting_down()), None))
+            }
+        }
+    })
+}
+
+/// A server-sent event stream with keep-alive comments, ended when the server shuts down.
+fn sse<S: Stream<Item = Event> + Send + 'static>(
+    app: &App,
+    events: S,
+) -> Sse<impl Stream<Item = Result<Event, Infallible>> + use<S>> {
+    use futures_util::StreamExt;
+    let events = until_shutdown(events, app.shutdown.clone());
+    Sse::new(events.map(Ok)).keep_alive(KeepAlive::new().interval(app.keep_alive))
 }
 
 /// Starts the reconstruction and streams its events; a client that goes away cancels it.
@@ -279,7 +349,7 @@ pub async fn reconstruct(
             Err(e) => Some((wire::error_event(&Problem::from(e)), None)),
         }
     });
-    Ok(sse(app.keep_alive, events))
+    Ok(sse(&app, events))
 }
 
 #[derive(Debug, Deserialize)]
@@ -461,7 +531,7 @@ pub async fn watch(
             }
         }
     });
-    Ok(sse(app.keep_alive, events))
+    Ok(sse(&app, events))
 }
 
 // ---- fallbacks -----------------------------------------------------------------------------

@@ -77,6 +77,11 @@ pub struct HttpOptions {
     pub max_json_bytes: u64,
     /// Interval of the keep-alive comments on server-sent event streams.
     pub keep_alive: Duration,
+    /// The server's shutdown signal (`true`: shutting down; a dropped sender counts too). Open
+    /// server-sent event streams (watch, reconstruct) then end with an `error` event holding a
+    /// 503 `UNAVAILABLE` problem, so that graceful shutdown does not wait for them. `None`:
+    /// streams end only by themselves.
+    pub shutdown: Option<tokio::sync::watch::Receiver<bool>>,
 }
 
 impl Default for HttpOptions {
@@ -85,6 +90,7 @@ impl Default for HttpOptions {
             metrics: None,
             max_json_bytes: MAX_JSON_BYTES,
             keep_alive: Duration::from_secs(15),
+            shutdown: None,
         }
     }
 }
@@ -95,6 +101,7 @@ impl std::fmt::Debug for HttpOptions {
             .field("metrics", &self.metrics.is_some())
             .field("max_json_bytes", &self.max_json_bytes)
             .field("keep_alive", &self.keep_alive)
+            .field("shutdown", &self.shutdown.is_some())
             .finish()
     }
 }
@@ -106,6 +113,7 @@ struct App {
     metrics: Option<MetricsRender>,
     max_json_bytes: u64,
     keep_alive: Duration,
+    shutdown: Option<tokio::sync::watch::Receiver<bool>>,
 }
 
 /// The methods the face uses.
@@ -215,6 +223,7 @@ pub fn router(service: Arc<Service>, policy: AccessPolicy, options: HttpOptions)
         metrics: options.metrics,
         max_json_bytes: options.max_json_bytes,
         keep_alive: options.keep_alive,
+        shutdown: options.shutdown,
     };
     let (mut open, mut guarded) = (Router::new(), Router::new());
     for r in table() {

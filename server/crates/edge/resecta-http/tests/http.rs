@@ -41,6 +41,12 @@ async fn session_crud_and_unknown_ids() {
     let info = get(s.addr, "/v1/info").await;
     assert_eq!(info.status, StatusCode::OK);
     assert_eq!(info.json()["api_version"], "resecta.v1");
+    // True to the configuration: PSR and deltas; the default encoder neither compresses nor
+    // quantises, and this server needs no token.
+    let mut caps: Vec<String> =
+        serde_json::from_value(info.json()["capabilities"].clone()).unwrap();
+    caps.sort();
+    assert_eq!(caps, ["psr", "watch-deltas"]);
 
     let created = post_json(s.addr, "/v1/sessions", &json!({"display_name": "Demo"})).await;
     assert_eq!(created.status, StatusCode::CREATED);

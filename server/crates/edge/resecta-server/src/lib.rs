@@ -96,7 +96,13 @@ pub async fn run(
             .tls_config(t.grpc.clone())
             .map_err(|e| ServerError::Tls(e.to_string()))?;
     }
-    let routes = resecta_grpc::grpc_routes(Arc::clone(&service), config.access.clone());
+    // Watch and Reconstruct streams end with UNAVAILABLE on shutdown: tonic's graceful
+    // shutdown waits for every open call, and a watch never ends by itself.
+    let routes = resecta_grpc::grpc_routes_until(
+        Arc::clone(&service),
+        config.access.clone(),
+        stop_rx.clone(),
+    );
     // Small messages (edit answers, deltas of small surfaces) must not wait for Nagle's delayed
     // ACK: 40 ms per edit otherwise.
     let incoming =
@@ -131,6 +137,7 @@ pub async fn run(
         config.access.clone(),
         resecta_http::HttpOptions {
             metrics: render,
+            shutdown: Some(stop_rx.clone()),
             ..resecta_http::HttpOptions::default()
         },
     );
@@ -184,14 +191,47 @@ pub async fn run(
 
     shutdown.await;
     tracing::info!("shutting down");
+    // Streams end now (UNAVAILABLE / an `error` event), new connections are refused, and
+    // in-flight unary calls get up to SHUTDOWN_GRACE to finish; then the faces are dropped.
     let _ = stop_tx.send(true);
-    handle.graceful_shutdown(Some(Duration::from_secs(5)));
-    let grpc = grpc.await.map_err(|e| serve_error("gRPC")(e.to_string()))?;
-    let http = http.await.map_err(|e| serve_error("HTTP")(e.to_string()))?;
+    handle.graceful_shutdown(Some(SHUTDOWN_GRACE));
+    let grpc = drain("gRPC", grpc).await?;
+    let http = drain("HTTP", http).await?;
     upkeep.abort();
-    grpc.map_err(|e| serve_error("gRPC")(e.to_string()))?;
-    http.map_err(|e| serve_error("HTTP")(e.to_string()))?;
+    if let Some(grpc) = grpc {
+        grpc.map_err(|e| serve_error("gRPC")(e.to_string()))?;
+    }
+    if let Some(http) = http {
+        http.map_err(|e| serve_error("HTTP")(e.to_string()))?;
+    }
+    tracing::info!("stopped");
     Ok(())
+}
+
+/// How long graceful shutdown waits for in-flight calls once streams have been ended.
+pub const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
+/// The face's outcome once it has drained, or `None` (logged) when it did not drain within
+/// [`SHUTDOWN_GRACE`] and was dropped: a shutdown never hangs on a stuck call.
+async fn drain<T>(
+    face: &'static str,
+    mut task: tokio::task::JoinHandle<T>,
+) -> Result<Option<T>, ServerError> {
+    // A little longer than the HTTP face's own grace, which closes its connections itself.
+    match tokio::time::timeout(SHUTDOWN_GRACE + Duration::from_millis(500), &mut task).await {
+        Ok(joined) => joined
+            .map(Some)
+            .map_err(|e| serve_error(face)(e.to_string())),
+        Err(_) => {
+            task.abort();
+            tracing::warn!(
+                face,
+                grace_s = SHUTDOWN_GRACE.as_secs(),
+                "calls still open after the shutdown grace period were dropped"
+            );
+            Ok(None)
+        }
+    }
 }
 
 async fn upkeep(service: Arc<Service>, mut stop: watch::Receiver<bool>) {
