@@ -76,6 +76,8 @@ struct Latency {
     /// /proc: user + system time over wall time); absent where unreadable.
     server_cores: Option<f64>,
     client_cores: Option<f64>,
+    /// Server CPU time per edit (ms): less sensitive than latency to other jobs on the machine.
+    server_cpu_ms_per_edit: Option<f64>,
     #[serde(skip)]
     samples: Vec<f64>,
 }
@@ -482,6 +484,7 @@ fn latency(
         p99_ms: percentile(&samples, 0.99),
         max_ms: samples.last().copied().unwrap_or(f64::NAN),
         server_cores: None,
+        server_cpu_ms_per_edit: None,
         client_cores: None,
         samples,
     }
@@ -525,6 +528,9 @@ impl Load {
             .server
             .zip(Self::server_now(self.pid))
             .map(|(a, b)| (b - a) / wall);
+        l.server_cpu_ms_per_edit = l
+            .server_cores
+            .map(|c| c * wall * 1e3 / l.edits.max(1) as f64);
         l.client_cores = self
             .client
             .zip(cpu_seconds("self"))

@@ -7,6 +7,7 @@
 pub mod api;
 mod error;
 mod labelmap;
+mod pools;
 mod service;
 mod watch;
 

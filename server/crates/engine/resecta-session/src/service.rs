@@ -32,6 +32,7 @@ use crate::api::{
 };
 use crate::error::{Missing, Quota, Result, SessionError};
 use crate::labelmap;
+use crate::pools::{self, Priority};
 use crate::watch::{Hub, RingBounds, WatchStream};
 
 /// Limits and tuning of a [`Service`].
@@ -151,8 +152,8 @@ struct Loaded {
     /// `None` only while a blocking task holds it, or while `pending` builds it.
     planner: Option<Planner>,
     /// The planner's set-up (anatomy: liver envelope, tumour models, distance structures) after
-    /// an upload, running on the blocking pool; the upload is acknowledged without waiting.
-    pending: Option<tokio::task::JoinHandle<Result<Planner>>>,
+    /// an upload, running on the background pool; the upload is acknowledged without waiting.
+    pending: Option<tokio::task::JoinHandle<Result<Result<Planner>>>>,
     /// Changes with every label-map load (reconstructions of an older one are dropped).
     generation: u64,
 }
@@ -195,7 +196,7 @@ impl Loaded {
     /// again on the next try: the set-up is retried).
     async fn ready(&mut self) -> Result<&mut Planner> {
         if let Some(pending) = self.pending.take() {
-            match pending.await.map_err(internal)? {
+            match pending.await.map_err(internal)?? {
                 Ok(p) => self.planner = Some(p),
                 Err(e) => {
                     let (labels, roles) = (Arc::clone(&self.labels), self.summary.roles.clone());
@@ -217,17 +218,17 @@ impl Loaded {
     }
 }
 
-/// Builds the anatomy and an empty plan's planner for `labels` on the blocking pool.
+/// Builds the anatomy and an empty plan's planner for `labels` on the background pool.
 fn spawn_planner(
     labels: Arc<LabelMap>,
     roles: RoleMap,
-) -> tokio::task::JoinHandle<Result<Planner>> {
-    tokio::task::spawn_blocking(move || {
+) -> tokio::task::JoinHandle<Result<Result<Planner>>> {
+    tokio::spawn(pools::run(Priority::Background, move || {
         let t = std::time::Instant::now();
         let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
         tracing::debug!(ms = t.elapsed().as_secs_f64() * 1e3, "anatomy set up");
         Ok(Planner::new(anatomy, Plan::new(roles))?)
-    })
+    }))
 }
 
 fn check_display_name(name: &str) -> Result<()> {
@@ -688,7 +689,7 @@ impl Service {
         tokio::spawn(async move {
             let started = std::time::Instant::now();
             let progress_tx = tx.clone();
-            let built = blocking(move || {
+            let built = pools::run(Priority::Background, move || {
                 let mut done = 0usize;
                 let mut progress = |name: &str| {
                     done += 1;
@@ -712,7 +713,8 @@ impl Service {
                     e => SessionError::Precondition(Missing::Other, format!("reconstruction: {e}")),
                 })
             })
-            .await;
+            .await
+            .and_then(|built| built);
             let result = match built {
                 Ok(models) => service.install_models(&s, generation, models).await,
                 Err(e) => Err(e),
@@ -790,8 +792,22 @@ impl Service {
     // ---- plan edits -----------------------------------------------------------------------
 
     /// Applies one plan change made against `base_version` (0: unchecked). Conflicting edits
-    /// (an older base) are rejected with [`SessionError::StaleVersion`], never rebased.
+    /// (an older base) are rejected with [`SessionError::StaleVersion`], never rebased. An edit
+    /// once started completes even if the caller goes away (the planner is never left taken).
     pub async fn edit(
+        self: &Arc<Self>,
+        id: &str,
+        base_version: u64,
+        op: EditOp,
+    ) -> Result<EditOutcome> {
+        let service = Arc::clone(self);
+        let id = id.to_owned();
+        tokio::spawn(async move { service.edit_to_end(&id, base_version, op).await })
+            .await
+            .map_err(internal)?
+    }
+
+    async fn edit_to_end(
         self: &Arc<Self>,
         id: &str,
         base_version: u64,
@@ -813,12 +829,11 @@ impl Service {
         let mut planner = loaded.take_planner().await?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
-        let (planner, result) = tokio::task::spawn_blocking(move || {
+        let (planner, result) = pools::run(Priority::Interactive, move || {
             let r = apply_edit(&mut planner, store.as_ref(), &key, version, op);
             (planner, r)
         })
-        .await
-        .map_err(internal)?;
+        .await?;
         let (new_version, changed) = match result {
             Ok(r) => r,
             Err(e) => {
@@ -880,7 +895,7 @@ impl Service {
             s.volumes_scheduled.store(false, Ordering::Release);
             let started = std::time::Instant::now();
             let _running = InFlight::new("resecta_volumes_in_flight");
-            match service.volumes_detached(&s).await {
+            match service.volumes_detached(&s, Priority::Background).await {
                 Ok(Some((version, v))) => {
                     let _ = s.hub.publish_volumes(version, v);
                 }
@@ -894,7 +909,11 @@ impl Service {
     /// Volumes of the current plan version computed without holding the session: the session
     /// is locked only to take the plan's cut inputs and the volumetry engine, and again to give
     /// the engine back, so edits go on meanwhile. `None` without a label map.
-    async fn volumes_detached(&self, s: &Session) -> Result<Option<(u64, VolumeReport)>> {
+    async fn volumes_detached(
+        &self,
+        s: &Session,
+        priority: Priority,
+    ) -> Result<Option<(u64, VolumeReport)>> {
         let (job, version, generation) = {
             let mut st = Arc::clone(&s.state).lock_owned().await;
             let version = st.version;
@@ -904,9 +923,7 @@ impl Service {
             let job = loaded.ready().await?.volume_job()?;
             (job, version, loaded.generation)
         };
-        let (engine, report) = tokio::task::spawn_blocking(move || job.run())
-            .await
-            .map_err(internal)?;
+        let (engine, report) = pools::run(priority, move || job.run()).await?;
         let mut st = Arc::clone(&s.state).lock_owned().await;
         if let Some(loaded) = st.loaded.as_mut()
             && loaded.generation == generation
@@ -921,7 +938,10 @@ impl Service {
     pub async fn volumes(&self, id: &str) -> Result<Versioned<VolumeReport>> {
         let (s, st) = self.open(id).await?;
         drop(st);
-        let (plan_version, value) = self.volumes_detached(&s).await?.ok_or_else(no_label_map)?;
+        let (plan_version, value) = self
+            .volumes_detached(&s, Priority::Interactive)
+            .await?
+            .ok_or_else(no_label_map)?;
         Ok(Versioned {
             plan_version,
             value,

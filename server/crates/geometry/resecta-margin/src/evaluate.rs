@@ -90,13 +90,19 @@ pub struct Verdict {
     pub inside_area_mm2: f64,
 }
 
-/// Per-vertex distances from [`evaluate`] exceed the exact ones by at most this (mm); classes,
-/// the refined minimum and its point are exact.
+/// Per-vertex distances from [`evaluate`] inside the liver and possibly within margin + band
+/// exceed the exact ones by at most this (mm); classes, the refined minimum and its point are
+/// exact.
 pub const TOLERANCE_MM: Real = 0.01;
 
 /// Outside the liver distances only colour the hidden part of the surface and feed the clipped
 /// areas' interpolation across the boundary: within this (mm).
 pub const OUTSIDE_TOLERANCE_MM: Real = 0.25;
+
+/// Inside the liver, a sample whose distance is certainly beyond margin + band (by
+/// [`MarginField::lower_bound`]) is safe whatever its exact value; its distance only colours the
+/// safe part of the surface: within this (mm).
+pub const FAR_TOLERANCE_MM: Real = 0.25;
 
 /// Search steps shrink to this in u and v ...
 const UV_TOLERANCE: Real = 1e-6;
@@ -154,21 +160,36 @@ pub fn evaluate_into(
     check_len("inside levels", n, inside.len())?;
     out.distance.resize(n, 0.0);
     out.class.resize(n, MarginClass::Outside);
-    let tolerance = |k: usize| {
-        if inside[k] > 0.0 {
-            TOLERANCE_MM
-        } else {
-            OUTSIDE_TOLERANCE_MM
-        }
+    let (m, w) = (settings.margin_mm, settings.margin_mm + settings.band_mm);
+    // Inside samples certainly beyond margin + band are safe whatever their exact distance.
+    let far: Vec<bool> = (0..n)
+        .into_par_iter()
+        .map(|k| inside[k] > 0.0 && field.lower_bound(&points[k]) > w)
+        .collect();
+    let tolerance = |k: usize| match (inside[k] > 0.0, far[k]) {
+        (false, _) => OUTSIDE_TOLERANCE_MM,
+        (true, true) => FAR_TOLERANCE_MM,
+        (true, false) => TOLERANCE_MM,
     };
     field.distances_grid_within(ru, rv, points, tolerance, &mut out.distance)?;
     // A distance at most TOLERANCE_MM above a class threshold may belong below it: make those
     // exact, so classes (and what counts as a violation) are those of the exact distances.
-    let (m, w) = (settings.margin_mm, settings.margin_mm + settings.band_mm);
     let near = |d: Real, t: Real| d >= t && d < t + TOLERANCE_MM;
     for (k, d) in out.distance.iter_mut().enumerate() {
         if inside[k] > 0.0 && (near(*d, m) || near(*d, w)) {
             *d = field.nearest(&points[k]).distance;
+        }
+    }
+    // A far sample whose cells might hold the minimum is made exact too, so the refined minimum
+    // starts from the same vertices as with exact distances everywhere: the minimum over its
+    // cells is at least its exact distance minus its neighbourhood radius.
+    let lowest = (0..n)
+        .filter(|&k| inside[k] > 0.0)
+        .map(|k| out.distance[k])
+        .fold(Real::INFINITY, Real::min);
+    for k in 0..n {
+        if far[k] && out.distance[k] - FAR_TOLERANCE_MM - radius(points, ru, rv, k) < lowest {
+            out.distance[k] = field.nearest(&points[k]).distance;
         }
     }
     for ((c, &d), &s) in out.class.iter_mut().zip(&out.distance).zip(inside) {
@@ -192,6 +213,32 @@ pub fn evaluate_into(
         warning_area_mm2: areas.warning,
         inside_area_mm2: areas.inside,
     })
+}
+
+/// The 8 neighbours of vertex k of an ru×rv grid, each with whether it exists; direct
+/// neighbours first (most vertices are rejected as local minima by one of them).
+fn neighbours(ru: usize, rv: usize, k: usize) -> [(bool, usize); 8] {
+    let (i, j) = (k / rv, k % rv);
+    let (up, down, left, right) = (i > 0, i + 1 < ru, j > 0, j + 1 < rv);
+    [
+        (left, k.wrapping_sub(1)),
+        (right, k + 1),
+        (up, k.wrapping_sub(rv)),
+        (down, k + rv),
+        (up && left, k.wrapping_sub(rv + 1)),
+        (up && right, k.wrapping_sub(rv).wrapping_add(1)),
+        (down && left, (k + rv).wrapping_sub(1)),
+        (down && right, k + rv + 1),
+    ]
+}
+
+/// Radius of vertex k's 2×2-cell neighbourhood: its largest distance to a neighbour.
+fn radius(points: &[Vec3], ru: usize, rv: usize, k: usize) -> Real {
+    neighbours(ru, rv, k)
+        .iter()
+        .filter(|(ok, _)| *ok)
+        .map(|&(_, m)| (points[m] - points[k]).norm())
+        .fold(0.0, Real::max)
 }
 
 struct Grid<'a> {
@@ -410,32 +457,15 @@ impl Grid<'_> {
         let usable = |k: usize| self.inside[k] > 0.0 && !d[k].is_nan();
         // (distance, index) of m below that of k.
         let lower = |m: usize, k: usize| usable(m) && (d[m] < d[k] || (d[m] == d[k] && m < k));
-        let neighbours = |k: usize| {
-            let (i, j) = (k / rv, k % rv);
-            let (up, down, left, right) = (i > 0, i + 1 < ru, j > 0, j + 1 < rv);
-            // Direct neighbours first: most vertices are rejected by one of them.
-            [
-                (left, k.wrapping_sub(1)),
-                (right, k + 1),
-                (up, k.wrapping_sub(rv)),
-                (down, k + rv),
-                (up && left, k.wrapping_sub(rv + 1)),
-                (up && right, k.wrapping_sub(rv).wrapping_add(1)),
-                (down && left, (k + rv).wrapping_sub(1)),
-                (down && right, k + rv + 1),
-            ]
-        };
         let mut out: Vec<(usize, Real)> = (0..ru * rv)
             .into_par_iter()
-            .filter(|&k| usable(k) && !neighbours(k).iter().any(|&(ok, m)| ok && lower(m, k)))
-            .map(|k| {
-                let radius = neighbours(k)
-                    .iter()
-                    .filter(|(ok, _)| *ok)
-                    .map(|&(_, m)| (self.points[m] - self.points[k]).norm())
-                    .fold(0.0, Real::max);
-                (k, radius)
+            .filter(|&k| {
+                usable(k)
+                    && !neighbours(ru, rv, k)
+                        .iter()
+                        .any(|&(ok, m)| ok && lower(m, k))
             })
+            .map(|k| (k, radius(self.points, ru, rv, k)))
             .collect();
         out.sort_by(|a, b| d[a.0].total_cmp(&d[b.0]).then(a.0.cmp(&b.0)));
         out

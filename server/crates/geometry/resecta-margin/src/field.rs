@@ -193,6 +193,12 @@ impl MarginField {
         self.spacing
     }
 
+    /// Corners of the hint grid (the region grown to whole cells).
+    pub fn region(&self) -> (Vec3, Vec3) {
+        let extent = Vec3::from(self.dims.map(|d| (d - 1) as Real)) * self.spacing;
+        (self.origin, self.origin + extent)
+    }
+
     /// Exact nearest point of the tumour mesh to `p` ([`Nearest::NONE`] if `p` is not finite).
     pub fn nearest(&self, p: &Vec3) -> Nearest {
         self.nearest_group(&[*p; GROUP])[0]
@@ -365,12 +371,30 @@ impl MarginField {
 
     /// The hint triangle of the grid node nearest to the finite point `p` (clamped to the grid).
     fn node_hint(&self, p: &Vec3) -> u32 {
+        self.hints[self.node_of(p).0]
+    }
+
+    /// Index and position of the grid node nearest to the finite point `p` (clamped to the grid).
+    fn node_of(&self, p: &Vec3) -> (usize, Vec3) {
         let [nx, ny, nz] = self.dims;
         let node = |a: usize, n: usize| {
             let t = ((p[a] - self.origin[a]) * self.inv_spacing).round();
             t.clamp(0.0, (n - 1) as Real) as usize
         };
-        self.hints[(node(2, nz) * ny + node(1, ny)) * nx + node(0, nx)]
+        let ijk = [node(0, nx), node(1, ny), node(2, nz)];
+        let at = self.origin + Vec3::from(ijk.map(|c| c as Real)) * self.spacing;
+        ((ijk[2] * ny + ijk[1]) * nx + ijk[0], at)
+    }
+
+    /// A lower bound on the distance from `p` to the tumour mesh, from the exact distance at the
+    /// grid node nearest to it (the distance is 1-Lipschitz): one point–triangle test. NaN for a
+    /// non-finite `p`.
+    pub fn lower_bound(&self, p: &Vec3) -> Real {
+        if !p.iter().all(|c| c.is_finite()) {
+            return Real::NAN;
+        }
+        let (index, node) = self.node_of(p);
+        self.tree.closest_on(&node, self.hints[index]).1 - (p - node).norm()
     }
 
     /// The answer for `p` from its nearest triangle's slot, by the reference routine.

@@ -27,7 +27,7 @@ mod tree;
 
 pub use error::MarginError;
 pub use evaluate::{
-    MarginClass, MarginSettings, OUTSIDE_TOLERANCE_MM, SurfaceMargins, SurfaceOracle, TOLERANCE_MM,
-    Verdict, evaluate, evaluate_into,
+    FAR_TOLERANCE_MM, MarginClass, MarginSettings, OUTSIDE_TOLERANCE_MM, SurfaceMargins,
+    SurfaceOracle, TOLERANCE_MM, Verdict, evaluate, evaluate_into,
 };
 pub use field::{MAX_HINT_NODES, MarginField, Nearest};

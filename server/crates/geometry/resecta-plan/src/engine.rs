@@ -35,6 +35,8 @@ const HINT_PAD_MM: Real = 10.0;
 /// Below this many vertices inside levels are computed on the calling thread (waking the pool
 /// costs more than the ~25 ns lookups).
 const PARALLEL_INSIDE: usize = 10_000;
+/// Target selections remembered (more distinct targets start the memory afresh).
+const MAX_SELECTIONS: usize = 32;
 
 /// The target tumours of a resection, ready for margin queries.
 #[derive(Debug)]
@@ -121,6 +123,8 @@ pub struct Planner {
     history: History,
     states: BTreeMap<String, ResectionState>,
     targets: BTreeMap<Vec<usize>, Arc<TargetModel>>,
+    /// Tumours picked by each target seen (selection scans tumour voxels: once per target).
+    selections: Vec<(Target, Vec<usize>)>,
     volumetry: Option<Volumetry>,
     pub flr_threshold_pct: Real,
 }
@@ -134,6 +138,7 @@ impl Planner {
             history: History::new(plan),
             states: BTreeMap::new(),
             targets: BTreeMap::new(),
+            selections: Vec::new(),
             volumetry: None,
             flr_threshold_pct: DEFAULT_FLR_THRESHOLD_PCT,
         };
@@ -295,7 +300,17 @@ impl Planner {
     }
 
     fn target_model(&mut self, target: &Target) -> Result<Arc<TargetModel>, PlanError> {
-        let tumours = self.anatomy.select(target)?;
+        let tumours = match self.selections.iter().find(|(t, _)| t == target) {
+            Some((_, tumours)) => tumours.clone(),
+            None => {
+                let tumours = self.anatomy.select(target)?;
+                if self.selections.len() >= MAX_SELECTIONS {
+                    self.selections.clear();
+                }
+                self.selections.push((target.clone(), tumours.clone()));
+                tumours
+            }
+        };
         if let Some(m) = self.targets.get(&tumours) {
             return Ok(Arc::clone(m));
         }
