@@ -12,7 +12,7 @@ use resecta_api::v1::watch_response::Event;
 use resecta_api::v1::{self as pb, edit_request::Edit, upload_label_map_request::Header};
 use resecta_auth::AccessPolicy;
 use resecta_geom::LabelMap;
-use resecta_grpc::{MAX_MESSAGE_BYTES, error_info, grpc_routes};
+use resecta_grpc::{MAX_MESSAGE_BYTES, error_info, grpc_routes, grpc_routes_until};
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_session::{Service, ServiceConfig};
 use resecta_store::{MemoryStore, StoreOptions};
@@ -27,9 +27,23 @@ type Client = PlanningServiceClient<Channel>;
 
 struct Harness {
     channel: Channel,
+    /// The server task (ends when a graceful shutdown completes).
+    server: tokio::task::JoinHandle<Result<(), tonic::transport::Error>>,
+    /// Shuts the server down gracefully (`true`); its streams end with UNAVAILABLE then only
+    /// when it was made by [`serve_until`].
+    stop: tokio::sync::watch::Sender<bool>,
 }
 
 async fn serve(policy: AccessPolicy) -> Harness {
+    serve_with(policy, false).await
+}
+
+/// A server whose streams end with UNAVAILABLE on shutdown, shut down by `Harness::stop`.
+async fn serve_until(policy: AccessPolicy) -> Harness {
+    serve_with(policy, true).await
+}
+
+async fn serve_with(policy: AccessPolicy, stoppable: bool) -> Harness {
     let service = Arc::new(Service::new(
         Arc::new(MemoryStore::new(StoreOptions::default())),
         ServiceConfig {
@@ -41,18 +55,29 @@ async fn serve(policy: AccessPolicy) -> Harness {
     ));
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap();
-    let routes = grpc_routes(service, policy);
-    tokio::spawn(
+    let (stop, mut stopped) = tokio::sync::watch::channel(false);
+    let routes = if stoppable {
+        grpc_routes_until(service, policy, stopped.clone())
+    } else {
+        grpc_routes(service, policy)
+    };
+    let server = tokio::spawn(
         tonic::transport::Server::builder()
             .add_routes(routes)
-            .serve_with_incoming(TcpListenerStream::new(listener)),
+            .serve_with_incoming_shutdown(TcpListenerStream::new(listener), async move {
+                let _ = stopped.wait_for(|s| *s).await;
+            }),
     );
     let channel = Channel::from_shared(format!("http://{addr}"))
         .unwrap()
         .connect()
         .await
         .unwrap();
-    Harness { channel }
+    Harness {
+        channel,
+        server,
+        stop,
+    }
 }
 
 impl Harness {
@@ -883,4 +908,52 @@ async fn reconstruction_streams_to_done_and_models_export_in_chunks() {
         (code, info.field.as_str()),
         (Code::InvalidArgument, "format")
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn graceful_shutdown_ends_watch_and_reconstruct_streams_with_unavailable() {
+    let h = serve_until(AccessPolicy::open()).await;
+    let mut c = h.client();
+    let id = loaded(&mut c).await;
+    let mut w = watch(&mut c, &id).await.unwrap();
+    let first = next(&mut w).await.unwrap().unwrap();
+    assert!(matches!(first.event, Some(Event::Snapshot(_))), "{first:?}");
+    let mut r = c
+        .reconstruct(req(pb::ReconstructRequest {
+            session_id: id.clone(),
+            method: pb::ReconstructionMethod::Psr as i32,
+            options: None,
+        }))
+        .await
+        .unwrap()
+        .into_inner();
+
+    h.stop.send(true).unwrap();
+    fn ended<T: std::fmt::Debug>(e: Result<Option<T>, Status>) -> (Code, String) {
+        match e {
+            Err(s) => (s.code(), s.message().to_owned()),
+            Ok(m) => panic!("expected UNAVAILABLE, got {m:?}"),
+        }
+    }
+    let (code, message) = ended(next(&mut w).await);
+    assert_eq!(code, Code::Unavailable, "{message}");
+    assert!(message.contains("shutting down"), "{message}");
+    // The reconstruction may have sent its progress before the signal; it ends the same way.
+    let end = loop {
+        match tokio::time::timeout(Duration::from_secs(30), r.message())
+            .await
+            .expect("reconstruct ends in time")
+        {
+            Ok(Some(pb::ReconstructResponse {
+                event: Some(pb::reconstruct_response::Event::Done(_)),
+            })) => panic!("the reconstruction finished instead of ending on shutdown"),
+            Ok(Some(_)) => {}
+            other => break ended(other),
+        }
+    };
+    assert_eq!(end.0, Code::Unavailable, "{}", end.1);
+    // Nothing holds the server up any more: it finishes its graceful shutdown promptly.
+    drop((w, r, c));
+    let done = tokio::time::timeout(Duration::from_secs(10), h.server).await;
+    assert!(matches!(done, Ok(Ok(Ok(())))), "{done:?}");
 }

@@ -758,3 +758,43 @@ async fn the_openapi_document_matches_the_router() {
         );
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_ends_watch_streams_with_an_unavailable_error_event() {
+    let (stop, stopped) = tokio::sync::watch::channel(false);
+    let s = serve(
+        config(),
+        AccessPolicy::open(),
+        HttpOptions {
+            shutdown: Some(stopped),
+            ..HttpOptions::default()
+        },
+    )
+    .await;
+    let id = create_session(s.addr, "Shutdown").await;
+    let mut w = SseReader::new(
+        send_raw(
+            s.addr,
+            request("GET", &format!("/v1/sessions/{id}/watch"), Body::empty()),
+        )
+        .await
+        .unwrap(),
+    );
+    assert_eq!(
+        w.next_event().await.unwrap().event.as_deref(),
+        Some("snapshot")
+    );
+    stop.send(true).unwrap();
+    let end = tokio::time::timeout(Duration::from_secs(10), w.next_event())
+        .await
+        .expect("the stream ends in time")
+        .expect("an error event");
+    assert_eq!(end.event.as_deref(), Some("error"));
+    assert_eq!(end.json()["status"], 503);
+    assert_eq!(end.json()["code"], "UNAVAILABLE");
+    let after = tokio::time::timeout(Duration::from_secs(10), w.next_event()).await;
+    assert!(
+        matches!(after, Ok(None)),
+        "the stream ends after the error event"
+    );
+}
