@@ -1,5 +1,5 @@
 """`resecta serve` end to end over gRPC: the real binary, real sockets, generated Python stubs.
-Sessions, upload, reconstruction, edits, watch, bad input, auth, TLS and kill -9 recovery."""
+Sessions, upload, reconstruction, edits, watch, bad input, auth, TLS, SIGTERM with open streams and kill -9 recovery."""
 import signal
 import threading
 import time
