@@ -174,7 +174,15 @@ def test_reconstruct_with_progress(client: rc.Client, phantom: Path) -> None:
     assert [m.name for m in models] == [m.name for m in seen]
     assert {"parenchyma", "tumor_1", "portal_1"} <= {m.name for m in models}
     assert {m.name: m.kind for m in models}["tumor_1"] is rc.SurfaceKind.TUMOR
+    # One label per role here: every model names the label it was built from.
+    assert {m.name: m.label for m in models} == {"parenchyma": 1, "tumor_1": 2, "portal_1": 3}
     assert all(m.triangle_count > 0 and m.volume_ml > 0 for m in models)
+    with s.watch() as w:
+        for _ in w:
+            if len(w.scene.models) == len(models):
+                break
+    assert w.scene.models["tumor_1"].label == 2
+    assert all(m.color is not None and len(m.color) == 4 for m in w.scene.models.values())
     fractions = [f for f, _ in progress]
     assert fractions == sorted(fractions) and fractions[-1] == 1.0 and progress[-1][1] == "done"
     assert s.info().state is rc.SessionState.READY

@@ -518,13 +518,12 @@ pub fn surface_kind(k: SurfaceKind) -> i32 {
     }) as i32
 }
 
-/// A model surface (its label is not known to the operation layer: 0).
 pub fn surface(s: &Surface) -> pb::Surface {
     pb::Surface {
         name: s.name.clone(),
         kind: surface_kind(s.kind),
-        label: 0,
-        color: None,
+        label: u32::from(s.label),
+        color: s.color.map(|[r, g, b, a]| pb::Rgba { r, g, b, a }),
         mesh: s.mesh.clone(),
     }
 }
@@ -533,7 +532,7 @@ pub fn model_info(m: &ModelInfo) -> pb::ModelInfo {
     pb::ModelInfo {
         name: m.name.clone(),
         kind: surface_kind(m.kind),
-        label: 0,
+        label: u32::from(m.label),
         triangle_count: m.triangles as u64,
         vertex_count: m.vertices as u64,
         volume_ml: m.volume_ml,

@@ -43,7 +43,7 @@ pub(crate) const SNAPSHOT_PART_BYTES: usize = MAX_CHUNK_BYTES;
 /// reflection v1 and v1alpha from the API's descriptor set (no token). Its streams end only
 /// by themselves: a server that shuts down gracefully uses [`grpc_routes_until`].
 pub fn grpc_routes(service: Arc<Service>, policy: AccessPolicy) -> Routes {
-    routes(Planning::new(service, policy.requires_token()), policy)
+    routes(Planning::new(service), policy)
 }
 
 /// [`grpc_routes`] whose `Watch` and `Reconstruct` streams end with `UNAVAILABLE` once
@@ -54,7 +54,7 @@ pub fn grpc_routes_until(
     policy: AccessPolicy,
     shutdown: ShutdownSignal,
 ) -> Routes {
-    let planning = Planning::new(service, policy.requires_token()).with_shutdown(shutdown);
+    let planning = Planning::new(service).with_shutdown(shutdown);
     routes(planning, policy)
 }
 

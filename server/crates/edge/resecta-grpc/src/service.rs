@@ -24,17 +24,14 @@ type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 #[derive(Debug, Clone)]
 pub struct Planning {
     service: Arc<Service>,
-    /// Whether calls need a bearer token (the "auth" capability).
-    requires_token: bool,
     /// Ends `Watch` and `Reconstruct` streams with `UNAVAILABLE` when the server shuts down.
     shutdown: Option<ShutdownSignal>,
 }
 
 impl Planning {
-    pub fn new(service: Arc<Service>, requires_token: bool) -> Self {
+    pub fn new(service: Arc<Service>) -> Self {
         Self {
             service,
-            requires_token,
             shutdown: None,
         }
     }
@@ -52,32 +49,6 @@ fn missing_surface() -> Status {
     WireError::invalid("surface", "is required (model or resection)").into()
 }
 
-/// What this server really does, from the operation layer's list: `zstd` / `quantized` only
-/// when its encoder is configured to compress / quantise mesh payloads (the operation layer
-/// lists `zstd` whatever its configuration), `psr` (its one reconstruction method), `auth` when
-/// calls need a token; each once, in the order first named.
-fn capabilities(service: &Service, listed: Vec<String>, requires_token: bool) -> Vec<String> {
-    let encode = &service.config().encode;
-    let mut out: Vec<String> = Vec::with_capacity(listed.len() + 2);
-    let extra = ["psr", if requires_token { "auth" } else { "" }];
-    for c in listed.into_iter().chain(
-        extra
-            .iter()
-            .filter(|c| !c.is_empty())
-            .map(|c| (*c).to_owned()),
-    ) {
-        let true_here = match c.as_str() {
-            "zstd" => encode.zstd_level.is_some(),
-            "quantized" => encode.quantise.is_some(),
-            _ => true,
-        };
-        if true_here && !out.contains(&c) {
-            out.push(c);
-        }
-    }
-    out
-}
-
 fn saturating_u32(v: usize) -> u32 {
     u32::try_from(v).unwrap_or(u32::MAX)
 }
@@ -90,11 +61,10 @@ impl PlanningService for Planning {
     ) -> Result<Response<pb::GetServerInfoResponse>, Status> {
         let info = self.service.info();
         let config = self.service.config();
-        let capabilities = capabilities(&self.service, info.capabilities, self.requires_token);
         Ok(Response::new(pb::GetServerInfoResponse {
             server_version: info.version.to_owned(),
             api_version: info.api_version.to_owned(),
-            capabilities,
+            capabilities: info.capabilities,
             limits: Some(pb::ServerLimits {
                 max_voxels: info.limits.max_voxels,
                 max_sessions: saturating_u32(info.limits.max_sessions),
@@ -354,39 +324,5 @@ impl PlanningService for Planning {
             crate::watch::watch(Arc::clone(&self.service), r.session_id, r.since_seq).await?;
         let stream = until_shutdown(stream, self.shutdown.clone());
         Ok(Response::new(Box::pin(stream)))
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use resecta_session::ServiceConfig;
-    use resecta_store::{MemoryStore, StoreOptions};
-
-    use super::*;
-
-    fn service(config: ServiceConfig) -> Service {
-        Service::new(Arc::new(MemoryStore::new(StoreOptions::default())), config)
-    }
-
-    #[tokio::test]
-    async fn capabilities_follow_the_configuration() {
-        let plain = service(ServiceConfig::default());
-        let listed = vec![
-            "zstd".into(),
-            "watch-deltas".into(),
-            "tls".into(),
-            "auth".into(),
-        ];
-        assert_eq!(
-            capabilities(&plain, listed.clone(), true),
-            ["watch-deltas", "tls", "auth", "psr"]
-        );
-        let mut config = ServiceConfig::default();
-        config.encode.zstd_level = Some(3);
-        let zstd = service(config);
-        assert_eq!(
-            capabilities(&zstd, listed, false),
-            ["zstd", "watch-deltas", "tls", "auth", "psr"]
-        );
     }
 }

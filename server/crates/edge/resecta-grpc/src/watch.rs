@@ -232,11 +232,7 @@ mod tests {
     use super::*;
 
     fn surface(name: &str, kind: SurfaceKind, bytes: usize) -> Surface {
-        Surface {
-            name: name.into(),
-            kind,
-            mesh: vec![7; bytes],
-        }
+        Surface::new(name.into(), kind, vec![7; bytes])
     }
 
     #[test]

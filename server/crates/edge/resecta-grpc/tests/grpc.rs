@@ -352,16 +352,12 @@ async fn tokens_and_versions_are_checked_health_and_reflection_are_open() {
         .unwrap()
         .into_inner();
     assert_eq!(info.api_version, "resecta.v1");
-    // What this server does with its configuration: PSR, deltas, a token; no compression or
-    // quantisation (the default encoder sends exact, uncompressed payloads).
+    // What this server does with its configuration: PSR, deltas; no compression or quantisation
+    // (the default encoder sends exact, uncompressed payloads). The server process adds `auth`
+    // and `tls` from its own configuration.
     let mut caps = info.capabilities.clone();
     caps.sort();
-    assert_eq!(
-        caps,
-        ["auth", "psr", "watch-deltas"],
-        "{:?}",
-        info.capabilities
-    );
+    assert_eq!(caps, ["psr", "watch-deltas"], "{:?}", info.capabilities);
     let limits = info.limits.unwrap();
     assert_eq!(
         limits.max_chunk_bytes as usize,

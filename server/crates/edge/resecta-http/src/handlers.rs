@@ -59,29 +59,7 @@ pub async fn openapi() -> Response {
 }
 
 pub async fn info(State(app): State<App>) -> axum::Json<resecta_session::api::ServerInfo> {
-    let mut info = app.service.info();
-    info.capabilities = capabilities(&app.service, std::mem::take(&mut info.capabilities));
-    axum::Json(info)
-}
-
-/// What this server really does, from the operation layer's list: `zstd` / `quantized` only
-/// when its encoder is configured to compress / quantise mesh payloads (the operation layer
-/// lists `zstd` whatever its configuration), `psr` (its one reconstruction method); each once,
-/// in the order first named. The gRPC face reports the same list.
-fn capabilities(service: &resecta_session::Service, listed: Vec<String>) -> Vec<String> {
-    let encode = &service.config().encode;
-    let mut out: Vec<String> = Vec::with_capacity(listed.len() + 1);
-    for c in listed.into_iter().chain(std::iter::once("psr".to_owned())) {
-        let true_here = match c.as_str() {
-            "zstd" => encode.zstd_level.is_some(),
-            "quantized" => encode.quantise.is_some(),
-            _ => true,
-        };
-        if true_here && !out.contains(&c) {
-            out.push(c);
-        }
-    }
-    out
+    axum::Json(app.service.info())
 }
 
 // ---- sessions ------------------------------------------------------------------------------

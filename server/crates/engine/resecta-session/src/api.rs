@@ -180,6 +180,9 @@ pub struct Versioned<T> {
 pub struct ModelInfo {
     pub name: String,
     pub kind: SurfaceKind,
+    /// The label value the model was built from when its role has one label; 0 otherwise.
+    #[serde(default)]
+    pub label: u16,
     pub method: String,
     pub triangles: usize,
     pub vertices: usize,
@@ -215,13 +218,51 @@ pub enum SurfaceKind {
     Resection,
 }
 
+impl SurfaceKind {
+    /// Suggested display colour, after 3D Slicer's GenericAnatomyColors and Slicer-Liver (liver
+    /// brown and translucent, tumour green, portal vein violet, hepatic vein blue, unsplit vessels
+    /// red); `None` for resections, which clients colour by margin class.
+    pub fn display_color(self) -> Option<[f32; 4]> {
+        match self {
+            Self::Parenchyma => Some([0.867, 0.510, 0.396, 0.35]),
+            Self::Tumor => Some([0.306, 0.706, 0.306, 1.0]),
+            Self::Portal => Some([0.788, 0.373, 0.733, 1.0]),
+            Self::Hepatic => Some([0.0, 0.592, 0.808, 1.0]),
+            Self::Vessel => Some([0.847, 0.396, 0.310, 1.0]),
+            Self::Resection => None,
+        }
+    }
+}
+
 /// A whole surface: `mesh` is a `resecta-delta` mesh encoding (magic `RSMS`).
 #[derive(Debug, Clone, Serialize)]
 pub struct Surface {
     pub name: String,
     pub kind: SurfaceKind,
+    /// As [`ModelInfo::label`]; 0 for resections.
+    pub label: u16,
+    /// Suggested display colour (RGBA, 0–1): [`SurfaceKind::display_color`].
+    pub color: Option<[f32; 4]>,
     #[serde(skip)]
     pub mesh: Vec<u8>,
+}
+
+impl Surface {
+    /// A surface of `kind` (label 0, the kind's colour).
+    pub fn new(name: String, kind: SurfaceKind, mesh: Vec<u8>) -> Self {
+        Self::labelled(name, kind, 0, mesh)
+    }
+
+    /// A model surface built from `label`.
+    pub fn labelled(name: String, kind: SurfaceKind, label: u16, mesh: Vec<u8>) -> Self {
+        Self {
+            name,
+            kind,
+            label,
+            color: kind.display_color(),
+            mesh,
+        }
+    }
 }
 
 /// A resection surface after an edit: a delta against the previous frame (magic `RSDL`) when

@@ -288,8 +288,20 @@ impl Service {
     }
 
     pub fn info(&self) -> ServerInfo {
-        let mut capabilities = vec!["zstd".to_owned(), "watch-deltas".to_owned()];
-        capabilities.extend(self.config.capabilities.iter().cloned());
+        // What this server does with its configuration: `zstd` / `quantized` only when mesh
+        // payloads are compressed / quantised; then the edges' own (`tls`, `auth`), each once.
+        let encode = &self.config.encode;
+        let mut capabilities = vec!["psr".to_owned(), "watch-deltas".to_owned()];
+        let configured = [
+            (encode.zstd_level.is_some(), "zstd"),
+            (encode.quantise.is_some(), "quantized"),
+        ];
+        capabilities.extend(configured.iter().filter(|c| c.0).map(|c| c.1.to_owned()));
+        for c in &self.config.capabilities {
+            if !capabilities.contains(c) {
+                capabilities.push(c.clone());
+            }
+        }
         ServerInfo {
             version: env!("CARGO_PKG_VERSION"),
             api_version: API_VERSION,
@@ -681,6 +693,7 @@ impl Service {
         let loaded = st.loaded.as_ref().ok_or_else(no_label_map)?;
         let labels = Arc::clone(&loaded.labels);
         let roles = loaded.summary.roles.clone();
+        let model_roles = roles.clone();
         let generation = loaded.generation;
         drop(st);
         let (tx, rx) = mpsc::channel(64);
@@ -716,7 +729,11 @@ impl Service {
             .await
             .and_then(|built| built);
             let result = match built {
-                Ok(models) => service.install_models(&s, generation, models).await,
+                Ok(models) => {
+                    service
+                        .install_models(&s, generation, &model_roles, models)
+                        .await
+                }
                 Err(e) => Err(e),
             };
             let end = match result {
@@ -744,26 +761,29 @@ impl Service {
         &self,
         s: &Arc<Session>,
         generation: u64,
+        roles: &RoleMap,
         built: Vec<resecta_recon::PatientModel>,
     ) -> Result<Vec<ModelInfo>> {
         let encode = self.config.encode;
         let models: Vec<Model> = built
             .into_iter()
             .map(|m| -> Result<Model> {
+                let label = match roles.labels(m.role) {
+                    [one] => *one,
+                    _ => 0,
+                };
                 let info = ModelInfo {
                     name: m.name(),
                     kind: surface_kind(m.role),
+                    label,
                     method: m.method.to_owned(),
                     triangles: m.mesh.triangles().len(),
                     vertices: m.mesh.vertices().len(),
                     volume_ml: m.mesh.signed_volume() / 1000.0,
                 };
                 let (topology, frame) = SurfaceFrame::from_trimesh(&m.mesh);
-                let surface = Surface {
-                    name: info.name.clone(),
-                    kind: info.kind,
-                    mesh: encode_mesh(&topology, &frame, &encode).map_err(internal)?,
-                };
+                let mesh = encode_mesh(&topology, &frame, &encode).map_err(internal)?;
+                let surface = Surface::labelled(info.name.clone(), info.kind, info.label, mesh);
                 Ok(Model {
                     info,
                     mesh: m.mesh,
@@ -1152,11 +1172,7 @@ fn decode_models(blob: &Blob) -> Result<Vec<Model>> {
             .collect();
         let mesh = TriMesh::new(vertices, topology.triangles).map_err(internal)?;
         out.push(Model {
-            surface: Surface {
-                name: info.name.clone(),
-                kind: info.kind,
-                mesh: bytes.to_vec(),
-            },
+            surface: Surface::labelled(info.name.clone(), info.kind, info.label, bytes.to_vec()),
             info,
             mesh,
         });

@@ -228,12 +228,12 @@ impl Hub {
             .shown
             .iter()
             .map(|(name, s)| {
-                Ok(Surface {
-                    name: name.clone(),
-                    kind: SurfaceKind::Resection,
-                    mesh: encode_mesh(&s.topology, &s.frame, &self.encode)
+                Ok(Surface::new(
+                    name.clone(),
+                    SurfaceKind::Resection,
+                    encode_mesh(&s.topology, &s.frame, &self.encode)
                         .map_err(|e| SessionError::Internal(e.to_string()))?,
-                })
+                ))
             })
             .collect::<Result<_>>()?;
         Ok(WatchEvent {

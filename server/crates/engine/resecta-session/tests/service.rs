@@ -12,7 +12,7 @@ use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::PlanEvent;
 use resecta_session::api::{
     DataType, EditOp, FileFormat, LabelMapSource, RawLabelMap, ReconstructEvent, SessionState,
-    WatchBody, WatchEvent,
+    SurfaceKind, WatchBody, WatchEvent,
 };
 use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
@@ -323,6 +323,8 @@ async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
     // Tumour model volume within 20 % of the sphere (r = 8 mm on 2×2×3 mm voxels: the MCSD
     // display model shrinks small coarse tumours by ~15 %; margins use the planner's own model).
     let tumour = models.iter().find(|m| m.name == "tumor_1").unwrap();
+    // The default role map has one label per role: models name it.
+    assert_eq!((tumour.label, tumour.kind), (2, SurfaceKind::Tumor));
     let sphere = 4.0 / 3.0 * std::f64::consts::PI * 512.0 / 1000.0;
     assert!(
         (tumour.volume_ml / sphere - 1.0).abs() < 0.2,
@@ -355,6 +357,12 @@ async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
         panic!()
     };
     assert_eq!(surfaces.len(), models.len());
+    for s in surfaces {
+        let m = models.iter().find(|m| m.name == s.name).unwrap();
+        assert_eq!((s.label, s.kind), (m.label, m.kind));
+        assert_eq!(s.color, m.kind.display_color());
+        assert!(s.color.is_some());
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -601,4 +609,19 @@ async fn a_reconstruction_does_not_hold_up_another_sessions_edits() {
         finished |= matches!(e.unwrap(), ReconstructEvent::Done { .. });
     }
     assert!(finished);
+}
+
+#[test]
+fn capabilities_are_true_to_the_configuration() {
+    let store = || Arc::new(MemoryStore::new(StoreOptions::default()));
+    let plain = Service::new(store(), ServiceConfig::default());
+    assert_eq!(plain.info().capabilities, ["psr", "watch-deltas"]);
+    let mut c = ServiceConfig::default();
+    c.encode.zstd_level = Some(3);
+    c.capabilities = vec!["tls".into(), "psr".into(), "auth".into()];
+    let configured = Service::new(store(), c);
+    assert_eq!(
+        configured.info().capabilities,
+        ["psr", "watch-deltas", "zstd", "tls", "auth"]
+    );
 }
