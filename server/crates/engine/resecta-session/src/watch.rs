@@ -67,14 +67,27 @@ fn topology_of(s: &ResectionState) -> Topology {
     }
 }
 
+/// Where a new hub's sequence numbers start: the time in milliseconds × 1024, so the numbers of
+/// a session's hub after a restart (or a reload) are above every number its earlier hub handed
+/// out (at under 1024 events per millisecond of its life), and a client resuming with one of
+/// those gets a fresh snapshot, never deltas against another history. Below 2⁵³ (exact in
+/// JSON) until the year 2248.
+fn first_seq() -> u64 {
+    let ms = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis());
+    u64::try_from(ms.saturating_mul(1024)).unwrap_or(u64::MAX / 2)
+}
+
 impl Hub {
     pub fn new(bounds: RingBounds, encode: EncodeOptions) -> Self {
-        let (notify, _) = watch::channel(0);
+        let first = first_seq();
+        let (notify, _) = watch::channel(first);
         let mut ring = ReplayRing::new(bounds.items, bounds.bytes);
-        ring.reset(0);
+        ring.reset(first);
         Self {
             state: Mutex::new(HubState {
-                seq: 0,
+                seq: first,
                 plan_version: 0,
                 ring,
                 shown: BTreeMap::new(),

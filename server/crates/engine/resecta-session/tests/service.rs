@@ -255,7 +255,7 @@ async fn workflow_on_sqlite() {
 async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
     let dir = tempfile::tempdir().unwrap();
     let labels = phantom();
-    let (id, plan, frame, version) = {
+    let (id, plan, frame, version, seq) = {
         let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
         let service = Arc::new(Service::new(store, config()));
         let id = service.create_session("Restart").await.unwrap().id;
@@ -270,7 +270,13 @@ async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
         let mut w = service.watch(&id, None).await.unwrap();
         let snap = next(&mut w).await;
         let plan = service.export_plan(&id).await.unwrap().value;
-        (id, plan, snapshot_frame(&snap, "r1"), snap.plan_version)
+        (
+            id,
+            plan,
+            snapshot_frame(&snap, "r1"),
+            snap.plan_version,
+            snap.seq,
+        )
     };
     let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
     let service = Arc::new(Service::new(store, config()));
@@ -281,6 +287,12 @@ async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
     assert_eq!(service.export_plan(&id).await.unwrap().value, plan);
     let mut w = service.watch(&id, None).await.unwrap();
     assert_eq!(snapshot_frame(&*next(&mut w).await, "r1"), frame);
+    // A watcher resuming from the earlier process' sequence number gets a snapshot (the new
+    // numbers are above the old ones), never deltas of another history.
+    let mut resumed = service.watch(&id, Some(seq)).await.unwrap();
+    let first = next(&mut resumed).await;
+    assert!(matches!(first.body, WatchBody::Snapshot { .. }));
+    assert!(first.seq > seq, "{} <= {seq}", first.seq);
     // Redo survives the restart (the undone edit is still in the log).
     service.edit(&id, version, EditOp::Redo).await.unwrap();
 }
