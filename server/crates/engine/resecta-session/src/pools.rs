@@ -1,8 +1,9 @@
 //! Where the operation layer's CPU work runs. Edits run on rayon's global pool, so an edit's own
 //! parallel loops fork inside a worker instead of queueing behind other callers. Heavy work —
 //! reconstruction, planning set-up, volumes recomputed between edits — runs on a background pool
-//! whose threads have the lowest scheduling priority (nice 19), so the edits of a drag preempt it
-//! and a long job never holds the workers an edit needs.
+//! whose threads are in the idle scheduling class (Linux `SCHED_IDLE`; elsewhere the lowest
+//! priority), so the edits of a drag preempt it and a long job never holds the workers an edit
+//! needs.
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::OnceLock;
@@ -24,9 +25,7 @@ fn background() -> Option<&'static rayon::ThreadPool> {
         rayon::ThreadPoolBuilder::new()
             .thread_name(|k| format!("resecta-background-{k}"))
             .start_handler(|_| {
-                if let Err(e) = thread_priority::set_current_thread_priority(
-                    thread_priority::ThreadPriority::Min,
-                ) {
+                if let Err(e) = lower_priority() {
                     tracing::warn!(error = ?e, "could not lower a background thread's priority");
                 }
             })
@@ -35,6 +34,24 @@ fn background() -> Option<&'static rayon::ThreadPool> {
             .ok()
     })
     .as_ref()
+}
+
+/// Lowers the calling thread to the idle scheduling class where there is one (Linux
+/// `SCHED_IDLE`: any other runnable thread preempts it), else to the lowest priority.
+fn lower_priority() -> Result<(), thread_priority::Error> {
+    use thread_priority::{ThreadPriority, set_current_thread_priority};
+    #[cfg(target_os = "linux")]
+    {
+        use thread_priority::{
+            NormalThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy,
+            thread_native_id,
+        };
+        let idle = ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Idle);
+        if set_thread_priority_and_policy(thread_native_id(), ThreadPriority::Min, idle).is_ok() {
+            return Ok(());
+        }
+    }
+    set_current_thread_priority(ThreadPriority::Min)
 }
 
 /// Runs `f` on the pool for `priority` and waits for it without blocking the async runtime. A
@@ -62,24 +79,26 @@ pub(crate) async fn run<T: Send + 'static>(
 mod tests {
     use super::*;
 
-    /// The calling thread's nice value, from /proc.
-    fn nice() -> Option<i32> {
+    /// The calling thread's (nice value, scheduling policy), from /proc.
+    fn priority() -> Option<(i32, u32)> {
         let stat = std::fs::read_to_string("/proc/thread-self/stat").ok()?;
-        stat.rsplit(')')
-            .next()?
-            .split_whitespace()
-            .nth(16)?
-            .parse()
-            .ok()
+        let fields: Vec<&str> = stat.rsplit(')').next()?.split_whitespace().collect();
+        Some((fields.get(16)?.parse().ok()?, fields.get(38)?.parse().ok()?))
     }
 
     #[tokio::test]
-    async fn background_jobs_run_at_lowest_priority_and_interactive_at_normal() {
-        let bg = run(Priority::Background, nice).await.unwrap();
-        let fg = run(Priority::Interactive, nice).await.unwrap();
+    async fn background_jobs_run_in_the_idle_class_and_interactive_at_normal() {
+        let bg = run(Priority::Background, priority).await.unwrap();
+        let fg = run(Priority::Interactive, priority).await.unwrap();
         if cfg!(target_os = "linux") {
-            assert_eq!(bg, Some(19));
-            assert_eq!(fg, nice(), "interactive jobs keep the process' priority");
+            const SCHED_IDLE: u32 = 5;
+            let (nice, policy) = bg.unwrap();
+            assert!(policy == SCHED_IDLE || nice == 19, "{bg:?}");
+            assert_eq!(
+                fg,
+                priority(),
+                "interactive jobs keep the process' priority"
+            );
         }
         let name = run(Priority::Background, || {
             std::thread::current().name().map(str::to_owned)

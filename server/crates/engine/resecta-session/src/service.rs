@@ -847,16 +847,32 @@ impl Service {
         let version = st.version;
         let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
         let mut planner = loaded.take_planner().await?;
-        let store = Arc::clone(&self.store);
-        let key = s.id.clone();
-        let (planner, result) = pools::run(Priority::Interactive, move || {
-            let r = apply_edit(&mut planner, store.as_ref(), &key, version, op);
+        // Compute on the interactive pool, store on the blocking pool: a worker never waits for
+        // the disk while other sessions' edits queue for it.
+        let (mut planner, result) = pools::run(Priority::Interactive, move || {
+            let r = apply_edit(&mut planner, op);
             (planner, r)
         })
         .await?;
-        let (new_version, changed) = match result {
+        let (changed, record) = match result {
             Ok(r) => r,
             Err(e) => {
+                loaded.planner = Some(planner);
+                return Err(e);
+            }
+        };
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        let new_version = match blocking(move || Ok(store.append(&key, version, &[record])?)).await
+        {
+            Ok(v) => v,
+            Err(e) => {
+                let id = s.id.clone();
+                planner = pools::run(Priority::Interactive, move || {
+                    roll_back(&mut planner, &id);
+                    planner
+                })
+                .await?;
                 loaded.planner = Some(planner);
                 return Err(e);
             }
@@ -1069,15 +1085,8 @@ fn loaded_mut(st: &mut State) -> Result<&mut Loaded> {
     st.loaded.as_mut().ok_or_else(no_label_map)
 }
 
-/// Applies `op`, then makes its record durable; on a storage failure the planner is rebuilt
-/// to the state before. Returns the new version and the names of the changed resections.
-fn apply_edit(
-    planner: &mut Planner,
-    store: &dyn SessionStore,
-    id: &str,
-    version: u64,
-    op: EditOp,
-) -> Result<(u64, Vec<String>)> {
+/// Applies `op`. Returns the names of the changed resections and the log record to store.
+fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Vec<String>, String)> {
     let before = planner.plan().clone();
     let entry = match op {
         EditOp::Event { event } => {
@@ -1120,20 +1129,19 @@ fn apply_edit(
     };
     let changed = changed_names(&before, planner.plan());
     let record = serde_json::to_string(&Record::Entry { entry }).map_err(internal)?;
-    match store.append(id, version, &[record]) {
-        Ok(v) => Ok((v, changed)),
-        Err(e) => {
-            let h = planner.history();
-            let log = h.log();
-            let restored = History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)])
-                .and_then(|h| Planner::resume(planner.anatomy_shared(), h));
-            match restored {
-                Ok(p) => *planner = p,
-                Err(r) => {
-                    tracing::error!(session = %id, error = %r, "rollback after a storage failure failed")
-                }
-            }
-            Err(e.into())
+    Ok((changed, record))
+}
+
+/// Rebuilds the planner without its last log entry (whose record could not be stored).
+fn roll_back(planner: &mut Planner, id: &str) {
+    let h = planner.history();
+    let log = h.log();
+    let restored = History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)])
+        .and_then(|h| Planner::resume(planner.anatomy_shared(), h));
+    match restored {
+        Ok(p) => *planner = p,
+        Err(r) => {
+            tracing::error!(session = %id, error = %r, "rollback after a storage failure failed")
         }
     }
 }

@@ -15,7 +15,7 @@ use resecta_session::api::{
     SurfaceKind, WatchBody, WatchEvent,
 };
 use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
-use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
+use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreError, StoreOptions};
 
 fn phantom() -> LabelMap {
     generate(&PhantomSpec::small()).unwrap().labels
@@ -636,4 +636,91 @@ fn capabilities_are_true_to_the_configuration() {
         configured.info().capabilities,
         ["psr", "watch-deltas", "zstd", "tls", "auth"]
     );
+}
+
+/// A memory store whose appends fail while `broken` is set (a full disk, say).
+#[derive(Debug)]
+struct FlakyStore {
+    inner: MemoryStore,
+    broken: std::sync::atomic::AtomicBool,
+}
+
+impl SessionStore for FlakyStore {
+    fn create_session(&self, rec: &resecta_store::SessionRecord) -> Result<(), StoreError> {
+        self.inner.create_session(rec)
+    }
+    fn sessions(&self) -> Result<Vec<resecta_store::SessionRecord>, StoreError> {
+        self.inner.sessions()
+    }
+    fn session(&self, id: &str) -> Result<Option<resecta_store::SessionRecord>, StoreError> {
+        self.inner.session(id)
+    }
+    fn delete_session(&self, id: &str) -> Result<bool, StoreError> {
+        self.inner.delete_session(id)
+    }
+    fn touch(&self, id: &str, at_ms: i64) -> Result<(), StoreError> {
+        self.inner.touch(id, at_ms)
+    }
+    fn put_blob(&self, id: &str, key: &str, blob: &resecta_store::Blob) -> Result<(), StoreError> {
+        self.inner.put_blob(id, key, blob)
+    }
+    fn blob(&self, id: &str, key: &str) -> Result<Option<resecta_store::Blob>, StoreError> {
+        self.inner.blob(id, key)
+    }
+    fn delete_blob(&self, id: &str, key: &str) -> Result<bool, StoreError> {
+        self.inner.delete_blob(id, key)
+    }
+    fn append(&self, id: &str, expected_len: u64, records: &[String]) -> Result<u64, StoreError> {
+        if self.broken.load(std::sync::atomic::Ordering::SeqCst) {
+            return Err(StoreError::Backend("disk full".into()));
+        }
+        self.inner.append(id, expected_len, records)
+    }
+    fn log(&self, id: &str, after: u64) -> Result<Vec<resecta_store::LogRecord>, StoreError> {
+        self.inner.log(id, after)
+    }
+    fn log_len(&self, id: &str) -> Result<u64, StoreError> {
+        self.inner.log_len(id)
+    }
+    fn idle_since(&self, before_ms: i64) -> Result<Vec<String>, StoreError> {
+        self.inner.idle_since(before_ms)
+    }
+    fn usage(&self) -> Result<resecta_store::StoreUsage, StoreError> {
+        self.inner.usage()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_edit_that_cannot_be_stored_changes_nothing() {
+    let store = Arc::new(FlakyStore {
+        inner: MemoryStore::new(StoreOptions::default()),
+        broken: false.into(),
+    });
+    let service = Arc::new(Service::new(store.clone(), config()));
+    let id = service.create_session("Flaky").await.unwrap().id;
+    service
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(raw(&phantom())),
+            RoleMap::default(),
+        )
+        .await
+        .unwrap();
+    let v = service.edit(&id, 0, init_op()).await.unwrap().plan_version;
+    let plan = service.export_plan(&id).await.unwrap().value;
+    store
+        .broken
+        .store(true, std::sync::atomic::Ordering::SeqCst);
+    let e = service
+        .edit(&id, v, drag([-6.0, 4.0, 3.0]))
+        .await
+        .unwrap_err();
+    assert_eq!(e.code(), "STORAGE", "{e}");
+    // Nothing acknowledged changed: same plan, same version; the session still edits.
+    assert_eq!(service.export_plan(&id).await.unwrap().value, plan);
+    store
+        .broken
+        .store(false, std::sync::atomic::Ordering::SeqCst);
+    let next = service.edit(&id, v, drag([-6.0, 4.0, 3.0])).await.unwrap();
+    assert_eq!(next.plan_version, v + 1);
 }
