@@ -7,7 +7,7 @@
 //! restarting replays the log to the same plan.
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
@@ -51,8 +51,13 @@ pub struct ServiceConfig {
     pub encode: EncodeOptions,
     /// Volumes are recomputed once edits pause this long ...
     pub volumes_delay: Duration,
-    /// ... or, during a continuous burst of edits (a drag), this long after its first edit.
+    /// ... or, during a continuous burst of edits (a drag), this long after its first edit ...
     pub volumes_max_interval: Duration,
+    /// ... and such mid-drag recomputations, all sessions together, at most this many per
+    /// second: with n sessions dragging at once each refreshes every max(volumes_max_interval,
+    /// n / this) while dragging (a pause always refreshes), so many users' drags are not slowed
+    /// by each other's volumetry.
+    pub volumes_during_drags_per_s: f64,
     /// Depth of the parenchyma's screened Poisson reconstruction.
     pub psr_depth: u32,
     /// Capabilities reported by [`Service::info`] (the edges add theirs, e.g. "tls").
@@ -74,6 +79,7 @@ impl Default for ServiceConfig {
             encode: EncodeOptions::exact(),
             volumes_delay: Duration::from_millis(150),
             volumes_max_interval: Duration::from_secs(1),
+            volumes_during_drags_per_s: 4.0,
             psr_depth: 7,
             capabilities: Vec::new(),
         }
@@ -189,6 +195,8 @@ pub struct Service {
     store: Arc<dyn SessionStore>,
     config: ServiceConfig,
     sessions: Mutex<HashMap<String, Arc<Session>>>,
+    /// Sessions with a volume recomputation scheduled (editing now or just paused).
+    volumes_scheduled: AtomicUsize,
 }
 
 impl Loaded {
@@ -280,6 +288,7 @@ impl Service {
             store,
             config,
             sessions: Mutex::new(HashMap::new()),
+            volumes_scheduled: AtomicUsize::new(0),
         }
     }
 
@@ -912,14 +921,20 @@ impl Service {
         if s.volumes_scheduled.swap(true, Ordering::AcqRel) {
             return;
         }
+        let dragging = self.volumes_scheduled.fetch_add(1, Ordering::AcqRel) + 1;
         let service = Arc::clone(self);
         let s = Arc::clone(s);
         tokio::spawn(async move {
+            let c = &service.config;
+            let share = dragging as f64 / c.volumes_during_drags_per_s.max(1e-3);
             let (delay, max) = (
-                service.config.volumes_delay,
-                service.config.volumes_max_interval,
+                c.volumes_delay,
+                c.volumes_max_interval
+                    .max(Duration::try_from_secs_f64(share).unwrap_or(Duration::MAX)),
             );
-            let deadline = now + max;
+            let deadline = now
+                .checked_add(max)
+                .unwrap_or(now + Duration::from_secs(3600));
             loop {
                 let last = s.last_edit.lock().map_or(now, |t| *t);
                 let due = (last + delay).min(deadline.max(now + delay));
@@ -929,6 +944,7 @@ impl Service {
                 tokio::time::sleep_until(due.into()).await;
             }
             s.volumes_scheduled.store(false, Ordering::Release);
+            service.volumes_scheduled.fetch_sub(1, Ordering::AcqRel);
             let started = std::time::Instant::now();
             let _running = InFlight::new("resecta_volumes_in_flight");
             match service.volumes_detached(&s, Priority::Background).await {
