@@ -12,6 +12,8 @@ import pytest
 import resecta_client as rc
 from resecta_client.errors import error_info, from_rpc_error
 
+from server_harness import tls_files
+
 from .conftest import Server, free_port, status_details
 
 TOKEN = "client-token-0123456789abcdef"
@@ -156,13 +158,7 @@ def test_error_info_trailer_decoding() -> None:
 
 
 def test_tls_with_a_custom_ca(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    trustme = pytest.importorskip("trustme")
-    ca = trustme.CA()
-    cert = ca.issue_cert("127.0.0.1", "localhost")
-    cert_file, key_file, ca_file = tmp_path / "server.crt", tmp_path / "server.key", tmp_path / "ca.pem"
-    cert.private_key_pem.write_to_path(str(key_file))
-    cert.cert_chain_pems[0].write_to_path(str(cert_file))
-    ca.cert_pem.write_to_path(str(ca_file))
+    cert_file, key_file, ca_file = tls_files(tmp_path)
     s = Server("--tls-cert", str(cert_file), "--tls-key", str(key_file))
     try:
         for root in (ca_file, str(ca_file), ca_file.read_bytes()):

@@ -62,6 +62,20 @@ fn drag(point: [f64; 3]) -> EditOp {
     }
 }
 
+/// A new session of `service` named `name`, holding the phantom label map.
+async fn loaded_session(service: &Service, name: &str) -> String {
+    let id = service.create_session(name).await.unwrap().id;
+    service
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(raw(&phantom())),
+            RoleMap::default(),
+        )
+        .await
+        .unwrap();
+    id
+}
+
 async fn next(w: &mut WatchStream) -> Arc<WatchEvent> {
     tokio::time::timeout(Duration::from_secs(30), w.next())
         .await
@@ -254,15 +268,10 @@ async fn workflow_on_sqlite() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
     let dir = tempfile::tempdir().unwrap();
-    let labels = phantom();
     let (id, plan, frame, version, seq) = {
         let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
         let service = Arc::new(Service::new(store, config()));
-        let id = service.create_session("Restart").await.unwrap().id;
-        service
-            .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
-            .await
-            .unwrap();
+        let id = loaded_session(&service, "Restart").await;
         service.edit(&id, 0, init_op()).await.unwrap();
         service.edit(&id, 0, drag([-6.0, 4.0, 3.0])).await.unwrap();
         service.edit(&id, 0, drag([-7.0, 4.0, 3.0])).await.unwrap();
@@ -383,15 +392,7 @@ async fn cancelling_a_reconstruction_stops_it() {
         Arc::new(MemoryStore::new(StoreOptions::default())),
         config(),
     ));
-    let id = service.create_session("Cancel").await.unwrap().id;
-    service
-        .upload_label_map(
-            &id,
-            LabelMapSource::Raw(raw(&phantom())),
-            RoleMap::default(),
-        )
-        .await
-        .unwrap();
+    let id = loaded_session(&service, "Cancel").await;
     let rx = service.reconstruct(&id).await.unwrap();
     drop(rx);
     // Edits keep working meanwhile, and no models appear.
@@ -577,14 +578,9 @@ async fn a_reconstruction_does_not_hold_up_another_sessions_edits() {
             ..config()
         },
     ));
-    let labels = phantom();
     let mut ids = Vec::new();
     for name in ["Busy", "Editing"] {
-        let id = service.create_session(name).await.unwrap().id;
-        service
-            .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
-            .await
-            .unwrap();
+        let id = loaded_session(&service, name).await;
         ids.push(id);
     }
     let mut v = service
@@ -698,15 +694,7 @@ async fn an_edit_that_cannot_be_stored_changes_nothing() {
         broken: false.into(),
     });
     let service = Arc::new(Service::new(store.clone(), config()));
-    let id = service.create_session("Flaky").await.unwrap().id;
-    service
-        .upload_label_map(
-            &id,
-            LabelMapSource::Raw(raw(&phantom())),
-            RoleMap::default(),
-        )
-        .await
-        .unwrap();
+    let id = loaded_session(&service, "Flaky").await;
     let v = service.edit(&id, 0, init_op()).await.unwrap().plan_version;
     let plan = service.export_plan(&id).await.unwrap().value;
     store
