@@ -88,9 +88,9 @@ def test_server_info_health_and_session_lifecycle(server, stubs):
     info = stub.GetServerInfo(pb.GetServerInfoRequest())
     assert info.api_version == "resecta.v1"
     assert info.limits.max_chunk_bytes == 4 << 20
-    # True to this configuration: PSR (the one reconstruction method) and deltas; the default
+    # True to this configuration: PSR and MCSD (the liver's methods) and deltas; the default
     # encoder neither compresses nor quantises, and loopback needs no token. Both faces agree.
-    assert sorted(info.capabilities) == ["psr", "watch-deltas"], info.capabilities
+    assert sorted(info.capabilities) == ["mcsd", "psr", "watch-deltas"], info.capabilities
     http_info = requests.get(f"{server.http_url}/v1/info", timeout=10).json()
     assert sorted(http_info["capabilities"]) == sorted(info.capabilities)
     assert requests.get(f"{server.http_url}/healthz", timeout=10).status_code == 200

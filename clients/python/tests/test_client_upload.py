@@ -196,6 +196,24 @@ def test_reconstruct_with_progress(client: rc.Client, phantom: Path) -> None:
     assert [m.name for m in s.reconstruct("psr")] == [m.name for m in models]
 
 
+def test_reconstruct_with_mcsd_and_options(client: rc.Client, phantom: Path) -> None:
+    s = client.create_session("mcsd")
+    s.upload_label_map_file(phantom, ROLES)
+    psr = {m.name: m for m in s.reconstruct("psr")}
+    mcsd = {m.name: m for m in s.reconstruct("mcsd", smoothing=0.3, decimation=0.5)}
+    assert mcsd.keys() == psr.keys()
+    liver, ref = mcsd["parenchyma"], psr["parenchyma"]
+    assert liver.triangle_count != ref.triangle_count
+    assert abs(liver.volume_ml / ref.volume_ml - 1) < 0.05, (liver.volume_ml, ref.volume_ml)
+    coarse = {m.name: m for m in s.reconstruct("psr", psr_depth=4)}["parenchyma"]
+    assert coarse.triangle_count < ref.triangle_count
+    # Out of range: refused before anything is built, the field named.
+    for key, value in (("psr_depth", 11), ("smoothing", 1.5), ("decimation", 1.0)):
+        with pytest.raises(rc.InvalidArgument) as e:
+            s.reconstruct("mcsd", **{key: value})
+        assert e.value.field == f"options.{key}"
+
+
 def test_reconstruct_cancelled_keeps_previous_models(client: rc.Client, demo_phantom: Path) -> None:
     s = client.create_session("cancel")
     s.upload_label_map_file(demo_phantom, DEMO_ROLES)

@@ -7,7 +7,9 @@ use resecta_geom::{LabelMap, Real, RoleMap, TriMesh, Volume, VoxelLimit};
 use resecta_io::{read_label_map, read_mesh, write_mesh};
 use resecta_poisson::OrientedPoints;
 use resecta_recon::study::{self, StudyConfig};
-use resecta_recon::{McsdParams, Quality, mask, mcsd, measure, patient_models, psr};
+use resecta_recon::{
+    McsdParams, ParenchymaMethod, Quality, mask, mcsd, measure, patient_models, psr,
+};
 use serde::Serialize;
 
 use crate::error::CliError;
@@ -348,7 +350,7 @@ pub fn models(args: &ModelsArgs) -> Result<(), CliError> {
     let models = patient_models(
         &labels,
         &roles,
-        args.depth,
+        ParenchymaMethod::Psr { depth: args.depth },
         &McsdParams::default(),
         &mut built,
     )

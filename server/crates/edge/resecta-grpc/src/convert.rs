@@ -13,8 +13,8 @@ use resecta_plan::{
     VolumeReport,
 };
 use resecta_session::api::{
-    DataType, EditOp, FileFormat, LabelMapSummary, ModelInfo, ReconstructEvent, SessionInfo,
-    SessionState, Surface, SurfaceKind,
+    DataType, EditOp, FileFormat, LabelMapSummary, ModelInfo, ReconMethod, ReconOptions,
+    ReconstructEvent, SessionInfo, SessionState, Surface, SurfaceKind,
 };
 
 use crate::error::WireError;
@@ -326,23 +326,27 @@ pub fn mesh_format(v: i32) -> Wire<MeshFormat> {
     })
 }
 
-/// Checks a reconstruction request against what the operation layer builds: PSR for the liver
-/// with the server's depth and the engine's MCSD settings.
-pub fn check_reconstruct(r: &pb::ReconstructRequest, psr_depth: u32) -> Wire<()> {
-    let unsupported = |field: &str, message: String| WireError::Unsupported {
-        field: field.to_owned(),
-        message,
+/// The options of a reconstruction request: UNSPECIFIED method is PSR (the default), absent
+/// options the server's defaults; values out of range are INVALID_ARGUMENT naming the field.
+pub fn reconstruct_options(r: &pb::ReconstructRequest) -> Wire<ReconOptions> {
+    let method = match r.method {
+        0 => ReconMethod::Psr,
+        v => match pb::ReconstructionMethod::try_from(v)
+            .map_err(|_| WireError::invalid("method", format!("unknown value {v}")))?
+        {
+            pb::ReconstructionMethod::Mcsd => ReconMethod::Mcsd,
+            pb::ReconstructionMethod::Psr | pb::ReconstructionMethod::Unspecified => {
+                ReconMethod::Psr
+            }
+        },
     };
-    match known("method", r.method)? {
-        pb::ReconstructionMethod::Psr => {}
-        _ => {
-            return Err(unsupported(
-                "method",
-                "this server builds the liver by PSR only".into(),
-            ));
-        }
-    }
-    let Some(o) = &r.options else { return Ok(()) };
+    let mut options = ReconOptions {
+        method,
+        ..ReconOptions::default()
+    };
+    let Some(o) = &r.options else {
+        return Ok(options);
+    };
     if let Some(d) = o.psr_depth {
         if !(1..=10).contains(&d) {
             return Err(WireError::invalid(
@@ -350,26 +354,27 @@ pub fn check_reconstruct(r: &pb::ReconstructRequest, psr_depth: u32) -> Wire<()>
                 format!("{d} is outside 1..=10"),
             ));
         }
-        if d != psr_depth {
-            return Err(unsupported(
-                "options.psr_depth",
-                format!("this server reconstructs at depth {psr_depth} only"),
+        options.psr_depth = Some(d);
+    }
+    if let Some(v) = o.smoothing {
+        if !(0.0..=1.0).contains(&finite("options.smoothing", v)?) {
+            return Err(WireError::invalid(
+                "options.smoothing",
+                format!("{v} is outside [0, 1]"),
             ));
         }
+        options.smoothing = Some(v);
     }
-    for (field, v) in [
-        ("options.smoothing", o.smoothing),
-        ("options.decimation", o.decimation),
-    ] {
-        if let Some(v) = v {
-            finite(field, v)?;
-            return Err(unsupported(
-                field,
-                "per-call MCSD settings are not supported yet".into(),
+    if let Some(v) = o.decimation {
+        if !(0.0..1.0).contains(&finite("options.decimation", v)?) {
+            return Err(WireError::invalid(
+                "options.decimation",
+                format!("{v} is outside [0, 1)"),
             ));
         }
+        options.decimation = Some(v);
     }
-    Ok(())
+    Ok(options)
 }
 
 pub fn slice_positions(r: &pb::GetSlicesRequest) -> Wire<SlicePositions> {

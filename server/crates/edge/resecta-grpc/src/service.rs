@@ -166,9 +166,13 @@ impl PlanningService for Planning {
         request: Request<pb::ReconstructRequest>,
     ) -> Result<Response<Self::ReconstructStream>, Status> {
         let r = request.into_inner();
-        convert::check_reconstruct(&r, self.service.config().psr_depth)?;
+        let options = convert::reconstruct_options(&r)?;
         // Dropping the stream (the client cancelled) drops the receiver, which cancels the work.
-        let events = self.service.reconstruct(&r.session_id).await.or_status()?;
+        let events = self
+            .service
+            .reconstruct(&r.session_id, options)
+            .await
+            .or_status()?;
         let stream = ReceiverStream::new(events).map(|e| match e {
             Ok(e) => Ok(convert::reconstruct_event(e)),
             Err(e) => Err(session_status(&e)),

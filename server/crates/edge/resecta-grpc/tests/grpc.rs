@@ -352,12 +352,17 @@ async fn tokens_and_versions_are_checked_health_and_reflection_are_open() {
         .unwrap()
         .into_inner();
     assert_eq!(info.api_version, "resecta.v1");
-    // What this server does with its configuration: PSR, deltas; no compression or quantisation
+    // What this server does with its configuration: PSR, MCSD, deltas; no compression or quantisation
     // (the default encoder sends exact, uncompressed payloads). The server process adds `auth`
     // and `tls` from its own configuration.
     let mut caps = info.capabilities.clone();
     caps.sort();
-    assert_eq!(caps, ["psr", "watch-deltas"], "{:?}", info.capabilities);
+    assert_eq!(
+        caps,
+        ["mcsd", "psr", "watch-deltas"],
+        "{:?}",
+        info.capabilities
+    );
     let limits = info.limits.unwrap();
     assert_eq!(
         limits.max_chunk_bytes as usize,
@@ -807,14 +812,65 @@ async fn reconstruction_streams_to_done_and_models_export_in_chunks() {
             options: None,
         })
     };
-    let (code, info, _) = failure(
-        c.reconstruct(ask(pb::ReconstructionMethod::Unspecified))
-            .await,
-    );
-    assert_eq!(
-        (code, info.field.as_str()),
-        (Code::InvalidArgument, "method")
-    );
+    // Out-of-range options and unknown methods are refused, naming the field.
+    let bad = |method: i32, options: pb::ReconstructOptions| {
+        req(pb::ReconstructRequest {
+            session_id: id.clone(),
+            method,
+            options: Some(options),
+        })
+    };
+    let psr = pb::ReconstructionMethod::Psr as i32;
+    let cases = [
+        (
+            bad(
+                psr,
+                pb::ReconstructOptions {
+                    psr_depth: Some(11),
+                    ..Default::default()
+                },
+            ),
+            "options.psr_depth",
+        ),
+        (
+            bad(
+                pb::ReconstructionMethod::Mcsd as i32,
+                pb::ReconstructOptions {
+                    smoothing: Some(1.5),
+                    ..Default::default()
+                },
+            ),
+            "options.smoothing",
+        ),
+        (
+            bad(
+                psr,
+                pb::ReconstructOptions {
+                    decimation: Some(1.0),
+                    ..Default::default()
+                },
+            ),
+            "options.decimation",
+        ),
+        (
+            bad(
+                psr,
+                pb::ReconstructOptions {
+                    smoothing: Some(f64::NAN),
+                    ..Default::default()
+                },
+            ),
+            "options.smoothing",
+        ),
+        (bad(99, pb::ReconstructOptions::default()), "method"),
+    ];
+    for (request, field) in cases {
+        let (code, info, _) = failure(c.reconstruct(request).await);
+        assert_eq!(
+            (code, info.code.as_str(), info.field.as_str()),
+            (Code::InvalidArgument, "INVALID_ARGUMENT", field)
+        );
+    }
 
     // Cancelled: dropping the stream stops the work, no models appear.
     let cancelled = c
@@ -904,6 +960,83 @@ async fn reconstruction_streams_to_done_and_models_export_in_chunks() {
         (code, info.field.as_str()),
         (Code::InvalidArgument, "format")
     );
+}
+
+/// Runs a reconstruction to its end and returns its models.
+async fn build(c: &mut Client, request: pb::ReconstructRequest) -> Vec<pb::ModelInfo> {
+    let mut events = c.reconstruct(req(request)).await.unwrap().into_inner();
+    let (mut models, mut done) = (Vec::new(), false);
+    while let Some(e) = events.message().await.unwrap() {
+        match e.event.unwrap() {
+            pb::reconstruct_response::Event::Model(m) => models.push(m),
+            pb::reconstruct_response::Event::Done(_) => done = true,
+            pb::reconstruct_response::Event::Progress(_) => {}
+        }
+    }
+    assert!(done);
+    models
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mcsd_and_reconstruction_options_are_honoured() {
+    let h = serve(AccessPolicy::open()).await;
+    let mut c = h.client();
+    let id = loaded(&mut c).await;
+    let liver = |models: &[pb::ModelInfo]| {
+        models
+            .iter()
+            .find(|m| m.name == "parenchyma")
+            .expect("parenchyma")
+            .clone()
+    };
+    // UNSPECIFIED is the default, PSR at the server's depth.
+    let default = build(
+        &mut c,
+        pb::ReconstructRequest {
+            session_id: id.clone(),
+            method: pb::ReconstructionMethod::Unspecified as i32,
+            options: None,
+        },
+    )
+    .await;
+    let psr = liver(&default);
+    // The liver by MCSD, smoothed and decimated as asked: a different mesh, the same volume.
+    let mcsd = build(
+        &mut c,
+        pb::ReconstructRequest {
+            session_id: id.clone(),
+            method: pb::ReconstructionMethod::Mcsd as i32,
+            options: Some(pb::ReconstructOptions {
+                psr_depth: None,
+                smoothing: Some(0.3),
+                decimation: Some(0.5),
+            }),
+        },
+    )
+    .await;
+    assert_eq!(mcsd.len(), default.len());
+    let m = liver(&mcsd);
+    assert_ne!(m.triangle_count, psr.triangle_count);
+    assert!(
+        (m.volume_ml / psr.volume_ml - 1.0).abs() < 0.05,
+        "MCSD {} vs PSR {}",
+        m.volume_ml,
+        psr.volume_ml
+    );
+    // A PSR depth other than the server's is honoured too.
+    let coarse = build(
+        &mut c,
+        pb::ReconstructRequest {
+            session_id: id.clone(),
+            method: pb::ReconstructionMethod::Psr as i32,
+            options: Some(pb::ReconstructOptions {
+                psr_depth: Some(4),
+                ..Default::default()
+            }),
+        },
+    )
+    .await;
+    assert!(liver(&coarse).triangle_count < psr.triangle_count);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -52,6 +52,25 @@ impl<T: DeserializeOwned> FromRequest<App> for Json<T> {
     }
 }
 
+/// An optional JSON request body: empty (or only whitespace) is `T::default()`.
+#[derive(Debug)]
+pub struct OptionalJson<T>(pub T);
+
+impl<T: DeserializeOwned + Default> FromRequest<App> for OptionalJson<T> {
+    type Rejection = Problem;
+
+    async fn from_request(req: Request, app: &App) -> Result<Self, Problem> {
+        let (parts, body) = req.into_parts();
+        let bytes = read_body(&parts.headers, body, app.max_json_bytes).await?;
+        if bytes.iter().all(u8::is_ascii_whitespace) {
+            return Ok(Self(T::default()));
+        }
+        serde_json::from_slice(&bytes)
+            .map(OptionalJson)
+            .map_err(|e| Problem::invalid(format!("request body: {e}")))
+    }
+}
+
 /// Path parameters.
 #[derive(Debug)]
 pub struct Path<T>(pub T);

@@ -14,11 +14,13 @@ use futures_util::stream;
 use resecta_geom::{Real, RoleMap};
 use resecta_io::mesh::MeshFormat;
 use resecta_plan::SlicePositions;
-use resecta_session::api::{DataType, EditOp, FileFormat, LabelMapSource, RawLabelMap};
+use resecta_session::api::{
+    DataType, EditOp, FileFormat, LabelMapSource, RawLabelMap, ReconOptions,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::App;
-use crate::extract::{Json, Path, Query, read_body};
+use crate::extract::{Json, OptionalJson, Path, Query, read_body};
 use crate::problem::Problem;
 use crate::wire;
 
@@ -314,12 +316,14 @@ fn sse<S: Stream<Item = Event> + Send + 'static>(
     Sse::new(events.map(Ok)).keep_alive(KeepAlive::new().interval(app.keep_alive))
 }
 
-/// Starts the reconstruction and streams its events; a client that goes away cancels it.
+/// Starts the reconstruction with the options of the body (empty: the defaults) and streams its
+/// events; a client that goes away cancels it.
 pub async fn reconstruct(
     State(app): State<App>,
     Path(id): Path<String>,
+    OptionalJson(options): OptionalJson<ReconOptions>,
 ) -> Answer<impl IntoResponse> {
-    let rx = app.service.reconstruct(&id).await?;
+    let rx = app.service.reconstruct(&id, options).await?;
     let events = stream::unfold(Some(rx), |rx| async move {
         let mut rx = rx?;
         match rx.recv().await? {

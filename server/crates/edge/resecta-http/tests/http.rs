@@ -41,12 +41,12 @@ async fn session_crud_and_unknown_ids() {
     let info = get(s.addr, "/v1/info").await;
     assert_eq!(info.status, StatusCode::OK);
     assert_eq!(info.json()["api_version"], "resecta.v1");
-    // True to the configuration: PSR and deltas; the default encoder neither compresses nor
+    // True to the configuration: PSR, MCSD and deltas; the default encoder neither compresses nor
     // quantises, and this server needs no token.
     let mut caps: Vec<String> =
         serde_json::from_value(info.json()["capabilities"].clone()).unwrap();
     caps.sort();
-    assert_eq!(caps, ["psr", "watch-deltas"]);
+    assert_eq!(caps, ["mcsd", "psr", "watch-deltas"]);
 
     let created = post_json(s.addr, "/v1/sessions", &json!({"display_name": "Demo"})).await;
     assert_eq!(created.status, StatusCode::CREATED);
@@ -314,6 +314,76 @@ async fn reconstruction_streams_progress_models_and_done() {
     get(s.addr, &format!("/v1/sessions/{id}/models/nothing"))
         .await
         .problem(404, "MODEL_NOT_FOUND");
+}
+
+/// Reconstructs with `body` and returns the `model` events' models.
+async fn reconstructed(addr: std::net::SocketAddr, id: &str, body: &Value) -> Vec<Value> {
+    let res = send_raw(
+        addr,
+        json_request("POST", &format!("/v1/sessions/{id}/reconstruct"), body),
+    )
+    .await
+    .unwrap();
+    assert_eq!(res.status(), StatusCode::OK);
+    let mut events = SseReader::new(res);
+    let (mut models, mut done) = (Vec::new(), false);
+    while let Some(e) = events.next_event().await {
+        match e.event.as_deref() {
+            Some("progress") => {}
+            Some("model") => models.push(e.json()["model"].clone()),
+            Some("done") => done = true,
+            other => panic!("unexpected event {other:?}: {}", e.data),
+        }
+    }
+    assert!(done);
+    models
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
+    let s = open_server().await;
+    let id = loaded_session(s.addr).await;
+    let url = format!("/v1/sessions/{id}/reconstruct");
+    for (body, needle) in [
+        (json!({"method": "marching"}), "marching"),
+        (json!({"psr_depth": 0}), "psr_depth"),
+        (json!({"psr_depth": 11}), "psr_depth"),
+        (json!({"method": "mcsd", "smoothing": 1.5}), "smoothing"),
+        (json!({"decimation": 1.0}), "decimation"),
+        (json!({"smoothness": 0.5}), "smoothness"),
+    ] {
+        let p = post_json(s.addr, &url, &body)
+            .await
+            .problem(400, "INVALID_ARGUMENT");
+        assert!(p.to_string().contains(needle), "{body}: {p}");
+    }
+    send(s.addr, request("POST", &url, "{not json"))
+        .await
+        .problem(400, "INVALID_ARGUMENT");
+    let liver = |models: &[Value]| {
+        models
+            .iter()
+            .find(|m| m["name"] == "parenchyma")
+            .cloned()
+            .expect("parenchyma")
+    };
+    // An empty JSON object is the defaults: PSR for the liver.
+    let psr = liver(&reconstructed(s.addr, &id, &json!({})).await);
+    assert_eq!(psr["method"], "psr");
+    let mcsd = reconstructed(
+        s.addr,
+        &id,
+        &json!({"method": "mcsd", "smoothing": 0.3, "decimation": 0.5}),
+    )
+    .await;
+    assert!(mcsd.iter().all(|m| m["method"] == "mcsd"), "{mcsd:?}");
+    let m = liver(&mcsd);
+    let rel = m["volume_ml"].as_f64().unwrap() / psr["volume_ml"].as_f64().unwrap() - 1.0;
+    assert!(rel.abs() < 0.05, "MCSD {m} vs PSR {psr}");
+    let coarse =
+        liver(&reconstructed(s.addr, &id, &json!({"method": "psr", "psr_depth": 4})).await);
+    assert_eq!(coarse["method"], "psr");
+    assert!(coarse["triangles"].as_u64() < psr["triangles"].as_u64());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -52,7 +52,10 @@ pub async fn seed_demo(service: &Arc<Service>) -> Result<String, ServerError> {
         .upload_label_map(&id, LabelMapSource::Raw(raw), RoleMap::default())
         .await
         .map_err(demo)?;
-    let mut events = service.reconstruct(&id).await.map_err(demo)?;
+    let mut events = service
+        .reconstruct(&id, Default::default())
+        .await
+        .map_err(demo)?;
     while let Some(event) = events.recv().await {
         if let ReconstructEvent::Done { .. } = event.map_err(demo)? {
             break;

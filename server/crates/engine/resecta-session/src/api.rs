@@ -196,6 +196,22 @@ pub enum ReconMethod {
     /// Screened Poisson at the given depth (the thesis' preferred parenchyma model).
     #[default]
     Psr,
+    /// Marching cubes, smoothing and decimation, as for the other models.
+    Mcsd,
+}
+
+/// Options of one reconstruction; every field defaults to the server's choice (PSR at the
+/// configured depth, MCSD smoothing 0.5 and no decimation). Also the HTTP request body.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ReconOptions {
+    pub method: ReconMethod,
+    /// PSR depth, 1..=10; absent: the server's configured depth. Checked whatever the method.
+    pub psr_depth: Option<u32>,
+    /// MCSD smoothing factor in [0, 1]; 0 disables smoothing.
+    pub smoothing: Option<Real>,
+    /// MCSD fraction of triangles removed, in [0, 1); 0 disables decimation.
+    pub decimation: Option<Real>,
 }
 
 #[derive(Debug, Clone, Serialize)]

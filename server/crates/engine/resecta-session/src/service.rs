@@ -20,15 +20,15 @@ use resecta_plan::{
     Anatomy, History, LogEntry, Plan, PlanEvent, Planner, SlicePositions, SliceProjections,
     VolumeReport, slice_projections,
 };
-use resecta_recon::{McsdParams, ReconError, patient_models};
+use resecta_recon::{McsdParams, ParenchymaMethod, ReconError, patient_models};
 use resecta_store::{Blob, SessionRecord, SessionStore};
 use serde::{Deserialize, Serialize};
 use tokio::sync::{Mutex as AsyncMutex, mpsc};
 
 use crate::api::{
     API_VERSION, EditOp, EditOutcome, LabelMapSource, LabelMapSummary, Limits, ModelInfo,
-    ReconstructEvent, ResectionStatus, ServerInfo, SessionInfo, SessionState, Surface, SurfaceKind,
-    Versioned,
+    ReconMethod, ReconOptions, ReconstructEvent, ResectionStatus, ServerInfo, SessionInfo,
+    SessionState, Surface, SurfaceKind, Versioned,
 };
 use crate::error::{Missing, Quota, Result, SessionError};
 use crate::labelmap;
@@ -58,7 +58,7 @@ pub struct ServiceConfig {
     /// n / this) while dragging (a pause always refreshes), so many users' drags are not slowed
     /// by each other's volumetry.
     pub volumes_during_drags_per_s: f64,
-    /// Depth of the parenchyma's screened Poisson reconstruction.
+    /// Depth of the parenchyma's screened Poisson reconstruction when a call names none.
     pub psr_depth: u32,
     /// Capabilities reported by [`Service::info`] (the edges add theirs, e.g. "tls").
     pub capabilities: Vec<String>,
@@ -300,7 +300,11 @@ impl Service {
         // What this server does with its configuration: `zstd` / `quantized` only when mesh
         // payloads are compressed / quantised; then the edges' own (`tls`, `auth`), each once.
         let encode = &self.config.encode;
-        let mut capabilities = vec!["psr".to_owned(), "watch-deltas".to_owned()];
+        let mut capabilities = vec![
+            "psr".to_owned(),
+            "mcsd".to_owned(),
+            "watch-deltas".to_owned(),
+        ];
         let configured = [
             (encode.zstd_level.is_some(), "zstd"),
             (encode.quantise.is_some(), "quantized"),
@@ -692,12 +696,50 @@ impl Service {
         Ok(summary)
     }
 
-    /// Builds the surface models (parenchyma by screened Poisson, tumours and vessels by MCSD)
-    /// off the runtime. Events arrive on the returned channel; dropping it cancels the work.
+    /// The parenchyma method and MCSD parameters of `options`, or [`SessionError::Invalid`]
+    /// naming the field out of range.
+    fn recon_params(&self, options: &ReconOptions) -> Result<(ParenchymaMethod, McsdParams)> {
+        let depth = options.psr_depth.unwrap_or(self.config.psr_depth);
+        if !(1..=10).contains(&depth) {
+            return Err(SessionError::Invalid(format!(
+                "psr_depth {depth} is outside 1..=10"
+            )));
+        }
+        let defaults = McsdParams::default();
+        let smoothing = options.smoothing.unwrap_or(defaults.smoothing);
+        if !(0.0..=1.0).contains(&smoothing) {
+            return Err(SessionError::Invalid(format!(
+                "smoothing {smoothing} is outside [0, 1]"
+            )));
+        }
+        let decimation = options.decimation.unwrap_or(defaults.decimation);
+        if !(0.0..1.0).contains(&decimation) {
+            return Err(SessionError::Invalid(format!(
+                "decimation {decimation} is outside [0, 1)"
+            )));
+        }
+        let parenchyma = match options.method {
+            ReconMethod::Psr => ParenchymaMethod::Psr { depth },
+            ReconMethod::Mcsd => ParenchymaMethod::Mcsd,
+        };
+        Ok((
+            parenchyma,
+            McsdParams {
+                smoothing,
+                decimation,
+            },
+        ))
+    }
+
+    /// Builds the surface models (parenchyma by screened Poisson or, on request, MCSD; tumours
+    /// and vessels by MCSD) off the runtime with `options`, checked before anything starts.
+    /// Events arrive on the returned channel; dropping it cancels the work.
     pub async fn reconstruct(
         self: &Arc<Self>,
         id: &str,
+        options: ReconOptions,
     ) -> Result<mpsc::Receiver<Result<ReconstructEvent>>> {
+        let (parenchyma, mcsd_params) = self.recon_params(&options)?;
         let (s, st) = self.open(id).await?;
         let loaded = st.loaded.as_ref().ok_or_else(no_label_map)?;
         let labels = Arc::clone(&loaded.labels);
@@ -707,7 +749,6 @@ impl Service {
         drop(st);
         let (tx, rx) = mpsc::channel(64);
         let service = Arc::clone(self);
-        let depth = self.config.psr_depth;
         tokio::spawn(async move {
             let started = std::time::Instant::now();
             let progress_tx = tx.clone();
@@ -715,7 +756,8 @@ impl Service {
                 let mut done = 0usize;
                 let mut progress = |name: &str| {
                     done += 1;
-                    // The parenchyma (first, Poisson) dominates; the rest share what is left.
+                    // The parenchyma (first, Poisson or the largest MCSD) dominates; the rest
+                    // share what is left.
                     let fraction = 1.0 - 0.4 / done as Real;
                     let event = ReconstructEvent::Progress {
                         stage: format!("built {name}"),
@@ -723,17 +765,15 @@ impl Service {
                     };
                     progress_tx.blocking_send(Ok(event)).is_ok()
                 };
-                patient_models(
-                    &labels,
-                    &roles,
-                    depth,
-                    &McsdParams::default(),
-                    &mut progress,
+                patient_models(&labels, &roles, parenchyma, &mcsd_params, &mut progress).map_err(
+                    |e| match e {
+                        ReconError::Cancelled => SessionError::Cancelled,
+                        e => SessionError::Precondition(
+                            Missing::Other,
+                            format!("reconstruction: {e}"),
+                        ),
+                    },
                 )
-                .map_err(|e| match e {
-                    ReconError::Cancelled => SessionError::Cancelled,
-                    e => SessionError::Precondition(Missing::Other, format!("reconstruction: {e}")),
-                })
             })
             .await
             .and_then(|built| built);

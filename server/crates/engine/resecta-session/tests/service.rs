@@ -11,8 +11,8 @@ use resecta_geom::{LabelMap, RoleMap};
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::PlanEvent;
 use resecta_session::api::{
-    DataType, EditOp, FileFormat, LabelMapSource, RawLabelMap, ReconstructEvent, SessionState,
-    SurfaceKind, WatchBody, WatchEvent,
+    DataType, EditOp, FileFormat, LabelMapSource, ModelInfo, RawLabelMap, ReconMethod,
+    ReconOptions, ReconstructEvent, SessionState, SurfaceKind, WatchBody, WatchEvent,
 };
 use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreError, StoreOptions};
@@ -313,14 +313,20 @@ async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
         config(),
     ));
     let id = service.create_session("Models").await.unwrap().id;
-    let early = service.reconstruct(&id).await.unwrap_err();
+    let early = service
+        .reconstruct(&id, ReconOptions::default())
+        .await
+        .unwrap_err();
     assert_eq!(early.kind(), ErrorKind::FailedPrecondition);
     let labels = phantom();
     service
         .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
         .await
         .unwrap();
-    let mut rx = service.reconstruct(&id).await.unwrap();
+    let mut rx = service
+        .reconstruct(&id, ReconOptions::default())
+        .await
+        .unwrap();
     let mut progress = Vec::new();
     let mut models = Vec::new();
     let mut done = false;
@@ -341,6 +347,15 @@ async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
         names.contains(&"parenchyma") && names.contains(&"tumor_1"),
         "{names:?}"
     );
+    // Defaults: the parenchyma by PSR, the rest by MCSD.
+    for m in &models {
+        let want = if m.name == "parenchyma" {
+            "psr"
+        } else {
+            "mcsd"
+        };
+        assert_eq!(m.method, want, "{}", m.name);
+    }
     // Tumour model volume within 20 % of the sphere (r = 8 mm on 2×2×3 mm voxels: the MCSD
     // display model shrinks small coarse tumours by ~15 %; margins use the planner's own model).
     let tumour = models.iter().find(|m| m.name == "tumor_1").unwrap();
@@ -386,6 +401,139 @@ async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
     }
 }
 
+/// Runs a reconstruction to its end and returns its models.
+async fn models_of(service: &Arc<Service>, id: &str, options: ReconOptions) -> Vec<ModelInfo> {
+    let mut rx = service.reconstruct(id, options).await.unwrap();
+    let mut models = Vec::new();
+    let mut done = false;
+    while let Some(e) = rx.recv().await {
+        match e.unwrap() {
+            ReconstructEvent::Model { model } => models.push(model),
+            ReconstructEvent::Done { .. } => done = true,
+            ReconstructEvent::Progress { .. } => {}
+        }
+    }
+    assert!(done);
+    models
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn reconstruction_options_choose_mcsd_and_bad_ones_are_refused() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    ));
+    let id = loaded_session(&service, "Options").await;
+    // Out-of-range options are refused before anything starts, naming the field.
+    let bad = [
+        (
+            ReconOptions {
+                psr_depth: Some(0),
+                ..ReconOptions::default()
+            },
+            "psr_depth",
+        ),
+        (
+            ReconOptions {
+                psr_depth: Some(11),
+                ..ReconOptions::default()
+            },
+            "psr_depth",
+        ),
+        (
+            ReconOptions {
+                smoothing: Some(1.5),
+                ..ReconOptions::default()
+            },
+            "smoothing",
+        ),
+        (
+            ReconOptions {
+                smoothing: Some(f64::NAN),
+                ..ReconOptions::default()
+            },
+            "smoothing",
+        ),
+        (
+            ReconOptions {
+                method: ReconMethod::Mcsd,
+                decimation: Some(1.0),
+                ..ReconOptions::default()
+            },
+            "decimation",
+        ),
+        (
+            ReconOptions {
+                decimation: Some(-0.1),
+                ..ReconOptions::default()
+            },
+            "decimation",
+        ),
+    ];
+    for (options, field) in bad {
+        let e = service.reconstruct(&id, options).await.unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::InvalidArgument, "{options:?}");
+        assert!(e.to_string().contains(field), "{e} for {options:?}");
+    }
+    assert_eq!(
+        service.get_session(&id).await.unwrap().state,
+        SessionState::LabelMap
+    );
+    // The parenchyma by MCSD, every model labelled so; decimation removes triangles.
+    let plain = models_of(
+        &service,
+        &id,
+        ReconOptions {
+            method: ReconMethod::Mcsd,
+            ..ReconOptions::default()
+        },
+    )
+    .await;
+    assert!(plain.iter().all(|m| m.method == "mcsd"), "{plain:?}");
+    let liver = plain.iter().find(|m| m.name == "parenchyma").unwrap();
+    assert_eq!(liver.kind, SurfaceKind::Parenchyma);
+    let decimated = models_of(
+        &service,
+        &id,
+        ReconOptions {
+            method: ReconMethod::Mcsd,
+            smoothing: Some(0.2),
+            decimation: Some(0.5),
+            ..ReconOptions::default()
+        },
+    )
+    .await;
+    let liver2 = decimated.iter().find(|m| m.name == "parenchyma").unwrap();
+    assert!(
+        liver2.triangles < liver.triangles * 3 / 4,
+        "{} vs {}",
+        liver2.triangles,
+        liver.triangles
+    );
+    assert!(
+        (liver2.volume_ml / liver.volume_ml - 1.0).abs() < 0.05,
+        "{} vs {}",
+        liver2.volume_ml,
+        liver.volume_ml
+    );
+    // A PSR depth of the caller's choice: a coarser liver than the default's.
+    let coarse = models_of(
+        &service,
+        &id,
+        ReconOptions {
+            psr_depth: Some(5),
+            ..ReconOptions::default()
+        },
+    )
+    .await;
+    let psr = coarse.iter().find(|m| m.name == "parenchyma").unwrap();
+    assert_eq!(psr.method, "psr");
+    assert_eq!(
+        service.get_session(&id).await.unwrap().state,
+        SessionState::Ready
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn cancelling_a_reconstruction_stops_it() {
     let service = Arc::new(Service::new(
@@ -393,7 +541,10 @@ async fn cancelling_a_reconstruction_stops_it() {
         config(),
     ));
     let id = loaded_session(&service, "Cancel").await;
-    let rx = service.reconstruct(&id).await.unwrap();
+    let rx = service
+        .reconstruct(&id, ReconOptions::default())
+        .await
+        .unwrap();
     drop(rx);
     // Edits keep working meanwhile, and no models appear.
     service.edit(&id, 0, init_op()).await.unwrap();
@@ -589,7 +740,10 @@ async fn a_reconstruction_does_not_hold_up_another_sessions_edits() {
         .unwrap()
         .plan_version;
     // A depth-8 Poisson reconstruction of session 0 runs on the blocking pool ...
-    let mut rx = service.reconstruct(&ids[0]).await.unwrap();
+    let mut rx = service
+        .reconstruct(&ids[0], ReconOptions::default())
+        .await
+        .unwrap();
     match rx.recv().await.unwrap().unwrap() {
         ReconstructEvent::Progress { .. } => {}
         e => panic!("expected progress first, got {e:?}"),
@@ -624,14 +778,14 @@ async fn a_reconstruction_does_not_hold_up_another_sessions_edits() {
 fn capabilities_are_true_to_the_configuration() {
     let store = || Arc::new(MemoryStore::new(StoreOptions::default()));
     let plain = Service::new(store(), ServiceConfig::default());
-    assert_eq!(plain.info().capabilities, ["psr", "watch-deltas"]);
+    assert_eq!(plain.info().capabilities, ["psr", "mcsd", "watch-deltas"]);
     let mut c = ServiceConfig::default();
     c.encode.zstd_level = Some(3);
     c.capabilities = vec!["tls".into(), "psr".into(), "auth".into()];
     let configured = Service::new(store(), c);
     assert_eq!(
         configured.info().capabilities,
-        ["psr", "watch-deltas", "zstd", "tls", "auth"]
+        ["psr", "mcsd", "watch-deltas", "zstd", "tls", "auth"]
     );
 }
 

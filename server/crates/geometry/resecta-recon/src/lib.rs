@@ -18,7 +18,7 @@ pub mod quality;
 pub mod study;
 
 pub use mcsd::McsdParams;
-pub use models::{PatientModel, patient_models};
+pub use models::{ParenchymaMethod, PatientModel, patient_models};
 pub use psr::PsrModel;
 pub use quality::{Quality, measure};
 

@@ -1,9 +1,29 @@
-//! The complete patient model (Fig. 6.9): the liver by PSR, every tumour and vessel component
-//! by MCSD, one mesh each.
+//! The complete patient model (Fig. 6.9): the liver by PSR (or MCSD, on request), every tumour
+//! and vessel component by MCSD, one mesh each.
 
 use resecta_geom::{LabelMap, Role, RoleMap, TriMesh};
 
 use crate::{McsdParams, ReconError, mask, mcsd, psr};
+
+/// How the parenchyma (the liver envelope) is reconstructed; tumours and vessels are always
+/// built by MCSD.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ParenchymaMethod {
+    /// Screened Poisson surface reconstruction at this octree depth.
+    Psr { depth: u32 },
+    /// Marching cubes, smoothing and decimation with the MCSD parameters of the call.
+    Mcsd,
+}
+
+impl ParenchymaMethod {
+    /// `"psr"` or `"mcsd"`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Psr { .. } => "psr",
+            Self::Mcsd => "mcsd",
+        }
+    }
+}
 
 /// One model of the patient.
 #[derive(Debug, Clone)]
@@ -29,12 +49,13 @@ impl PatientModel {
     }
 }
 
-/// Builds every model; `progress(name)` is called after each one and stops the work with
+/// Builds every model, the parenchyma by `parenchyma`, the other roles by MCSD with
+/// `mcsd_params`; `progress(name)` is called after each one and stops the work with
 /// [`ReconError::Cancelled`] when it returns `false`.
 pub fn patient_models(
     labels: &LabelMap,
     roles: &RoleMap,
-    depth: u32,
+    parenchyma: ParenchymaMethod,
     mcsd_params: &McsdParams,
     progress: &mut dyn FnMut(&str) -> bool,
 ) -> Result<Vec<PatientModel>, ReconError> {
@@ -49,13 +70,16 @@ pub fn patient_models(
     if !roles.labels(Role::Parenchyma).is_empty() {
         let envelope = mask::liver_envelope(&region, roles)?;
         let voxels = envelope.data().iter().filter(|&&b| b).count();
-        let model = psr::reconstruct(&envelope, depth)?;
+        let mesh = match parenchyma {
+            ParenchymaMethod::Psr { depth } => psr::reconstruct(&envelope, depth)?.mesh,
+            ParenchymaMethod::Mcsd => mcsd::reconstruct(&envelope, mcsd_params)?,
+        };
         out.push(PatientModel {
             role: Role::Parenchyma,
             component: 0,
-            method: "psr",
+            method: parenchyma.name(),
             voxels,
-            mesh: model.mesh,
+            mesh,
         });
         if !progress("parenchyma") {
             return Err(ReconError::Cancelled);
