@@ -32,4 +32,7 @@ cargo build --workspace --locked --bins
 cargo nextest run --workspace --locked --profile ci
 
 step "end-to-end tests, Python client, Slicer module Logic (pytest against target/debug/resecta)"
-RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests clients/python/tests slicer-module/tests
+# One pytest run per suite: each folder has its own conftest.py.
+for suite in tests clients/python/tests slicer-module/tests; do
+  RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q "$suite"
+done

@@ -92,8 +92,8 @@ class DeadlineExceeded(ResectaError):
 
 
 class Unsupported(ResectaError):
-    """The server does not offer this (UNIMPLEMENTED, code UNSUPPORTED), e.g. a reconstruction
-    method or slices of a model that this server build lacks."""
+    """The server does not offer this (UNIMPLEMENTED, code UNSUPPORTED), e.g. slices of a model,
+    which this server build lacks."""
 
 
 class ServerError(ResectaError):
