@@ -686,38 +686,41 @@ async fn volumes_wait_for_a_pause_but_not_forever() {
     tokio::spawn(async move {
         while let Some(Ok(e)) = w.next().await {
             if matches!(e.body, WatchBody::Volumes { .. }) {
-                log.lock().unwrap().push(std::time::Instant::now());
+                log.lock().unwrap().push(e.plan_version);
             }
         }
     });
     // A drag: an edit every 20 ms for about 1.2 s, never pausing for 80 ms.
     let start = std::time::Instant::now();
     let mut k = 0;
+    let mut last = 0;
     while start.elapsed() < Duration::from_millis(1200) {
         let z = if k % 2 == 0 { 4.0 } else { 5.0 };
-        service.edit(&id, 0, drag([-9.0, 5.0, z])).await.unwrap();
+        last = service
+            .edit(&id, 0, drag([-9.0, 5.0, z]))
+            .await
+            .unwrap()
+            .plan_version;
         k += 1;
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let end = std::time::Instant::now();
-    // The update after the pause (patient: other tests may load the cores).
-    for _ in 0..100 {
-        if seen.lock().unwrap().iter().any(|t| *t >= end) {
+    // The update after the pause (patient: volumes run in the idle scheduling class, and other
+    // tests may load the cores).
+    for _ in 0..200 {
+        if seen.lock().unwrap().contains(&last) {
             break;
         }
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let seen = seen.lock().unwrap().clone();
-    let during = seen.iter().filter(|t| **t < end).count();
-    // Not after every edit (k ≈ 50), not never: about every 300 ms of the drag.
+    // Volumes of plan versions in the middle of the drag (they may arrive late on a busy
+    // machine): not after every edit (k ≈ 50), not never — about every 300 ms of the drag.
+    let during = seen.iter().filter(|v| **v < last).count();
     assert!(
         (1..=8).contains(&during),
         "{during} volume updates in {k} edits"
     );
-    assert!(
-        seen.iter().any(|t| *t >= end),
-        "volumes after the drag ended"
-    );
+    assert!(seen.contains(&last), "volumes after the drag ended");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
