@@ -203,8 +203,11 @@ impl Loaded {
     /// Waits for a pending planner set-up (an error there is the operation's error, and comes
     /// again on the next try: the set-up is retried).
     async fn ready(&mut self) -> Result<&mut Planner> {
-        if let Some(pending) = self.pending.take() {
-            match pending.await.map_err(internal)?? {
+        // Awaited in place: a caller that goes away leaves the set-up for the next one.
+        if let Some(pending) = self.pending.as_mut() {
+            let outcome = pending.await;
+            self.pending = None;
+            match outcome.map_err(internal)?? {
                 Ok(p) => self.planner = Some(p),
                 Err(e) => {
                     let (labels, roles) = (Arc::clone(&self.labels), self.summary.roles.clone());

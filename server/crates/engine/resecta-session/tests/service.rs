@@ -868,3 +868,36 @@ async fn an_edit_that_cannot_be_stored_changes_nothing() {
     let next = service.edit(&id, v, drag([-6.0, 4.0, 3.0])).await.unwrap();
     assert_eq!(next.plan_version, v + 1);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn requests_whose_callers_go_away_leave_the_session_usable() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    ));
+    let id = loaded_session(&service, "Abandoned").await;
+    // A request that waits for the planning set-up (still running after the upload) and goes
+    // away leaves the set-up to the next request.
+    let (s, i) = (Arc::clone(&service), id.clone());
+    let waiting = tokio::spawn(async move { s.volumes(&i).await });
+    tokio::time::sleep(Duration::from_millis(2)).await;
+    waiting.abort();
+    let _ = waiting.await;
+    let v = service.edit(&id, 0, init_op()).await.unwrap().plan_version;
+    for delay_us in [0, 200, 1000, 3000] {
+        let (s, i) = (Arc::clone(&service), id.clone());
+        let caller = tokio::spawn(async move { s.edit(&i, 0, drag([-9.0, 5.0, 4.0])).await });
+        tokio::time::sleep(Duration::from_micros(delay_us)).await;
+        caller.abort(); // the client disconnected: its request future is dropped
+        let _ = caller.await;
+    }
+    // Whatever each abandoned edit reached, the session still edits (its planner was not lost
+    // with a dropped future), at a version that counts every edit that completed.
+    let now = service.get_session(&id).await.unwrap().plan_version;
+    assert!((v..=v + 4).contains(&now), "{now}");
+    let next = service
+        .edit(&id, now, drag([-9.0, 5.0, 6.0]))
+        .await
+        .unwrap();
+    assert_eq!(next.plan_version, now + 1);
+}
