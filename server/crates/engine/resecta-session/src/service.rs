@@ -1,10 +1,11 @@
 //! The operation layer: every operation of the planning server, once, for the gRPC and HTTP
 //! faces alike.
 //!
-//! Per session, one async mutex orders the operations; heavy work (anatomy set-up, edits,
-//! volumetry, reconstruction) runs on the blocking pool, so a long job never stalls the runtime
-//! or another session. An edit is acknowledged only after its log record is durable in the store;
-//! restarting replays the log to the same plan.
+//! Per session, one async mutex orders the operations. CPU work runs off the runtime (module
+//! `pools`): edits on rayon's pool, heavy work (anatomy set-up, volumes between edits,
+//! reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
+//! job never stalls the runtime or another session's edits. An edit is acknowledged only after its
+//! log record is durable in the store; restarting replays the log to the same plan.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicUsize, Ordering};
