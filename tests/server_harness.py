@@ -77,6 +77,19 @@ class Server:
             self.proc.wait(timeout=timeout)
         return self.proc.returncode
 
+    def sigterm_while(self, reader, limit=5.0):
+        """SIGTERM while `reader` (a thread draining an open stream) runs: asserts the server
+        exits 0 within `limit` seconds and the reader ends too."""
+        time.sleep(0.2)
+        start = time.monotonic()
+        self.proc.send_signal(signal.SIGTERM)
+        code = self.proc.wait(timeout=10)
+        took = time.monotonic() - start
+        reader.join(timeout=10)
+        assert not reader.is_alive(), "the stream did not end"
+        assert code == 0, self.stderr()
+        assert took < limit, f"exit took {took:.1f} s"
+
     def kill(self):
         self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(timeout=30)

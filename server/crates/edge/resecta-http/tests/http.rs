@@ -391,11 +391,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     let s = open_server().await;
     let id = loaded_session(s.addr).await;
     let watch_url = format!("/v1/sessions/{id}/watch");
-    let mut w = SseReader::new(
-        send_raw(s.addr, request("GET", &watch_url, Body::empty()))
-            .await
-            .unwrap(),
-    );
+    let mut w = SseReader::watch(s.addr, &id).await;
     let snap = w.next_event().await.unwrap();
     assert_eq!(snap.event.as_deref(), Some("snapshot"));
     let first: u64 = snap.id.as_deref().unwrap().parse().unwrap();
@@ -445,11 +441,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     apply_delta(&mut frame, &delta, &DecodeLimits::default()).unwrap();
 
     // A late snapshot equals the frame the deltas built.
-    let mut late = SseReader::new(
-        send_raw(s.addr, request("GET", &watch_url, Body::empty()))
-            .await
-            .unwrap(),
-    );
+    let mut late = SseReader::watch(s.addr, &id).await;
     let snap = late.next_event().await.unwrap().json();
     let mesh = STANDARD
         .decode(snap["body"]["resections"][0]["mesh"].as_str().unwrap())
@@ -756,14 +748,7 @@ async fn watch_streams_send_keep_alives() {
     )
     .await;
     let id = create_session(s.addr, "Quiet").await;
-    let mut w = SseReader::new(
-        send_raw(
-            s.addr,
-            request("GET", &format!("/v1/sessions/{id}/watch"), Body::empty()),
-        )
-        .await
-        .unwrap(),
-    );
+    let mut w = SseReader::watch(s.addr, &id).await;
     assert_eq!(
         w.next_event().await.unwrap().event.as_deref(),
         Some("snapshot")
@@ -842,14 +827,7 @@ async fn shutdown_ends_watch_streams_with_an_unavailable_error_event() {
     )
     .await;
     let id = create_session(s.addr, "Shutdown").await;
-    let mut w = SseReader::new(
-        send_raw(
-            s.addr,
-            request("GET", &format!("/v1/sessions/{id}/watch"), Body::empty()),
-        )
-        .await
-        .unwrap(),
-    );
+    let mut w = SseReader::watch(s.addr, &id).await;
     assert_eq!(
         w.next_event().await.unwrap().event.as_deref(),
         Some("snapshot")

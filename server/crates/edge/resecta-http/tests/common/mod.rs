@@ -224,6 +224,16 @@ impl SseReader {
         }
     }
 
+    /// The watch stream of session `id` (from its snapshot).
+    pub async fn watch(addr: SocketAddr, id: &str) -> Self {
+        let path = format!("/v1/sessions/{id}/watch");
+        Self::new(
+            send_raw(addr, request("GET", &path, Body::empty()))
+                .await
+                .unwrap(),
+        )
+    }
+
     /// The next event (or comment block); `None` at the end of the stream.
     pub async fn next(&mut self) -> Option<Sse> {
         loop {
