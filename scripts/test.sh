@@ -4,9 +4,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
+# A fresh clone gains nothing from incremental compilation but gigabytes of disk.
+if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 step() { printf '\n== %s ==\n' "$*" >&2; }
 
 step "system packages"
+df -h . >&2 || true
 # Mesa's lavapipe gives wgpu a CPU Vulkan device (with f64), so the GPU tests really run here.
 need_apt=()
 for p in mesa-vulkan-drivers libvulkan1; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
@@ -28,8 +31,10 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 
 step "rust tests (nextest)"
 export WGPU_BACKEND=vulkan
-cargo build --workspace --locked --bins
+# One build: the test build also builds target/debug/resecta (resecta-cli's tests/cli.rs runs it),
+# so the binary shares the tests' dependency features instead of compiling them a second time.
 cargo nextest run --workspace --locked --profile ci
+test -x target/debug/resecta
 
 step "end-to-end tests, Python client, Slicer module Logic (pytest against target/debug/resecta)"
 # One pytest run per suite: each folder has its own conftest.py.

@@ -1,0 +1,75 @@
+//! The `resecta` binary's contract: `--json` prints exactly one JSON object on stdout, bad input
+//! exits 2 with an error naming what is wrong. (Building this test also builds `target/debug/resecta`,
+//! which the Python end-to-end suites run.)
+
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn resecta(args: &[&str], cwd: &Path) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_resecta"))
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("resecta runs")
+}
+
+fn one_json_object(out: &Output) -> serde_json::Value {
+    let stdout = String::from_utf8(out.stdout.clone()).expect("utf-8 stdout");
+    let mut values = serde_json::Deserializer::from_str(&stdout).into_iter::<serde_json::Value>();
+    let first = values.next().expect("one JSON value").expect("valid JSON");
+    assert!(
+        values.next().is_none(),
+        "more than one JSON value on stdout: {stdout}"
+    );
+    assert!(first.is_object(), "stdout is not a JSON object: {stdout}");
+    first
+}
+
+#[test]
+fn phantom_then_info_agree_on_the_liver_volume() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = resecta(
+        &["phantom", "--preset", "small", "--out", "p", "--json"],
+        dir.path(),
+    );
+    assert!(
+        out.status.success(),
+        "phantom failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let phantom = one_json_object(&out);
+    let roles = phantom["roles"].as_object().expect("roles");
+    let liver = &roles["liver"];
+    let analytic = liver["analytic_ml"].as_f64().expect("analytic_ml");
+    let voxelised = liver["voxelised_ml"].as_f64().expect("voxelised_ml");
+    let bound = liver["error_bound_ml"].as_f64().expect("error_bound_ml");
+    assert!(
+        (voxelised - analytic).abs() <= bound,
+        "{voxelised} vs {analytic} ± {bound}"
+    );
+
+    let labels = phantom["labels_file"].as_str().expect("labels_file");
+    let info = one_json_object(&resecta(&["info", labels, "--json"], dir.path()));
+    let total_ml: f64 = info["labels"]
+        .as_array()
+        .expect("labels")
+        .iter()
+        .map(|l| l["ml"].as_f64().expect("ml"))
+        .sum();
+    assert!(total_ml > 0.0);
+    assert_eq!(info["dims"], phantom["dims"]);
+}
+
+#[test]
+fn a_file_that_is_not_an_image_is_bad_input() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    std::fs::write(dir.path().join("junk.nii.gz"), b"not a nifti file").expect("write");
+    let out = resecta(&["info", "junk.nii.gz", "--json"], dir.path());
+    assert_eq!(out.status.code(), Some(2));
+    assert!(out.stdout.is_empty(), "nothing on stdout on error");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("resecta: error:") && stderr.contains("junk.nii.gz"),
+        "{stderr}"
+    );
+}
