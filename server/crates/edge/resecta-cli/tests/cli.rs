@@ -1,6 +1,7 @@
 //! The `resecta` binary's contract: `--json` prints exactly one JSON object on stdout, bad input
 //! exits 2 with an error naming what is wrong. (Building this test also builds `target/debug/resecta`,
 //! which the Python end-to-end suites run.)
+#![allow(clippy::expect_used)] // test helpers
 
 use std::path::Path;
 use std::process::{Command, Output};
