@@ -7,6 +7,9 @@
 //! - `evaluate/<grid>`: `evaluate_into` (distances, classes, areas, refined verdict);
 //! - `edit/<grid>`: one control-point edit end to end — MLE surface update, inside levels of an
 //!   ellipsoidal liver, `evaluate_into`;
+//! - `drag/<grid>/{fresh, reusing}`: a drag — an inner control point moving 0.5 mm per edit
+//!   round a 4 mm circle — evaluated from scratch (`evaluate_into`) and with the distances kept
+//!   from the previous edits (`evaluate_reusing`);
 //! - `setup/200mm_2mm`: `MarginField::new` over a 200 mm cube at 2 mm (101³ hint nodes).
 
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
@@ -14,7 +17,8 @@ use resecta_bezier::{ControlNet, MleEvaluator, Resolution, basis_at, binomial_ro
 use resecta_geom::primitives::icosphere;
 use resecta_geom::{MeshBvh, TriMesh, Vec3};
 use resecta_margin::{
-    MarginField, MarginSettings, Nearest, SurfaceMargins, SurfaceOracle, evaluate_into,
+    MarginField, MarginMemo, MarginSettings, Nearest, SurfaceMargins, SurfaceOracle, evaluate_into,
+    evaluate_reusing,
 };
 
 /// A 20 480-triangle tumour of mean radius 15 mm with ±8 % bumps, at the origin.
@@ -175,6 +179,60 @@ fn benches(c: &mut Criterion) {
                 })
             })
         });
+        group.finish();
+
+        // A drag, evaluated afresh and reusing kept distances.
+        let mut group = c.benchmark_group(format!("drag/{grid}"));
+        group.sample_size(if n > 40 { 20 } else { 100 });
+        for reuse in [false, true] {
+            let mut drag_oracle = Oracle { net: net() };
+            let (mut live_points, mut live_inside) = (points.clone(), inside.clone());
+            let (mut memo, mut step) = (MarginMemo::default(), 0.0f64);
+            let name = if reuse { "reusing" } else { "fresh" };
+            group.bench_function(BenchmarkId::from_parameter(name), |b| {
+                pool.install(|| {
+                    b.iter(|| {
+                        step += 0.5 / 4.0;
+                        let mut p = net().get(1, 2).unwrap();
+                        p[0] += 4.0 * step.cos() - 4.0;
+                        p[2] += 4.0 * step.sin();
+                        mle.set_control_point(1, 2, p).unwrap();
+                        drag_oracle.net.set(1, 2, p).unwrap();
+                        mle.evaluate_points_into(&mut raw).unwrap();
+                        for ((q, s), r) in live_points.iter_mut().zip(&mut live_inside).zip(&raw) {
+                            *q = Vec3::from(*r);
+                            *s = Oracle::inside_level(q);
+                        }
+                        let args = (&field, n, n, &live_points, &live_inside, &settings);
+                        if reuse {
+                            evaluate_reusing(
+                                args.0,
+                                args.1,
+                                args.2,
+                                args.3,
+                                args.4,
+                                args.5,
+                                &drag_oracle,
+                                &mut memo,
+                                &mut margins,
+                            )
+                        } else {
+                            evaluate_into(
+                                args.0,
+                                args.1,
+                                args.2,
+                                args.3,
+                                args.4,
+                                args.5,
+                                &drag_oracle,
+                                &mut margins,
+                            )
+                        }
+                        .unwrap()
+                    })
+                })
+            });
+        }
         group.finish();
     }
 

@@ -113,6 +113,54 @@ const MAX_STARTS: usize = 4;
 /// Most rounds (4-point queries) per refinement start.
 const MAX_ROUNDS: usize = 200;
 
+/// Distances of one surface's samples kept between evaluations (see [`evaluate_reusing`]): per
+/// sample, the point its distance was computed at and how far that distance may exceed the
+/// exact one there (its slack).
+#[derive(Debug, Clone, Default)]
+pub struct MarginMemo {
+    /// [`MarginField::id`] of the field the distances are to.
+    field: u64,
+    ru: usize,
+    rv: usize,
+    points: Vec<Vec3>,
+    distance: Vec<Real>,
+    slack: Vec<Real>,
+    reused: usize,
+}
+
+impl MarginMemo {
+    /// Samples whose distance the last evaluation kept without a query.
+    pub fn reused(&self) -> usize {
+        self.reused
+    }
+
+    fn holds(&self, field: &MarginField, ru: usize, rv: usize) -> bool {
+        self.field == field.id() && (self.ru, self.rv) == (ru, rv) && self.points.len() == ru * rv
+    }
+
+    /// If sample k may keep its distance: how far the exact one may now exceed it (the distance
+    /// δ it moved). The exact distance lies in [d − slack − δ, d + δ] (1-Lipschitz), so the kept
+    /// d is within the sample's tolerance; and the exact distances over its grid cells
+    /// (within `radius` of it) are all beyond margin + band, so its value moves no class and no
+    /// clipped area — unless it is outside the liver with all its neighbours, where it only
+    /// colours.
+    fn keeps(&self, grid: &Grid<'_>, k: usize, beyond: Real) -> Option<Real> {
+        let delta = (grid.points[k] - self.points[k]).norm();
+        let (d, slack) = (self.distance[k], self.slack[k]);
+        let clear = || d - slack - delta - radius(grid.points, grid.ru, grid.rv, k) > beyond;
+        let keep = if grid.inside[k] > 0.0 {
+            delta + slack <= FAR_TOLERANCE_MM && clear()
+        } else {
+            delta + slack <= OUTSIDE_TOLERANCE_MM
+                && (clear()
+                    || neighbours(grid.ru, grid.rv, k)
+                        .iter()
+                        .all(|&(ok, m)| !ok || grid.inside[m] <= 0.0))
+        };
+        keep.then_some(delta)
+    }
+}
+
 /// Per-vertex margins and classes for a sampled ru×rv grid (index `i·rv + j`, u along i), plus the
 /// verdict. `inside[k]` is the inside level at vertex k.
 pub fn evaluate(
@@ -149,6 +197,52 @@ pub fn evaluate_into(
     oracle: &dyn SurfaceOracle,
     out: &mut SurfaceMargins,
 ) -> Result<Verdict, MarginError> {
+    evaluate_with(field, ru, rv, points, inside, settings, oracle, None, out)
+}
+
+/// [`evaluate_into`] for one surface evaluated again and again (a drag): samples that moved
+/// little since their distance was computed keep it without a query, while it stays within their
+/// tolerance ([`FAR_TOLERANCE_MM`] inside the liver and certainly beyond margin + band,
+/// [`OUTSIDE_TOLERANCE_MM`] outside) — such a kept distance may also be below the exact one, by
+/// at most the distance the sample moved. Distances computed for `memo` use half those
+/// tolerances, so a sample may move the other half before it is queried again. Classes, the
+/// refined minimum and its point are as [`evaluate_into`]'s. `memo` starts empty and is
+/// renewed when the field or the grid changes.
+pub fn evaluate_reusing(
+    field: &MarginField,
+    ru: usize,
+    rv: usize,
+    points: &[Vec3],
+    inside: &[f64],
+    settings: &MarginSettings,
+    oracle: &dyn SurfaceOracle,
+    memo: &mut MarginMemo,
+    out: &mut SurfaceMargins,
+) -> Result<Verdict, MarginError> {
+    evaluate_with(
+        field,
+        ru,
+        rv,
+        points,
+        inside,
+        settings,
+        oracle,
+        Some(memo),
+        out,
+    )
+}
+
+fn evaluate_with(
+    field: &MarginField,
+    ru: usize,
+    rv: usize,
+    points: &[Vec3],
+    inside: &[f64],
+    settings: &MarginSettings,
+    oracle: &dyn SurfaceOracle,
+    memo: Option<&mut MarginMemo>,
+    out: &mut SurfaceMargins,
+) -> Result<Verdict, MarginError> {
     settings.validate()?;
     if ru < 2 || rv < 2 {
         return Err(MarginError::GridTooSmall { ru, rv });
@@ -161,39 +255,95 @@ pub fn evaluate_into(
     out.distance.resize(n, 0.0);
     out.class.resize(n, MarginClass::Outside);
     let (m, w) = (settings.margin_mm, settings.margin_mm + settings.band_mm);
+    let valid = memo.as_deref().filter(|mm| mm.holds(field, ru, rv));
+    // kept[k]: Some(how far the exact distance may exceed the kept one).
+    let kept: Vec<Option<Real>> = match valid {
+        Some(mm) => {
+            let grid = Grid {
+                ru,
+                rv,
+                points,
+                inside,
+                distance: &[],
+            };
+            (0..n)
+                .into_par_iter()
+                .map(|k| mm.keeps(&grid, k, w))
+                .collect()
+        }
+        None => vec![None; n],
+    };
+    if let Some(mm) = valid {
+        for (k, d) in out.distance.iter_mut().enumerate() {
+            if kept[k].is_some() {
+                *d = mm.distance[k];
+            }
+        }
+    }
     // Inside samples certainly beyond margin + band are safe whatever their exact distance.
     let far: Vec<bool> = (0..n)
         .into_par_iter()
-        .map(|k| inside[k] > 0.0 && field.lower_bound(&points[k]) > w)
+        .map(|k| inside[k] > 0.0 && (kept[k].is_some() || field.lower_bound(&points[k]) > w))
         .collect();
-    let tolerance = |k: usize| match (inside[k] > 0.0, far[k]) {
-        (false, _) => OUTSIDE_TOLERANCE_MM,
-        (true, true) => FAR_TOLERANCE_MM,
-        (true, false) => TOLERANCE_MM,
+    // The share of a loose tolerance a computed distance may use (the rest is for moving).
+    let share = if memo.is_some() { 0.5 } else { 1.0 };
+    let tolerance = |k: usize| match (kept[k].is_some(), inside[k] > 0.0, far[k]) {
+        (true, _, _) => Real::INFINITY,
+        (false, false, _) => share * OUTSIDE_TOLERANCE_MM,
+        (false, true, true) => share * FAR_TOLERANCE_MM,
+        (false, true, false) => TOLERANCE_MM,
     };
     field.distances_grid_within(ru, rv, points, tolerance, &mut out.distance)?;
+    // Slack of the distances computed in this call.
+    let mut fresh: Vec<Option<Real>> = (0..n)
+        .map(|k| kept[k].is_none().then(|| tolerance(k)))
+        .collect();
     // A distance at most TOLERANCE_MM above a class threshold may belong below it: make those
     // exact, so classes (and what counts as a violation) are those of the exact distances.
     let near = |d: Real, t: Real| d >= t && d < t + TOLERANCE_MM;
     for (k, d) in out.distance.iter_mut().enumerate() {
         if inside[k] > 0.0 && (near(*d, m) || near(*d, w)) {
             *d = field.nearest(&points[k]).distance;
+            fresh[k] = Some(0.0);
         }
     }
     // A far sample whose cells might hold the minimum is made exact too, so the refined minimum
     // starts from the same vertices as with exact distances everywhere: the minimum over its
-    // cells is at least its exact distance minus its neighbourhood radius.
+    // cells is at least its exact distance minus its neighbourhood radius, and no more than the
+    // lowest bound above an inside sample's exact distance.
     let lowest = (0..n)
         .filter(|&k| inside[k] > 0.0)
-        .map(|k| out.distance[k])
+        .map(|k| out.distance[k] + kept[k].unwrap_or(0.0))
         .fold(Real::INFINITY, Real::min);
     for k in 0..n {
         if far[k] && out.distance[k] - FAR_TOLERANCE_MM - radius(points, ru, rv, k) < lowest {
             out.distance[k] = field.nearest(&points[k]).distance;
+            fresh[k] = Some(0.0);
         }
     }
     for ((c, &d), &s) in out.class.iter_mut().zip(&out.distance).zip(inside) {
         *c = settings.classify(d, s);
+    }
+    if let Some(mm) = memo {
+        if !mm.holds(field, ru, rv) {
+            *mm = MarginMemo {
+                field: field.id(),
+                ru,
+                rv,
+                points: vec![Vec3::zeros(); n],
+                distance: vec![Real::NAN; n],
+                slack: vec![Real::INFINITY; n],
+                reused: 0,
+            };
+        }
+        mm.reused = fresh.iter().filter(|s| s.is_none()).count();
+        for (k, slack) in fresh.iter().enumerate() {
+            if let Some(slack) = slack {
+                mm.points[k] = points[k];
+                mm.distance[k] = out.distance[k];
+                mm.slack[k] = *slack;
+            }
+        }
     }
     let grid = Grid {
         ru,

@@ -1,6 +1,8 @@
 //! [`MarginField`]: exact nearest points on the tumour mesh, seeded by a set-up-time grid of
 //! nearest-triangle hints.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use rayon::prelude::*;
 use resecta_geom::{MeshBvh, Real, TriMesh, Vec3};
 
@@ -18,6 +20,10 @@ const CHUNK: usize = 64;
 const LANES: usize = 16;
 /// Side of the blocks of [`MarginField::distances_grid_into`].
 const BLOCK: usize = 4;
+/// [`MarginField::distances_grid_within`] walks the wanted samples in groups of 16 rather than
+/// the blocks holding them when fewer than NUM/DEN of all samples are wanted.
+const SPARSE_NUM: usize = 1;
+const SPARSE_DEN: usize = 2;
 /// From this many rows of blocks on, [`MarginField::distances_grid_into`] shares out rows
 /// (no scratch); below, single blocks.
 const MIN_BLOCK_ROWS: usize = 32;
@@ -66,6 +72,8 @@ pub struct MarginField {
     dims: [usize; 3],
     /// Triangle slot per node, index `(k·ny + j)·nx + i`.
     hints: Vec<u32>,
+    /// Unique per field built (clones share it): what distances remembered from it belong to.
+    id: u64,
 }
 
 impl MarginField {
@@ -134,6 +142,10 @@ impl MarginField {
             inv_spacing: 1.0 / spacing_mm,
             dims,
             hints: Vec::new(),
+            id: {
+                static NEXT: AtomicU64 = AtomicU64::new(1);
+                NEXT.fetch_add(1, Ordering::Relaxed)
+            },
         };
         field.hints = field.build_hints();
         Ok(field)
@@ -181,6 +193,11 @@ impl MarginField {
                 }
             });
         hints
+    }
+
+    /// Unique to this field (and its clones) in the process.
+    pub fn id(&self) -> u64 {
+        self.id
     }
 
     /// Hint-grid nodes along x, y, z.
@@ -251,7 +268,8 @@ impl MarginField {
 
     /// [`Self::distances_grid_into`] allowing the distance of sample k to exceed the exact one by
     /// at most `tolerance_mm(k)` (never below it; NaN or ≤ 0 means exact): the search skips
-    /// near-ties that cannot matter.
+    /// near-ties that cannot matter. A sample whose tolerance is +∞ is not wanted: its `out`
+    /// entry is left as it was (a 4×4 block of such samples is not walked at all).
     pub fn distances_grid_within(
         &self,
         ru: usize,
@@ -274,7 +292,41 @@ impl MarginField {
             let (i0, j0) = ((b / bv) * BLOCK, (b % bv) * BLOCK);
             ((i0 + l / BLOCK).min(ru - 1), (j0 + l % BLOCK).min(rv - 1))
         };
-        let block = |b: usize| {
+        // Few wanted samples: walk them 16 at a time in block order (neighbours together)
+        // rather than every block that holds one.
+        let wanted: Vec<usize> = (0..bu * bv)
+            .flat_map(|b| (0..LANES).map(move |l| (b, l)))
+            .filter(|&(b, l)| {
+                let (i0, j0) = ((b / bv) * BLOCK, (b % bv) * BLOCK);
+                i0 + l / BLOCK < ru && j0 + l % BLOCK < rv
+            })
+            .map(|(b, l)| {
+                let (i, j) = at(b, l);
+                i * rv + j
+            })
+            .filter(|&k| !tolerance_mm(k).is_infinite())
+            .collect();
+        if wanted.len() * SPARSE_DEN < n * SPARSE_NUM {
+            let found: Vec<(usize, Real)> = wanted
+                .par_chunks(LANES)
+                .flat_map_iter(|ks| {
+                    let lane = |l: usize| ks[l.min(ks.len() - 1)];
+                    let lanes: [Vec3; LANES] = std::array::from_fn(|l| points[lane(l)]);
+                    let slack: [Real; LANES] = std::array::from_fn(|l| {
+                        let t = tolerance_mm(lane(l));
+                        if t > 0.0 { t } else { 0.0 }
+                    });
+                    let d = self.distances_group(&lanes, &slack);
+                    ks.iter().copied().zip(d).collect::<Vec<_>>()
+                })
+                .collect();
+            for (k, d) in found {
+                out[k] = d;
+            }
+            return Ok(());
+        }
+        // Distances of block b's wanted lanes; `None` if none is wanted.
+        let block = |b: usize| -> Option<[Option<Real>; LANES]> {
             let lanes: [Vec3; LANES] = std::array::from_fn(|l| {
                 let (i, j) = at(b, l);
                 points[i * rv + j]
@@ -284,7 +336,22 @@ impl MarginField {
                 let t = tolerance_mm(i * rv + j);
                 if t > 0.0 { t } else { 0.0 }
             });
-            self.distances_group(&lanes, &slack)
+            if slack.iter().all(|t| t.is_infinite()) {
+                return None;
+            }
+            let d = self.distances_group(&lanes, &slack);
+            Some(std::array::from_fn(|l| {
+                (!slack[l].is_infinite()).then_some(d[l])
+            }))
+        };
+        // Lane l of block b into `out` (the rows from `first_row` on), if it was wanted.
+        let put = |rows: &mut [Real], first_row: usize, b: usize, d: &[Option<Real>; LANES]| {
+            for (l, d) in d.iter().enumerate() {
+                if let Some(d) = d {
+                    let (i, j) = at(b, l);
+                    rows[(i - first_row) * rv + j] = *d;
+                }
+            }
         };
         if bu >= MIN_BLOCK_ROWS {
             // Enough rows of blocks to share out: each task writes its own rows.
@@ -292,19 +359,18 @@ impl MarginField {
                 .enumerate()
                 .for_each(|(r, rows)| {
                     for b in r * bv..(r + 1) * bv {
-                        for (l, d) in block(b).iter().enumerate() {
-                            let (i, j) = at(b, l);
-                            rows[(i - r * BLOCK) * rv + j] = *d;
+                        if let Some(d) = block(b) {
+                            put(rows, r * BLOCK, b, &d);
                         }
                     }
                 });
         } else {
             // Few rows (small grids): one task per block, scattered afterwards.
-            let blocks: Vec<[Real; LANES]> = (0..bu * bv).into_par_iter().map(block).collect();
+            let blocks: Vec<Option<[Option<Real>; LANES]>> =
+                (0..bu * bv).into_par_iter().map(block).collect();
             for (b, d) in blocks.iter().enumerate() {
-                for (l, d) in d.iter().enumerate() {
-                    let (i, j) = at(b, l);
-                    out[i * rv + j] = *d;
+                if let Some(d) = d {
+                    put(out, 0, b, d);
                 }
             }
         }

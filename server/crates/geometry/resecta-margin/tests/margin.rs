@@ -9,8 +9,9 @@ use resecta_geom::bvh::closest_point_on_triangle;
 use resecta_geom::primitives::{ellipsoid, icosphere, inscribed_radius};
 use resecta_geom::{Mat3, TriMesh, Vec3};
 use resecta_margin::{
-    FAR_TOLERANCE_MM, MarginClass, MarginError, MarginField, MarginSettings, Nearest,
-    SurfaceMargins, SurfaceOracle, TOLERANCE_MM, Verdict, evaluate, evaluate_into,
+    FAR_TOLERANCE_MM, MarginClass, MarginError, MarginField, MarginMemo, MarginSettings, Nearest,
+    OUTSIDE_TOLERANCE_MM, SurfaceMargins, SurfaceOracle, TOLERANCE_MM, Verdict, evaluate,
+    evaluate_into, evaluate_reusing,
 };
 
 /// Deterministic xorshift generator.
@@ -689,4 +690,163 @@ fn minimum_between_samples_beats_a_vertex_minimum_elsewhere() {
     assert!(min >= 6.0 - 1e-9 && min <= 6.0 + (R - r_in) + 1e-3, "{min}");
     assert!((verdict.point.unwrap() - foot_b).norm() <= 0.5);
     assert!(!verdict.violation && verdict.violating_area_mm2 == 0.0);
+}
+
+#[test]
+fn a_drag_reusing_distances_keeps_classes_verdict_and_tolerances() {
+    let (mesh, _) = tumour();
+    let field = MarginField::new(
+        &mesh,
+        Vec3::new(-32.0, -32.0, -12.0),
+        Vec3::new(32.0, 32.0, 20.0),
+        2.0,
+    )
+    .unwrap();
+    let mut plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
+    let settings = MarginSettings {
+        margin_mm: 10.0,
+        band_mm: 2.0,
+    };
+    let w = settings.margin_mm + settings.band_mm;
+    let n = 40;
+    let (mut memo, mut live) = (MarginMemo::default(), SurfaceMargins::default());
+    let mut rng = Rng(11);
+    let (mut reused, mut total) = (0, 0);
+    for step in 0..60 {
+        // Small drag steps of an inner control point, now and then a jump.
+        let [x, y, z] = plane.net.get(1, 2).unwrap();
+        let len = if step % 17 == 16 {
+            20.0
+        } else {
+            0.2 + 1.3 * rng.unit()
+        };
+        let d = rng.direction() * len;
+        plane.net.set(1, 2, [x + d.x, y + d.y, z + d.z]).unwrap();
+        let (points, inside) = plane.sample(n);
+        let (fresh, expected) =
+            evaluate(&field, n, n, &points, &inside, &settings, &plane).unwrap();
+        let verdict = evaluate_reusing(
+            &field, n, n, &points, &inside, &settings, &plane, &mut memo, &mut live,
+        )
+        .unwrap();
+        assert_eq!(live.class, fresh.class, "step {step}");
+        let mut exact = vec![0.0; points.len()];
+        field.distances_into(&points, &mut exact).unwrap();
+        for k in 0..points.len() {
+            let (d, e) = (live.distance[k], exact[k]);
+            if inside[k] <= 0.0 {
+                assert!(
+                    (d - e).abs() <= OUTSIDE_TOLERANCE_MM + 1e-9,
+                    "{step} {k}: {d} vs {e}"
+                );
+            } else if e > w {
+                assert!(
+                    (d - e).abs() <= FAR_TOLERANCE_MM + 1e-9,
+                    "{step} {k}: {d} vs {e}"
+                );
+            } else {
+                assert!(
+                    d >= e - 1e-9 && d <= e + TOLERANCE_MM + 1e-9,
+                    "{step} {k}: {d} vs {e}"
+                );
+            }
+        }
+        let (got, want) = (
+            verdict.min_margin_mm.unwrap(),
+            expected.min_margin_mm.unwrap(),
+        );
+        assert!((got - want).abs() < 1e-6, "step {step}: {got} vs {want}");
+        assert_eq!(verdict.violation, expected.violation);
+        for (a, b) in [
+            (verdict.violating_area_mm2, expected.violating_area_mm2),
+            (verdict.warning_area_mm2, expected.warning_area_mm2),
+            (verdict.inside_area_mm2, expected.inside_area_mm2),
+        ] {
+            assert!(
+                (a - b).abs() <= 2e-3 * b.max(1.0),
+                "step {step}: area {a} vs {b}"
+            );
+        }
+        if step % 17 == 16 {
+            assert!(
+                memo.reused() < points.len() / 2,
+                "a 20 mm jump keeps most samples"
+            );
+        }
+        reused += memo.reused();
+        total += points.len();
+    }
+    assert!(
+        reused * 2 > total,
+        "only {reused} of {total} samples reused"
+    );
+}
+
+#[test]
+fn a_memo_of_another_field_or_grid_is_not_used() {
+    let (mesh, _) = tumour();
+    let region = (Vec3::new(-32.0, -32.0, -12.0), Vec3::new(32.0, 32.0, 20.0));
+    let a = MarginField::new(&mesh, region.0, region.1, 2.0).unwrap();
+    let moved = icosphere(Vec3::from(TUMOUR) - Vec3::new(0.0, 0.0, 3.0), R, 5).unwrap();
+    let b = MarginField::new(&moved, region.0, region.1, 2.0).unwrap();
+    let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
+    let settings = MarginSettings {
+        margin_mm: 10.0,
+        band_mm: 2.0,
+    };
+    let (mut memo, mut out) = (MarginMemo::default(), SurfaceMargins::default());
+    let (points, inside) = plane.sample(30);
+    let mut eval = |field: &MarginField, n: usize, points: &[Vec3], inside: &[f64]| {
+        evaluate_reusing(
+            field, n, n, points, inside, &settings, &plane, &mut memo, &mut out,
+        )
+        .unwrap();
+        (memo.reused(), out.clone())
+    };
+    assert_eq!(eval(&a, 30, &points, &inside).0, 0, "an empty memo");
+    let again = eval(&a, 30, &points, &inside).0;
+    assert!(
+        again > 0 && again < 30 * 30,
+        "unmoved far and outside samples: {again}"
+    );
+    let (reused, got) = eval(&b, 30, &points, &inside);
+    assert_eq!(reused, 0, "another field's distances");
+    assert_eq!(
+        got.class,
+        evaluate(&b, 30, 30, &points, &inside, &settings, &plane)
+            .unwrap()
+            .0
+            .class
+    );
+    let (points, inside) = plane.sample(31);
+    assert_eq!(eval(&b, 31, &points, &inside).0, 0, "another grid");
+}
+
+#[test]
+fn unwanted_samples_are_left_as_they_were() {
+    let (mesh, _) = tumour();
+    let field = field_around(&mesh, 30.0, 2.0);
+    let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
+    let n = 37;
+    let (points, _) = plane.sample(n);
+    let mut exact = vec![0.0; n * n];
+    field
+        .distances_grid_into(n, n, &points, &mut exact)
+        .unwrap();
+    // Every third sample wanted (the sparse walk), then all but every third (the blocks).
+    for wanted in [|k: usize| k % 3 == 0, |k: usize| k % 3 != 0] {
+        let mut out = vec![-1.0; n * n];
+        let tolerance = |k: usize| if wanted(k) { 0.0 } else { f64::INFINITY };
+        field
+            .distances_grid_within(n, n, &points, tolerance, &mut out)
+            .unwrap();
+        for k in 0..n * n {
+            let expected = if wanted(k) { exact[k] } else { -1.0 };
+            assert!(
+                (out[k] - expected).abs() <= 1e-12,
+                "{k}: {} vs {expected}",
+                out[k]
+            );
+        }
+    }
 }

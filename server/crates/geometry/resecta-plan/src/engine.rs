@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use resecta_bezier::ControlNet;
 use resecta_geom::{Plane, Real, TriMesh, Vec3, Volume};
 use resecta_margin::{
-    MarginClass, MarginField, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict,
+    MarginClass, MarginField, MarginMemo, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict,
 };
 use resecta_volumetry::{IncompleteCut, LiverVoxels, MultiCut, Volumetry, VolumetryError};
 use serde::Serialize;
@@ -57,6 +57,8 @@ pub struct ResectionState {
     pub inside: Vec<Real>,
     pub margins: SurfaceMargins,
     pub verdict: Verdict,
+    /// Distances kept for the next edit of this resection.
+    memo: MarginMemo,
 }
 
 impl ResectionState {
@@ -341,12 +343,17 @@ impl Planner {
         prev: Option<ResectionState>,
     ) -> Result<ResectionState, PlanError> {
         let target = self.target_model(&r.target)?;
-        let (surface, mut inside, mut margins) = match prev {
+        let (surface, mut inside, mut margins, mut memo) = match prev {
             Some(mut s) => {
                 s.surface.update(r)?;
-                (s.surface, s.inside, s.margins)
+                (s.surface, s.inside, s.margins, s.memo)
             }
-            None => (LiveSurface::new(r)?, Vec::new(), SurfaceMargins::default()),
+            None => (
+                LiveSurface::new(r)?,
+                Vec::new(),
+                SurfaceMargins::default(),
+                MarginMemo::default(),
+            ),
         };
         let points = surface.points();
         let anatomy = &self.anatomy;
@@ -368,7 +375,7 @@ impl Planner {
             surface: &surface,
             anatomy,
         };
-        let verdict = resecta_margin::evaluate_into(
+        let verdict = resecta_margin::evaluate_reusing(
             &target.field,
             ru,
             rv,
@@ -376,6 +383,7 @@ impl Planner {
             &inside,
             &settings,
             &oracle,
+            &mut memo,
             &mut margins,
         )
         .map_err(|e| PlanError::resection(&r.name, format!("margins: {e}")))?;
@@ -385,6 +393,7 @@ impl Planner {
             inside,
             margins,
             verdict,
+            memo,
         })
     }
 
