@@ -138,27 +138,42 @@ impl MarginMemo {
         self.field == field.id() && (self.ru, self.rv) == (ru, rv) && self.points.len() == ru * rv
     }
 
-    /// If sample k may keep its distance: how far the exact one may now exceed it (the distance
-    /// δ it moved). The exact distance lies in [d − slack − δ, d + δ] (1-Lipschitz), so the kept
-    /// d is within the sample's tolerance; and the exact distances over its grid cells
-    /// (within `radius` of it) are all beyond margin + band, so its value moves no class and no
-    /// clipped area — unless it is outside the liver with all its neighbours, where it only
-    /// colours.
-    fn keeps(&self, grid: &Grid<'_>, k: usize, beyond: Real) -> Option<Real> {
+    /// What the memo says of sample k now. The exact distance lies in [d − slack − δ, d + δ]
+    /// (1-Lipschitz; δ the distance it moved). If the exact distances over its grid cells
+    /// (within `radius` of it) are all beyond margin + band, its class is Safe and its value moves
+    /// no clipped area: it keeps d while slack + δ stays within its tolerance, else it is at
+    /// least far. Outside the liver with all its neighbours it only colours and keeps d within
+    /// its tolerance too.
+    fn recall(&self, grid: &Grid<'_>, k: usize, beyond: Real) -> Recall {
         let delta = (grid.points[k] - self.points[k]).norm();
         let (d, slack) = (self.distance[k], self.slack[k]);
-        let clear = || d - slack - delta - radius(grid.points, grid.ru, grid.rv, k) > beyond;
-        let keep = if grid.inside[k] > 0.0 {
-            delta + slack <= FAR_TOLERANCE_MM && clear()
+        let clear = d - slack - delta - radius(grid.points, grid.ru, grid.rv, k) > beyond;
+        let (tolerance, unseen) = if grid.inside[k] > 0.0 {
+            (FAR_TOLERANCE_MM, clear)
         } else {
-            delta + slack <= OUTSIDE_TOLERANCE_MM
-                && (clear()
-                    || neighbours(grid.ru, grid.rv, k)
-                        .iter()
-                        .all(|&(ok, m)| !ok || grid.inside[m] <= 0.0))
+            let alone = || {
+                neighbours(grid.ru, grid.rv, k)
+                    .iter()
+                    .all(|&(ok, m)| !ok || grid.inside[m] <= 0.0)
+            };
+            (OUTSIDE_TOLERANCE_MM, clear || alone())
         };
-        keep.then_some(delta)
+        match (unseen, delta + slack <= tolerance) {
+            (true, true) => Recall::Keep(delta),
+            (true, false) if grid.inside[k] > 0.0 => Recall::Far,
+            _ => Recall::Unknown,
+        }
     }
+}
+
+/// What a [`MarginMemo`] tells of a sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Recall {
+    /// Keeps its distance; the exact one may exceed it by this much.
+    Keep(Real),
+    /// Inside, with its cells certainly beyond margin + band, but moved too far to keep its value.
+    Far,
+    Unknown,
 }
 
 /// Per-vertex margins and classes for a sampled ru×rv grid (index `i·rv + j`, u along i), plus the
@@ -256,8 +271,7 @@ fn evaluate_with(
     out.class.resize(n, MarginClass::Outside);
     let (m, w) = (settings.margin_mm, settings.margin_mm + settings.band_mm);
     let valid = memo.as_deref().filter(|mm| mm.holds(field, ru, rv));
-    // kept[k]: Some(how far the exact distance may exceed the kept one).
-    let kept: Vec<Option<Real>> = match valid {
+    let recall: Vec<Recall> = match valid {
         Some(mm) => {
             let grid = Grid {
                 ru,
@@ -268,11 +282,19 @@ fn evaluate_with(
             };
             (0..n)
                 .into_par_iter()
-                .map(|k| mm.keeps(&grid, k, w))
+                .map(|k| mm.recall(&grid, k, w))
                 .collect()
         }
-        None => vec![None; n],
+        None => vec![Recall::Unknown; n],
     };
+    // kept[k]: Some(how far the exact distance may exceed the kept one).
+    let kept: Vec<Option<Real>> = recall
+        .iter()
+        .map(|r| match r {
+            Recall::Keep(delta) => Some(*delta),
+            _ => None,
+        })
+        .collect();
     if let Some(mm) = valid {
         for (k, d) in out.distance.iter_mut().enumerate() {
             if kept[k].is_some() {
@@ -283,7 +305,9 @@ fn evaluate_with(
     // Inside samples certainly beyond margin + band are safe whatever their exact distance.
     let far: Vec<bool> = (0..n)
         .into_par_iter()
-        .map(|k| inside[k] > 0.0 && (kept[k].is_some() || field.lower_bound(&points[k]) > w))
+        .map(|k| {
+            inside[k] > 0.0 && (recall[k] != Recall::Unknown || field.lower_bound(&points[k]) > w)
+        })
         .collect();
     // The share of a loose tolerance a computed distance may use (the rest is for moving).
     let share = if memo.is_some() { 0.5 } else { 1.0 };
