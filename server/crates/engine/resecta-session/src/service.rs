@@ -2,8 +2,8 @@
 //! faces alike.
 //!
 //! Per session, one async mutex orders the operations. CPU work runs off the runtime (module
-//! `pools`): edits on rayon's pool, heavy work (anatomy set-up, volumes between edits,
-//! reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
+//! `pools`): edits on rayon's pool, heavy work (anatomy set-up after an upload or a restart,
+//! volumes between edits, reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
 //! job never stalls the runtime or another session's edits. An edit is acknowledged only after its
 //! log record is durable in the store; restarting replays the log to the same plan.
 
@@ -547,16 +547,27 @@ impl Service {
         let store = Arc::clone(&self.store);
         let id = s.id.clone();
         let max_voxels = self.config.max_voxels;
-        let restored = blocking(move || {
+        // The store on the blocking pool; decoding, replay and the planning set-up on the
+        // background pool, as after an upload, so a restore never slows other sessions' edits.
+        let stored = blocking(move || {
             let Some(rec) = store.session(&id)? else {
                 return Err(SessionError::UnknownSession(id));
             };
             let version = store.log_len(&id)?;
-            let loaded = match store.blob(&id, LABELMAP_BLOB)? {
+            let labels = match store.blob(&id, LABELMAP_BLOB)? {
                 None => None,
-                Some(blob) => {
+                Some(blob) => Some((blob, store.log(&id, 0)?)),
+            };
+            let models = store.blob(&id, MODELS_BLOB)?;
+            Ok((rec, version, labels, models))
+        })
+        .await?;
+        let restored = pools::run(Priority::Background, move || {
+            let (rec, version, labels, models) = stored;
+            let loaded = match labels {
+                None => None,
+                Some((blob, records)) => {
                     let (labels, roles) = labelmap::from_blob(&blob, max_voxels)?;
-                    let records = store.log(&id, 0)?;
                     let mut base = Plan::new(roles.clone());
                     let mut entries = Vec::new();
                     for r in records {
@@ -574,13 +585,10 @@ impl Service {
                     Some((Arc::new(labels), summary, planner))
                 }
             };
-            let models = match store.blob(&id, MODELS_BLOB)? {
-                None => None,
-                Some(b) => Some(decode_models(&b)?),
-            };
-            Ok((rec, version, loaded, models))
+            let models = models.map(|b| decode_models(&b)).transpose()?;
+            Ok::<_, SessionError>((rec, version, loaded, models))
         })
-        .await?;
+        .await??;
         let (rec, version, loaded, models) = restored;
         st.display_name = rec.display_name;
         st.created_ms = rec.created_ms;

@@ -8,6 +8,7 @@ use std::time::Duration;
 
 use resecta_delta::{DecodeLimits, SurfaceFrame, apply_delta, decode_mesh};
 use resecta_geom::{LabelMap, RoleMap};
+use resecta_margin::FAR_TOLERANCE_MM;
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::PlanEvent;
 use resecta_session::api::{
@@ -91,6 +92,20 @@ fn snapshot_frame(e: &WatchEvent, name: &str) -> SurfaceFrame {
     };
     let s = resections.iter().find(|s| s.name == name).unwrap();
     decode_mesh(&s.mesh, &DecodeLimits::default()).unwrap().1
+}
+
+/// The same surface and classes; margins within their tolerances of each other (a drag keeps
+/// far samples' distances, which a fresh evaluation of the same plan recomputes).
+fn assert_same_surface(a: &SurfaceFrame, b: &SurfaceFrame) {
+    assert_eq!(a.positions, b.positions);
+    assert_eq!(a.normals, b.normals);
+    assert_eq!(a.classes, b.classes);
+    for (x, y) in a.margins.iter().zip(&b.margins) {
+        assert!(
+            f64::from((x - y).abs()) <= 2.0 * FAR_TOLERANCE_MM + 1e-4,
+            "{x} vs {y}"
+        );
+    }
 }
 
 async fn workflow(store: Arc<dyn SessionStore>) {
@@ -195,11 +210,11 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     assert_eq!(e404.code(), "RESECTION_NOT_FOUND");
     assert_eq!(service.get_session(&id).await.unwrap().plan_version, 3);
 
-    // Undo and redo are versions too and come back to identical surfaces.
+    // Undo and redo are versions too and come back to the same surfaces.
     service.edit(&id, 3, EditOp::Undo).await.unwrap();
     service.edit(&id, 4, EditOp::Redo).await.unwrap();
     let mut after = service.watch(&id, None).await.unwrap();
-    assert_eq!(snapshot_frame(&*next(&mut after).await, "r1"), frame);
+    assert_same_surface(&snapshot_frame(&*next(&mut after).await, "r1"), &frame);
 
     // Volumes: the cap beyond the plane is resected, the cut is complete; a Volumes event follows.
     let versioned = service.volumes(&id).await.unwrap();
@@ -266,7 +281,7 @@ async fn workflow_on_sqlite() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
+async fn a_restart_restores_sessions_plans_and_surfaces() {
     let dir = tempfile::tempdir().unwrap();
     let (id, plan, frame, version, seq) = {
         let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
@@ -295,7 +310,7 @@ async fn a_restart_restores_sessions_plans_and_surfaces_exactly() {
     assert_eq!(listed[0].state, SessionState::LabelMap);
     assert_eq!(service.export_plan(&id).await.unwrap().value, plan);
     let mut w = service.watch(&id, None).await.unwrap();
-    assert_eq!(snapshot_frame(&*next(&mut w).await, "r1"), frame);
+    assert_same_surface(&snapshot_frame(&*next(&mut w).await, "r1"), &frame);
     // A watcher resuming from the earlier process' sequence number gets a snapshot (the new
     // numbers are above the old ones), never deltas of another history.
     let mut resumed = service.watch(&id, Some(seq)).await.unwrap();

@@ -834,7 +834,10 @@ fn unwanted_samples_are_left_as_they_were() {
         .distances_grid_into(n, n, &points, &mut exact)
         .unwrap();
     // Every third sample wanted (the sparse walk), then all but every third (the blocks).
-    for wanted in [|k: usize| k.is_multiple_of(3), |k: usize| !k.is_multiple_of(3)] {
+    for wanted in [
+        |k: usize| k.is_multiple_of(3),
+        |k: usize| !k.is_multiple_of(3),
+    ] {
         let mut out = vec![-1.0; n * n];
         let tolerance = |k: usize| if wanted(k) { 0.0 } else { f64::INFINITY };
         field
