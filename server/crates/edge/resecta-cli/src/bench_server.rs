@@ -101,8 +101,11 @@ struct Report {
     logical_cores: usize,
     server: &'static str,
     latencies: Vec<Latency>,
-    /// Concurrent p99 over the single-session p99 at the same resolution.
+    /// Concurrent p99 over the single-session p99 at the same resolution (edits back to back).
     concurrent_p99_ratio: f64,
+    /// Concurrent p99 over the p99 of one session editing at the same pace (`--rate`) alone:
+    /// what concurrency alone adds.
+    concurrent_p99_ratio_paced: f64,
     /// Server resident memory per idle session with the demo label map and one resection
     /// (bytes); absent against `--addr`.
     idle_session_bytes: Option<f64>,
@@ -561,16 +564,18 @@ async fn single(
     Ok(l)
 }
 
-async fn concurrent(
+/// `n_sessions` sessions editing at `args.rate` each for `seconds`, their phases spread over a period.
+async fn paced(
     channel: &Channel,
     token: Option<&str>,
     map: &LabelMap,
     args: &ServerArgs,
+    n_sessions: usize,
     seconds: f64,
     pid: Option<u32>,
 ) -> Result<Latency, CliError> {
-    let mut sessions = Vec::with_capacity(args.sessions);
-    for _ in 0..args.sessions {
+    let mut sessions = Vec::with_capacity(n_sessions);
+    for _ in 0..n_sessions {
         sessions.push(planning_session(channel, token, map, [40, 40]).await?);
     }
     let ids: Vec<String> = sessions.iter().map(|s| s.id.clone()).collect();
@@ -583,7 +588,7 @@ async fn concurrent(
         .map(|(n, mut s)| {
             tokio::spawn(async move {
                 // Spread the sessions' phases over one period.
-                tokio::time::sleep(period.mul_f64(n as f64 / 20.0)).await;
+                tokio::time::sleep(period.mul_f64(n as f64 / n_sessions as f64)).await;
                 let mut tick = tokio::time::interval(period);
                 tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
                 let mut samples = Vec::with_capacity(count);
@@ -602,7 +607,12 @@ async fn concurrent(
                 .map_err(|e| CliError::Failed(format!("session task: {e}")))??,
         );
     }
-    let mut l = latency("concurrent sessions", [40, 40], args.sessions, all);
+    let scenario = if n_sessions == 1 {
+        "single session, paced"
+    } else {
+        "concurrent sessions"
+    };
+    let mut l = latency(scenario, [40, 40], n_sessions, all);
     load.finish(&mut l);
     for id in &ids {
         delete(channel, token, id).await;
@@ -802,8 +812,10 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
     let s40 = single(&channel, token, &map, [40, 40], edits, pid).await?;
     pb.set_message("single session, 200×200");
     let s200 = single(&channel, token, &map, [200, 200], edits, pid).await?;
+    pb.set_message(format!("1 session at {}/s", args.rate));
+    let alone = paced(&channel, token, &map, args, 1, seconds, pid).await?;
     pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
-    let multi = concurrent(&channel, token, &map, args, seconds, pid).await?;
+    let multi = paced(&channel, token, &map, args, args.sessions, seconds, pid).await?;
     pb.set_message("512×512×300 upload");
     let upload = uploads(&channel, token, if args.quick { 1 } else { args.uploads }).await?;
     pb.finish_and_clear();
@@ -819,7 +831,8 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
             "started by the benchmark (resecta serve, SQLite data dir)"
         },
         concurrent_p99_ratio: multi.p99_ms / s40.p99_ms,
-        latencies: vec![s40, s200, multi],
+        concurrent_p99_ratio_paced: multi.p99_ms / alone.p99_ms,
+        latencies: vec![s40, s200, alone, multi],
         idle_session_bytes,
         upload,
     };
@@ -847,8 +860,8 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         );
     }
     println!(
-        "concurrent p99 / single p99 = {:.2}",
-        report.concurrent_p99_ratio
+        "concurrent p99 / single p99 = {:.2} (back to back), {:.2} (same pace)",
+        report.concurrent_p99_ratio, report.concurrent_p99_ratio_paced
     );
     if let Some(b) = report.idle_session_bytes {
         println!("server memory per idle session: {:.1} MB", b / 1e6);
