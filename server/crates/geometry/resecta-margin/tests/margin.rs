@@ -304,6 +304,13 @@ fn tumour() -> (TriMesh, f64) {
     (mesh, r_in)
 }
 
+/// The hint region around [`tumour`] and the plane over it.
+const REGION: ([f64; 3], [f64; 3]) = ([-32.0, -32.0, -12.0], [32.0, 32.0, 20.0]);
+
+fn tumour_field(mesh: &TriMesh) -> MarginField {
+    MarginField::new(mesh, Vec3::from(REGION.0), Vec3::from(REGION.1), 2.0).unwrap()
+}
+
 fn run(
     field: &MarginField,
     plane: &Plane,
@@ -317,13 +324,7 @@ fn run(
 #[test]
 fn plane_over_sphere_minimum_and_areas() {
     let (mesh, r_in) = tumour();
-    let field = MarginField::new(
-        &mesh,
-        Vec3::new(-32.0, -32.0, -12.0),
-        Vec3::new(32.0, 32.0, 20.0),
-        2.0,
-    )
-    .unwrap();
+    let field = tumour_field(&mesh);
     let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 100.0);
     let settings = MarginSettings {
         margin_mm: 10.0,
@@ -424,13 +425,7 @@ fn lens(r: f64, s: f64) -> f64 {
 #[test]
 fn outside_the_liver_does_not_count() {
     let (mesh, r_in) = tumour();
-    let field = MarginField::new(
-        &mesh,
-        Vec3::new(-32.0, -32.0, -12.0),
-        Vec3::new(32.0, 32.0, 20.0),
-        2.0,
-    )
-    .unwrap();
+    let field = tumour_field(&mesh);
     // The liver meets the plane in a disk of radius 12 about (−15, 0) that misses the foot.
     let liver = Vec3::new(-15.0, 0.0, D);
     let plane = Plane::new(D, liver, 12.0);
@@ -485,13 +480,7 @@ fn outside_the_liver_does_not_count() {
 #[test]
 fn results_do_not_depend_on_threads_and_serialise() {
     let (mesh, _) = tumour();
-    let field = MarginField::new(
-        &mesh,
-        Vec3::new(-32.0, -32.0, -12.0),
-        Vec3::new(32.0, 32.0, 20.0),
-        2.0,
-    )
-    .unwrap();
+    let field = tumour_field(&mesh);
     let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
     let settings = MarginSettings {
         margin_mm: 10.0,
@@ -695,13 +684,7 @@ fn minimum_between_samples_beats_a_vertex_minimum_elsewhere() {
 #[test]
 fn a_drag_reusing_distances_keeps_classes_verdict_and_tolerances() {
     let (mesh, _) = tumour();
-    let field = MarginField::new(
-        &mesh,
-        Vec3::new(-32.0, -32.0, -12.0),
-        Vec3::new(32.0, 32.0, 20.0),
-        2.0,
-    )
-    .unwrap();
+    let field = tumour_field(&mesh);
     let mut plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
     let settings = MarginSettings {
         margin_mm: 10.0,
@@ -785,10 +768,9 @@ fn a_drag_reusing_distances_keeps_classes_verdict_and_tolerances() {
 #[test]
 fn a_memo_of_another_field_or_grid_is_not_used() {
     let (mesh, _) = tumour();
-    let region = (Vec3::new(-32.0, -32.0, -12.0), Vec3::new(32.0, 32.0, 20.0));
-    let a = MarginField::new(&mesh, region.0, region.1, 2.0).unwrap();
+    let a = tumour_field(&mesh);
     let moved = icosphere(Vec3::from(TUMOUR) - Vec3::new(0.0, 0.0, 3.0), R, 5).unwrap();
-    let b = MarginField::new(&moved, region.0, region.1, 2.0).unwrap();
+    let b = tumour_field(&moved);
     let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
     let settings = MarginSettings {
         margin_mm: 10.0,
