@@ -12,6 +12,7 @@ def test_bench_server_quick_smoke(resecta, tmp_path):
     for r in rows.values():
         assert r["edits"] > 0 and 0 < r["p50_ms"] <= r["p90_ms"] <= r["p99_ms"] <= r["max_ms"]
         assert r["server_cpu_ms_per_edit"] > 0
+        assert 0 < r["ack_p50_ms"] <= r["ack_p99_ms"]
     multi = rows[("concurrent sessions", 40, 3)]
     single = rows[("single session", 40, 1)]
     paced = rows[("single session, paced", 40, 1)]

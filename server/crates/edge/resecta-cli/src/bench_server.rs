@@ -72,6 +72,10 @@ struct Latency {
     p90_ms: f64,
     p99_ms: f64,
     max_ms: f64,
+    /// Edit sent → its acknowledgement (the log record durable): watchers are shown an edit
+    /// before it is stored, so this can exceed the delta latency above.
+    ack_p50_ms: f64,
+    ack_p99_ms: f64,
     /// CPU the server process and the benchmark client used during the scenario (cores, from
     /// /proc: user + system time over wall time); absent where unreadable.
     server_cores: Option<f64>,
@@ -431,8 +435,8 @@ async fn planning_session(
 }
 
 impl Planning {
-    /// Moves an inner control point by ±1 mm and waits for its delta; the latency in ms.
-    async fn timed_edit(&mut self, k: usize) -> Result<f64, CliError> {
+    /// Moves an inner control point by ±1 mm and waits for its delta and acknowledgement.
+    async fn timed_edit(&mut self, k: usize) -> Result<Timed, CliError> {
         let mut p = self.point;
         p.z += if k.is_multiple_of(2) { 1.0 } else { 0.0 };
         let sent = Instant::now();
@@ -449,6 +453,7 @@ impl Planning {
             }),
         )
         .await?;
+        let ack_ms = sent.elapsed().as_secs_f64() * 1e3;
         self.version = answer.plan_version;
         loop {
             let (version, at) = tokio::time::timeout(Duration::from_secs(30), self.arrivals.recv())
@@ -456,10 +461,21 @@ impl Planning {
                 .map_err(|_| CliError::Failed("no delta within 30 s of an edit".into()))?
                 .ok_or_else(|| CliError::Failed("the watch stream ended".into()))?;
             if version >= self.version {
-                return Ok(at.duration_since(sent).as_secs_f64() * 1e3);
+                return Ok(Timed {
+                    delta_ms: at.duration_since(sent).as_secs_f64() * 1e3,
+                    ack_ms,
+                });
             }
         }
     }
+}
+
+/// One edit's latencies (ms).
+struct Timed {
+    /// Edit sent → its delta received by the watching client.
+    delta_ms: f64,
+    /// Edit sent → acknowledged.
+    ack_ms: f64,
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
@@ -470,13 +486,14 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[rank.min(sorted.len() - 1)]
 }
 
-fn latency(
-    scenario: &str,
-    resolution: [u32; 2],
-    sessions: usize,
-    mut samples: Vec<f64>,
-) -> Latency {
-    samples.sort_by(f64::total_cmp);
+fn latency(scenario: &str, resolution: [u32; 2], sessions: usize, timed: Vec<Timed>) -> Latency {
+    let sorted = |f: fn(&Timed) -> f64| {
+        let mut v: Vec<f64> = timed.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v
+    };
+    let samples = sorted(|t| t.delta_ms);
+    let acks = sorted(|t| t.ack_ms);
     Latency {
         scenario: scenario.into(),
         resolution,
@@ -486,6 +503,8 @@ fn latency(
         p90_ms: percentile(&samples, 0.90),
         p99_ms: percentile(&samples, 0.99),
         max_ms: samples.last().copied().unwrap_or(f64::NAN),
+        ack_p50_ms: percentile(&acks, 0.50),
+        ack_p99_ms: percentile(&acks, 0.99),
         server_cores: None,
         server_cpu_ms_per_edit: None,
         client_cores: None,
@@ -843,12 +862,21 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         return print_json(&report);
     }
     println!(
-        "{:<22} {:>9} {:>8} {:>6} {:>8} {:>8} {:>8} {:>8}",
-        "scenario", "grid", "sessions", "edits", "p50 ms", "p90 ms", "p99 ms", "max ms"
+        "{:<22} {:>9} {:>8} {:>6} {:>8} {:>8} {:>8} {:>8} {:>10} {:>10}",
+        "scenario",
+        "grid",
+        "sessions",
+        "edits",
+        "p50 ms",
+        "p90 ms",
+        "p99 ms",
+        "max ms",
+        "ack p50",
+        "ack p99"
     );
     for l in &report.latencies {
         println!(
-            "{:<22} {:>9} {:>8} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
+            "{:<22} {:>9} {:>8} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>10.2} {:>10.2}",
             l.scenario,
             format!("{}×{}", l.resolution[0], l.resolution[1]),
             l.sessions,
@@ -856,7 +884,9 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
             l.p50_ms,
             l.p90_ms,
             l.p99_ms,
-            l.max_ms
+            l.max_ms,
+            l.ack_p50_ms,
+            l.ack_p99_ms
         );
     }
     println!(

@@ -1,5 +1,10 @@
-//! Where the operation layer's CPU work runs. Edits run on rayon's global pool, so an edit's own
-//! parallel loops fork inside a worker instead of queueing behind other callers. Heavy work —
+//! Where the operation layer's CPU work runs. Small edits (a drag of a surface of at most
+//! `QUICK_SAMPLES` (module `service`) samples) run on single-thread "quick" pools, their parallel
+//! loops inline: under load, a fork-join edit waits for the half another worker stole, and that
+//! worker may just have been preempted, which puts scheduler time slices into the edit's latency
+//! tail; one thread per edit also never wakes a sleeping sibling. Other edits run on rayon's
+//! global pool, so their parallel loops fork inside a worker instead of queueing behind other
+//! callers. Heavy work —
 //! reconstruction, planning set-up, volumes recomputed between edits — runs on a background pool
 //! whose threads are in the idle scheduling class (Linux `SCHED_IDLE`; elsewhere the lowest
 //! priority), so the edits of a drag preempt it and a long job never holds the workers an edit
@@ -7,6 +12,7 @@
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::OnceLock;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use crate::error::{Result, SessionError};
 
@@ -15,6 +21,8 @@ use crate::error::{Result, SessionError};
 pub(crate) enum Priority {
     /// Latency matters: a client waits (edits, explicit requests).
     Interactive,
+    /// Latency matters and the job is small: one thread, no fork-join.
+    Quick,
     /// Throughput matters; yields the cores to interactive work.
     Background,
 }
@@ -34,6 +42,28 @@ fn background() -> Option<&'static rayon::ThreadPool> {
             .ok()
     })
     .as_ref()
+}
+
+/// A single-thread pool and the number of its jobs queued or running.
+type QuickPool = (rayon::ThreadPool, AtomicUsize);
+
+/// Half the cores (at least one) as single-thread pools; empty if none could be built.
+fn quick() -> &'static [QuickPool] {
+    static POOLS: OnceLock<Vec<QuickPool>> = OnceLock::new();
+    POOLS.get_or_init(|| {
+        let n = std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1));
+        (0..n)
+            .map_while(|k| {
+                rayon::ThreadPoolBuilder::new()
+                    .num_threads(1)
+                    .thread_name(move |_| format!("resecta-quick-{k}"))
+                    .build()
+                    .map_err(|e| tracing::error!(error = %e, "quick pool; using the global pool"))
+                    .ok()
+                    .map(|p| (p, AtomicUsize::new(0)))
+            })
+            .collect()
+    })
 }
 
 /// Lowers the calling thread to the idle scheduling class where there is one (Linux
@@ -64,8 +94,19 @@ pub(crate) async fn run<T: Send + 'static>(
     let job = move || {
         let _ = tx.send(catch_unwind(AssertUnwindSafe(f)));
     };
-    match (priority, background()) {
-        (Priority::Background, Some(pool)) => pool.spawn(job),
+    match (priority, background(), quick()) {
+        (Priority::Background, Some(pool), _) => pool.spawn(job),
+        (Priority::Quick, _, pools) if !pools.is_empty() => {
+            let (pool, queued) = pools
+                .iter()
+                .min_by_key(|(_, q)| q.load(Ordering::Relaxed))
+                .unwrap_or(&pools[0]);
+            queued.fetch_add(1, Ordering::Relaxed);
+            pool.spawn(move || {
+                job();
+                queued.fetch_sub(1, Ordering::Relaxed);
+            });
+        }
         _ => rayon::spawn(job),
     }
     match rx.await {
@@ -106,6 +147,31 @@ mod tests {
         .await
         .unwrap();
         assert!(name.unwrap().starts_with("resecta-background-"));
+    }
+
+    #[tokio::test]
+    async fn quick_jobs_run_their_parallel_loops_inline_on_one_thread() {
+        use rayon::prelude::*;
+        let (name, threads, inline) = run(Priority::Quick, || {
+            let me = std::thread::current().id();
+            let inline = (0..10_000)
+                .into_par_iter()
+                .all(|_| std::thread::current().id() == me);
+            let name = std::thread::current().name().map(str::to_owned);
+            (name, rayon::current_num_threads(), inline)
+        })
+        .await
+        .unwrap();
+        assert!(name.unwrap().starts_with("resecta-quick-"));
+        assert_eq!(threads, 1);
+        assert!(inline);
+        // Many at once all complete.
+        let jobs: Vec<_> = (0..32u64)
+            .map(|k| tokio::spawn(run(Priority::Quick, move || k * 2)))
+            .collect();
+        for (k, j) in jobs.into_iter().enumerate() {
+            assert_eq!(j.await.unwrap().unwrap(), k as u64 * 2);
+        }
     }
 
     #[tokio::test]

@@ -4,8 +4,10 @@
 //! Per session, one async mutex orders the operations. CPU work runs off the runtime (module
 //! `pools`): edits on rayon's pool, heavy work (anatomy set-up after an upload or a restart,
 //! volumes between edits, reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
-//! job never stalls the runtime or another session's edits. An edit is acknowledged only after its
-//! log record is durable in the store; restarting replays the log to the same plan.
+//! job never stalls the runtime or another session's edits. Watchers see an edit as soon as it is
+//! computed; it is acknowledged only after its log record is durable in the store (a record that
+//! cannot be stored rolls the edit back, and watchers get a snapshot of the plan as it was);
+//! restarting replays the log to the same plan.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::{AtomicBool, AtomicI64, AtomicUsize, Ordering};
@@ -91,6 +93,8 @@ impl Default for ServiceConfig {
 const BYTES_PER_VOXEL: u64 = 8;
 /// Display names: characters.
 const MAX_DISPLAY_NAME: usize = 256;
+/// Edits of surfaces of at most this many samples run on one thread (`pools`: no fork-join).
+const QUICK_SAMPLES: usize = 10_000;
 /// Last-access times are written at most this often per session (ms).
 const TOUCH_EVERY_MS: i64 = 60_000;
 const LABELMAP_BLOB: &str = "labelmap";
@@ -377,7 +381,13 @@ impl Service {
             session.last_touch_ms.store(now, Ordering::Relaxed);
             let store = Arc::clone(&self.store);
             let key = id.to_owned();
-            blocking(move || Ok(store.touch(&key, now)?)).await?;
+            // Off the request path: the access time only feeds idle expiry.
+            tokio::spawn(blocking(move || {
+                store
+                    .touch(&key, now)
+                    .inspect_err(|e| tracing::warn!(error = %e, "recording a session access"))?;
+                Ok(())
+            }));
         }
         Ok(session)
     }
@@ -908,10 +918,27 @@ impl Service {
         let version = st.version;
         let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
         let mut planner = loaded.take_planner().await?;
-        // Compute on the interactive pool, store on the blocking pool: a worker never waits for
-        // the disk while other sessions' edits queue for it.
-        let (mut planner, result) = pools::run(Priority::Interactive, move || {
-            let r = apply_edit(&mut planner, op);
+        // Compute on the interactive pool and show the result to watchers right there; store on
+        // the blocking pool (a worker never waits for the disk while other sessions' edits queue
+        // for it). Only the acknowledgement waits for the record to be durable: a record that
+        // cannot be stored rolls the edit back and watchers get a snapshot of the plan as it was.
+        let hub = Arc::clone(&s.hub);
+        let id = s.id.clone();
+        let priority = if is_quick(&planner, &op) {
+            Priority::Quick
+        } else {
+            Priority::Interactive
+        };
+        let (mut planner, result) = pools::run(priority, move || {
+            let r = apply_edit(&mut planner, op).and_then(|(changed, record)| {
+                match hub.publish_edit(version + 1, planner.plan(), planner.states(), &changed) {
+                    Ok(()) => Ok((changed, record)),
+                    Err(e) => {
+                        roll_back(&mut planner, &id);
+                        Err(e)
+                    }
+                }
+            });
             (planner, r)
         })
         .await?;
@@ -924,8 +951,8 @@ impl Service {
         };
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
-        let new_version = match blocking(move || Ok(store.append(&key, version, &[record])?)).await
-        {
+        let stored = blocking(move || Ok(store.append(&key, version, &[record])?)).await;
+        let new_version = match stored {
             Ok(v) => v,
             Err(e) => {
                 let id = s.id.clone();
@@ -934,12 +961,13 @@ impl Service {
                     planner
                 })
                 .await?;
+                let shown = s.hub.reset(version, planner.plan(), planner.states());
                 loaded.planner = Some(planner);
+                shown?;
                 return Err(e);
             }
         };
-        s.hub
-            .publish_edit(new_version, planner.plan(), planner.states(), &changed)?;
+        debug_assert_eq!(new_version, version + 1, "one record appended");
         let mut outcome = EditOutcome {
             plan_version: new_version,
             resections: Vec::new(),
@@ -1151,6 +1179,26 @@ impl Service {
 
 fn loaded_mut(st: &mut State) -> Result<&mut Loaded> {
     st.loaded.as_mut().ok_or_else(no_label_map)
+}
+
+/// Whether `op` is a small edit for a quick pool: a change to existing resections (no new
+/// resection, resolution or target) while every surface has at most [`QUICK_SAMPLES`] samples.
+fn is_quick(planner: &Planner, op: &EditOp) -> bool {
+    let EditOp::Event { event } = op else {
+        return false;
+    };
+    let reshapes = matches!(
+        event,
+        PlanEvent::AddResection { .. }
+            | PlanEvent::SetResolution { .. }
+            | PlanEvent::SetTarget { .. }
+    );
+    !reshapes
+        && planner
+            .plan()
+            .resections
+            .iter()
+            .all(|r| r.resolution[0] * r.resolution[1] <= QUICK_SAMPLES)
 }
 
 /// Applies `op`. Returns the names of the changed resections and the log record to store.

@@ -867,6 +867,15 @@ async fn an_edit_that_cannot_be_stored_changes_nothing() {
     let id = loaded_session(&service, "Flaky").await;
     let v = service.edit(&id, 0, init_op()).await.unwrap().plan_version;
     let plan = service.export_plan(&id).await.unwrap().value;
+    let mut w = service.watch(&id, None).await.unwrap();
+    let before = next(&mut w).await;
+    let WatchBody::Snapshot {
+        resection_params, ..
+    } = &before.body
+    else {
+        panic!("expected a snapshot first, got {:?}", before.body);
+    };
+    let points = resection_params["r1"].control_points.clone();
     store
         .broken
         .store(true, std::sync::atomic::Ordering::SeqCst);
@@ -877,6 +886,32 @@ async fn an_edit_that_cannot_be_stored_changes_nothing() {
     assert_eq!(e.code(), "STORAGE", "{e}");
     // Nothing acknowledged changed: same plan, same version; the session still edits.
     assert_eq!(service.export_plan(&id).await.unwrap().value, plan);
+    // Watchers were shown the edit before it failed to be stored; they now get a snapshot of
+    // the plan as it was, surfaces included.
+    let mut e = next(&mut w).await;
+    while !matches!(e.body, WatchBody::Snapshot { .. }) {
+        assert!(e.plan_version <= v + 1, "{e:?}");
+        e = next(&mut w).await;
+    }
+    let WatchBody::Snapshot {
+        resection_params, ..
+    } = &e.body
+    else {
+        unreachable!()
+    };
+    assert_eq!(e.plan_version, v);
+    assert_eq!(resection_params["r1"].control_points, points);
+    // Surfaces and classes as before; far distances within their 0.25 mm tolerance (a rebuilt
+    // planner computes afresh what a drag had kept).
+    let (now, was) = (snapshot_frame(&e, "r1"), snapshot_frame(&before, "r1"));
+    assert_eq!(
+        (&now.positions, &now.normals),
+        (&was.positions, &was.normals)
+    );
+    assert_eq!(now.classes, was.classes);
+    for (a, b) in now.margins.iter().zip(&was.margins) {
+        assert!((a - b).abs() <= 0.25, "{a} vs {b}");
+    }
     store
         .broken
         .store(false, std::sync::atomic::Ordering::SeqCst);
