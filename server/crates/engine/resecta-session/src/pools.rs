@@ -47,11 +47,13 @@ fn background() -> Option<&'static rayon::ThreadPool> {
 /// A single-thread pool and the number of its jobs queued or running.
 type QuickPool = (rayon::ThreadPool, AtomicUsize);
 
-/// Half the cores (at least one) as single-thread pools; empty if none could be built.
+/// One single-thread pool per core (a job goes to the one with the fewest queued); empty if
+/// none could be built. Half the cores gave a worse concurrent tail on two cores (one compute
+/// thread saturated first: `docs/benchmarks.md`).
 fn quick() -> &'static [QuickPool] {
     static POOLS: OnceLock<Vec<QuickPool>> = OnceLock::new();
     POOLS.get_or_init(|| {
-        let n = std::thread::available_parallelism().map_or(1, |n| (n.get() / 2).max(1));
+        let n = std::thread::available_parallelism().map_or(1, |n| n.get());
         (0..n)
             .map_while(|k| {
                 rayon::ThreadPoolBuilder::new()
