@@ -231,7 +231,9 @@ class PlanningServiceServicer:
         server still has them), then a delta per plan change and volumes when they are recomputed.
         Sequence numbers increase; they may skip when the server coalesces updates for a slow
         client. A delta applies to the state built by the earlier messages of the same stream. A new
-        snapshot may come at any time (new models, a client too far behind) and replaces all.
+        snapshot may come at any time (new models, a client too far behind) and replaces all. An
+        edit's delta is sent as soon as it is computed, possibly before its Edit call returns; if its
+        record then cannot be stored, a snapshot of the plan as it was follows.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
