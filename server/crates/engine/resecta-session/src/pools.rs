@@ -96,20 +96,25 @@ pub(crate) async fn run<T: Send + 'static>(
     let job = move || {
         let _ = tx.send(catch_unwind(AssertUnwindSafe(f)));
     };
-    match (priority, background(), quick()) {
-        (Priority::Background, Some(pool), _) => pool.spawn(job),
-        (Priority::Quick, _, pools) if !pools.is_empty() => {
-            let (pool, queued) = pools
-                .iter()
-                .min_by_key(|(_, q)| q.load(Ordering::Relaxed))
-                .unwrap_or(&pools[0]);
-            queued.fetch_add(1, Ordering::Relaxed);
-            pool.spawn(move || {
-                job();
-                queued.fetch_sub(1, Ordering::Relaxed);
-            });
-        }
-        _ => rayon::spawn(job),
+    match priority {
+        Priority::Background => match background() {
+            Some(pool) => pool.spawn(job),
+            None => rayon::spawn(job),
+        },
+        Priority::Quick => match quick()
+            .iter()
+            .min_by_key(|(_, q)| q.load(Ordering::Relaxed))
+        {
+            Some((pool, queued)) => {
+                queued.fetch_add(1, Ordering::Relaxed);
+                pool.spawn(move || {
+                    job();
+                    queued.fetch_sub(1, Ordering::Relaxed);
+                });
+            }
+            None => rayon::spawn(job),
+        },
+        Priority::Interactive => rayon::spawn(job),
     }
     match rx.await {
         Ok(Ok(v)) => Ok(v),

@@ -2,7 +2,7 @@
 //! faces alike.
 //!
 //! Per session, one async mutex orders the operations. CPU work runs off the runtime (module
-//! `pools`): edits on rayon's pool, heavy work (anatomy set-up after an upload or a restart,
+//! `pools`): small edits on single-thread quick pools, others on rayon's pool, heavy work (anatomy set-up after an upload or a restart,
 //! volumes between edits, reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
 //! job never stalls the runtime or another session's edits. Watchers see an edit as soon as it is
 //! computed; it is acknowledged only after its log record is durable in the store (a record that
@@ -918,8 +918,8 @@ impl Service {
         let version = st.version;
         let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
         let mut planner = loaded.take_planner().await?;
-        // Compute on the interactive pool and show the result to watchers right there; store on
-        // the blocking pool (a worker never waits for the disk while other sessions' edits queue
+        // Compute on a quick pool (a drag) or rayon's pool and show the result to watchers right
+        // there; store on the blocking pool (a worker never waits for the disk while other sessions' edits queue
         // for it). Only the acknowledgement waits for the record to be durable: a record that
         // cannot be stored rolls the edit back and watchers get a snapshot of the plan as it was.
         let hub = Arc::clone(&s.hub);
