@@ -57,16 +57,25 @@ def kind_name(kind) -> str:
 
 
 def margin_color_table(scene):
-    """The colour table of margin classes (one per scene, made once, found by name)."""
-    for node in _nodes_of_class(scene, "vtkMRMLColorTableNode"):
-        if node.GetName() == MARGIN_COLOR_TABLE_NAME:
-            return node
-    node = scene.AddNewNodeByClass("vtkMRMLColorTableNode", MARGIN_COLOR_TABLE_NAME)
-    node.SetTypeToUser()
+    """The colour table of margin classes (one per scene, found by name): entry i is class i.
+
+    Its lookup table's range is (0, classes - 1), as Slicer gives its label tables, so that a
+    display node mapping scalars through the table's range (`UseColorNodeScalarRange`) sends
+    class i to entry i. A new `vtkMRMLColorTableNode` keeps VTK's range (0, 255) instead, which
+    sends every class to entry 0. Set on every call, so a table from an older scene is
+    repaired."""
+    node = next((n for n in _nodes_of_class(scene, "vtkMRMLColorTableNode")
+                 if n.GetName() == MARGIN_COLOR_TABLE_NAME), None)
+    if node is None:
+        node = scene.AddNewNodeByClass("vtkMRMLColorTableNode", MARGIN_COLOR_TABLE_NAME)
+        node.SetTypeToUser()
+        node.SetAttribute("Category", "Resecta")
+    was_modifying = node.StartModify()
     node.SetNumberOfColors(len(MARGIN_CLASSES))
+    node.GetLookupTable().SetTableRange(0, len(MARGIN_CLASSES) - 1)
     for i, (name, rgba) in enumerate(MARGIN_CLASSES):
         node.SetColor(i, name, *rgba)
-    node.SetAttribute("Category", "Resecta")
+    node.EndModify(was_modifying)
     return node
 
 
@@ -213,9 +222,11 @@ class ModelUpdater:
             display.SetBackfaceCulling(False)
             table = margin_color_table(self.scene)
             display.SetAndObserveColorNodeID(table.GetID())
-            display.SetActiveScalarName(CLASS_ARRAY)
-            display.SetActiveAttributeLocation(vtk.vtkAssignAttribute.POINT_DATA)
+            display.SetActiveScalar(CLASS_ARRAY, vtk.vtkAssignAttribute.POINT_DATA)
+            # class i → entry i in 3D and on slices: the table's own range (0, classes - 1),
+            # as Slicer does for label tables; per-vertex alpha comes from the table.
             display.SetScalarRangeFlag(slicer.vtkMRMLDisplayNode.UseColorNodeScalarRange)
+            display.UpdateScalarRange()
             display.SetScalarVisibility(True)
             display.SetSliceIntersectionThickness(3)
 
