@@ -9,8 +9,8 @@ import vtk
 
 import slicer
 from conftest import load_phantom_segmentation
-from ResectaLib import (coalesce, controlgrid, deps, dispatch, margin, models, phantom, planfile,
-                        preview, segmentation, volumetry)
+from ResectaLib import (coalesce, controlgrid, dispatch, margin, models, phantom, planfile, preview,
+                        segmentation, volumetry)
 
 
 # --- segmentation → label map ----------------------------------------------------------------
@@ -246,7 +246,7 @@ def test_thread_dispatcher_delivers_on_the_polling_thread():
     assert out == [2, "err"]
 
 
-# --- margin indicator, volumetry, plans, preview, deps -----------------------------------------
+# --- margin indicator, volumetry, plans, preview -----------------------------------------------
 
 
 class V:
@@ -324,12 +324,6 @@ def test_preview_contour_of_a_sphere():
     assert np.allclose(np.linalg.norm(pts[:, :2], axis=1), np.sqrt(400 - 100), atol=0.3)
     with pytest.raises(ValueError):
         preview.initial_plane((0, 0, 0), (0, 0, 0.5))
-
-
-def test_dependencies_are_found_and_the_client_comes_from_the_checkout():
-    assert deps.missing() == []
-    assert deps.client_source().endswith("clients/python")
-    assert deps.ensure_installed(lambda _pkgs: pytest.fail("nothing should be asked"))
 
 
 def test_phantom_truth_matches_its_voxels():
