@@ -1,7 +1,7 @@
 """Checks that need neither Slicer nor a server: the module's files are well formed and agree
 with each other (Python compiles, the .ui is Qt Designer XML holding every widget the Widget
-uses, the parameter node's fields are bound in the .ui, CMake lists every file, metadata and
-icon are present, dependencies are imported lazily)."""
+uses, the parameter node's fields are bound in the .ui, icons are present, dependencies are
+imported lazily). The CMake lists, the catalog entry and the installed layout: test_packaging.py."""
 
 import ast
 import py_compile
@@ -124,25 +124,6 @@ def test_lib_has_no_qt_nor_slicer_gui(path):
     assert not names & {"qt", "ctk", "PythonQt", "slicer.util", "slicer.ScriptedLoadableModule"}
     if path.name != "deps.py":  # deps calls slicer.util.pip_install, inside Slicer only
         assert "slicer.util" not in text and "slicer.app" not in text
-
-
-def test_cmake_lists_every_module_file():
-    cmake = (MODULE / "CMakeLists.txt").read_text(encoding="utf-8")
-    listed = {line.strip().replace("${MODULE_NAME}", "Resecta") for line in cmake.splitlines()}
-    for p in [MODULE / "Resecta.py", *LIB.glob("*.py")]:
-        rel = str(p.relative_to(MODULE))
-        assert rel in listed, f"{rel} is not in Resecta/CMakeLists.txt"
-    for res in (MODULE / "Resources").rglob("*"):
-        if res.is_file():
-            rel = str(res.relative_to(MODULE))
-            assert rel in listed, f"{rel} is not in Resecta/CMakeLists.txt"
-            assert res.exists()
-    assert "slicerMacroBuildScriptedModule" in cmake and "WITH_GENERIC_TESTS" in cmake
-    top = (EXT / "CMakeLists.txt").read_text(encoding="utf-8")
-    assert "add_subdirectory(Resecta)" in top and "find_package(Slicer REQUIRED)" in top
-    for key in ("EXTENSION_HOMEPAGE", "EXTENSION_CATEGORY", "EXTENSION_DESCRIPTION",
-                "EXTENSION_ICONURL", "EXTENSION_DEPENDS"):
-        assert f"set({key} " in top
 
 
 def test_extension_description_file():
