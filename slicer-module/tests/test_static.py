@@ -126,17 +126,6 @@ def test_lib_has_no_qt_nor_slicer_gui(path):
         assert "slicer.util" not in text and "slicer.app" not in text
 
 
-def test_extension_description_file():
-    fields = {}
-    for line in (EXT / "Resecta.s4ext").read_text(encoding="utf-8").splitlines():
-        if line.strip() and not line.startswith("#"):
-            key, _, value = line.partition(" ")
-            fields[key] = value.strip()
-    for key in ("scm", "scmurl", "scmrevision", "depends", "build_subdirectory", "homepage",
-                "contributors", "category", "iconurl", "status", "description", "enabled"):
-        assert fields.get(key), f"Resecta.s4ext lacks {key}"
-
-
 @pytest.mark.parametrize("path", [EXT / "Resecta.png", MODULE / "Resources" / "Icons" / "Resecta.png"],
                          ids=lambda p: str(p.relative_to(EXT)))
 def test_icons_are_128px_png(path):
