@@ -193,6 +193,18 @@ def test_vtk_polydata(ready: rc.Session) -> None:
         until_version(w, v)
         same = rc.to_vtk_polydata(r1, pd)
         assert same is pd and pd.GetPoint(0) == pytest.approx(tuple(r1.positions[0].tolist()))
+        # Rows only (a delta that did not rebuild the surface): the same VTK arrays, new values.
+        points, classes = pd.GetPoints().GetData(), data.GetArray("margin_class")
+        v = s.translate("r1", (0.0, 0.0, -2.0)).plan_version
+        update = until_version(w, v)[-1]
+        assert "r1" in update.changed and "r1" not in update.rebuilt
+        assert rc.to_vtk_polydata(r1, pd, rebuild=False) is pd
+        assert pd.GetPoints().GetData() is points and data.GetArray("margin_class") is classes
+        assert pd.GetPoint(0) == pytest.approx(tuple(r1.positions[0].tolist()))
+        # A shape that does not fit is rebuilt even when asked for rows only.
+        empty = rc.to_vtk_polydata(r1)
+        empty.GetPointData().RemoveArray("margin_class")
+        assert rc.to_vtk_polydata(r1, empty, rebuild=False).GetPointData().GetArray("margin_class")
         liver = w.scene.to_vtk_polydata("parenchyma")
         assert liver.GetPointData().GetScalars() is None and liver.GetNumberOfPolys() > 0
 
