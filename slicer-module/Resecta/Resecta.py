@@ -14,7 +14,7 @@ import qt
 import vtk
 
 import slicer
-from slicer import vtkMRMLMarkupsFiducialNode, vtkMRMLSegmentationNode
+from slicer import vtkMRMLMarkupsFiducialNode, vtkMRMLSegmentationNode, vtkSegmentation
 from slicer.i18n import tr as _
 from slicer.i18n import translate
 from slicer.parameterNodeWrapper import Choice, WithinRange, parameterNodeWrapper
@@ -27,12 +27,18 @@ from slicer.ScriptedLoadableModule import (
 from slicer.util import VTKObservationMixin
 
 from ResectaLib import deps, margin, segmentation, volumetry
+from ResectaLib.edits import GROUPS
+from ResectaLib.logic import PlanningLogic
 
 SETTINGS_ADDRESS = "Resecta/ServerAddress"
 SETTINGS_TOKEN = "Resecta/Token"
 SETTINGS_TLS = "Resecta/UseTls"
 SETTINGS_CA_FILE = "Resecta/CaFile"
 DEFAULT_ADDRESS = "127.0.0.1:50051"
+#: Markups lists made by "Place" carry it; the end-point selector lists only them.
+END_POINT_ATTRIBUTE = "Resecta.EndPoint"
+SEGMENT_EVENTS = (vtkSegmentation.SegmentAdded, vtkSegmentation.SegmentRemoved,
+                  vtkSegmentation.SegmentModified)
 
 
 #
@@ -51,8 +57,10 @@ class Resecta(ScriptedLoadableModule):
         self.parent.contributors = ["resecta project"]
         self.parent.helpText = _(
             "Plan liver resections with a deformable Bézier surface and live safety margins, "
-            "computed by a resecta planning server (after R. Palomar, NTNU 2018). "
-            "See the module's README for the workflow.")
+            "computed by a resecta planning server (after R. Palomar, NTNU 2018). Requires 3D "
+            "Slicer 5.10 or newer. The first Connect asks to install grpcio, protobuf and numpy "
+            "(version ranges; packages other extensions share are never downgraded); the resecta "
+            "client ships with the extension. See the module's README for the workflow.")
         self.parent.acknowledgementText = _(
             "The method follows R. Palomar's thesis (NTNU 2018, Papers I–III); the colours of "
             "the margin display follow the thesis and the Slicer-Liver extension.")
@@ -83,7 +91,9 @@ class ResectaParameterNode:
 
 
 class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
-    """Wires the UI of Resources/UI/Resecta.ui to the Logic; holds no planning state."""
+    """Wires the UI of Resources/UI/Resecta.ui to the Logic; holds no planning state. What it
+    takes on `setup` or `enter` (timers, scene observers, shortcuts, the parameter node's GUI
+    connection) it gives back on `exit` and `cleanup` (a reload calls `cleanup`)."""
 
     def __init__(self, parent=None) -> None:
         ScriptedLoadableModuleWidget.__init__(self, parent)
@@ -92,8 +102,11 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._parameterNode = None
         self._parameterNodeGuiTag = None
         self._shortcuts = []
+        self._lentShortcuts = []
         self._pollTimer = None
         self._editTimer = None
+        self._observedSegmentation = None
+        self._unsupported = None
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -101,12 +114,18 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.layout.addWidget(uiWidget)
         self.ui = slicer.util.childWidgetVariables(uiWidget)
         uiWidget.setMRMLScene(slicer.mrmlScene)
+        try:
+            deps.check_slicer_version(slicer.app.applicationVersion)
+            self._unsupported = None
+        except deps.UnsupportedSlicer as exc:
+            self._unsupported = str(exc)
 
         self.logic = ResectaLogic()
-        self.logic.setCallbacks(
+        self.logic.set_callbacks(
             status=self._showStatus, error=self._showError, progress=self._showProgress,
-            models=self._refreshTumours, resections=self._refreshResections,
-            volumes=self._showVolumes, margin=self._showMargin)
+            model_built=self._showModelBuilt, models=self._refreshTumours,
+            resections=self._refreshResections, volumes=self._showVolumes,
+            margin=self._showMargin, session=self._sessionChanged)
 
         # Main-thread delivery of worker results (network calls never run on this thread).
         self._pollTimer = qt.QTimer()
@@ -135,6 +154,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self.ui.exportFormatComboBox.addItem(fmt)
         self.ui.roleTable.horizontalHeader().setStretchLastSection(True)
         self.ui.volumeTable.horizontalHeader().setStretchLastSection(True)
+        # Only this module's end-point lists, never the control grids (also markups lists).
+        self.ui.endPointSelector.addAttribute("vtkMRMLMarkupsFiducialNode", END_POINT_ATTRIBUTE, "1")
 
         self.addObserver(slicer.mrmlScene, slicer.mrmlScene.StartCloseEvent, self.onSceneStartClose)
         self.addObserver(slicer.mrmlScene, slicer.mrmlScene.EndCloseEvent, self.onSceneEndClose)
@@ -150,8 +171,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.tumorComboBox.connect("currentIndexChanged(int)", self.onPreview)
         self.ui.newResectionButton.connect("clicked(bool)", self.onNewResection)
         self.ui.resectionComboBox.connect("currentIndexChanged(int)", self.onResectionSelected)
-        self.ui.marginSpinBox.connect("valueChanged(double)", lambda _v: self._editTimer.start())
-        self.ui.bandSpinBox.connect("valueChanged(double)", lambda _v: self._editTimer.start())
+        self.ui.marginSpinBox.connect("valueChanged(double)", self.onMarginBandChanged)
+        self.ui.bandSpinBox.connect("valueChanged(double)", self.onMarginBandChanged)
         self.ui.marginIndicatorButton.connect("clicked(bool)", self.onJumpToWorst)
         self.ui.moveGroupButton.connect("clicked(bool)", self.onMoveGroup)
         self.ui.translateButton.connect("clicked(bool)", self.onTranslate)
@@ -167,22 +188,38 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._updateButtons()
 
     def cleanup(self) -> None:
+        """The panel goes away (application exit or module reload): give everything back."""
+        self._releaseShortcuts()
         self.removeObservers()
-        if self._pollTimer:
-            self._pollTimer.stop()
+        self._observedSegmentation = None
+        for timer in (self._pollTimer, self._editTimer):
+            if timer is not None:
+                timer.stop()
+                timer.disconnect("timeout()")
+        self._pollTimer = self._editTimer = None
+        self.setParameterNode(None)
         if self.logic:
             self.logic.close()
 
     def enter(self) -> None:
         self.initializeParameterNode()
-        # While the panel is shown, Ctrl+Z / Ctrl+Y undo and redo plan edits. Slicer's own
-        # actions with the same keys (scene undo) lend them to us until exit(), otherwise Qt
-        # would find the shortcut ambiguous and fire neither.
+        self._takeShortcuts()
+
+    def exit(self) -> None:
+        self._releaseShortcuts()
+        self.setParameterNode(None)
+
+    def _takeShortcuts(self) -> None:
+        """While the panel is shown, Ctrl+Z / Ctrl+Y undo and redo plan edits. Slicer's own
+        actions with the same keys (scene undo) lend them to us until `exit`/`cleanup`,
+        otherwise Qt would find the shortcut ambiguous and fire neither."""
+        self._releaseShortcuts()
         mainWindow = slicer.util.mainWindow()
-        self._lentShortcuts = []
+        if mainWindow is None:
+            return
         for keys, slot in (("Ctrl+Z", self.onUndo), ("Ctrl+Y", self.onRedo)):
             sequence = qt.QKeySequence(keys)
-            for action in mainWindow.findChildren(qt.QAction) if mainWindow else []:
+            for action in mainWindow.findChildren(qt.QAction):
                 if action.shortcut == sequence:
                     self._lentShortcuts.append((action, action.shortcut))
                     action.shortcut = qt.QKeySequence()
@@ -190,25 +227,24 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             shortcut.connect("activated()", slot)
             self._shortcuts.append(shortcut)
 
-    def exit(self) -> None:
+    def _releaseShortcuts(self) -> None:
         for shortcut in self._shortcuts:
             shortcut.disconnect("activated()")
             shortcut.setParent(None)
         self._shortcuts = []
-        for action, sequence in getattr(self, "_lentShortcuts", []):
+        for action, sequence in self._lentShortcuts:
             action.shortcut = sequence
         self._lentShortcuts = []
-        if self._parameterNode:
-            self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
-            self._parameterNodeGuiTag = None
 
     def onSceneStartClose(self, caller, event) -> None:
         self.setParameterNode(None)
-        self.logic.close()
+        self._observeSegmentation(None)
+        self.logic.forget_session()
 
     def onSceneEndClose(self, caller, event) -> None:
         if self.parent.isEntered:
             self.initializeParameterNode()
+        self._updateButtons()
 
     def initializeParameterNode(self) -> None:
         self.setParameterNode(self.logic.getParameterNode())
@@ -218,8 +254,9 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                 self._parameterNode.segmentation = node
 
     def setParameterNode(self, inputParameterNode: Optional[ResectaParameterNode]) -> None:
-        if self._parameterNode:
+        if self._parameterNode and self._parameterNodeGuiTag is not None:
             self._parameterNode.disconnectGui(self._parameterNodeGuiTag)
+        self._parameterNodeGuiTag = None
         self._parameterNode = inputParameterNode
         if self._parameterNode:
             self._parameterNodeGuiTag = self._parameterNode.connectGui(self.ui)
@@ -228,25 +265,27 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
     # --- connection ---------------------------------------------------------------------------
 
     def onConnect(self) -> None:
-        if not deps.ensure_installed(self._confirmInstall):
-            self._showStatus(_("The Python packages resecta needs are not installed."))
-            return
         address = self.ui.serverAddressLineEdit.text.strip() or DEFAULT_ADDRESS
         token = self.ui.tokenLineEdit.text.strip()
         tls = self.ui.tlsCheckBox.checked
         caFile = self.ui.caFilePathLineEdit.currentPath
-        settings = qt.QSettings()
-        settings.setValue(SETTINGS_ADDRESS, address)
-        settings.setValue(SETTINGS_TOKEN, token)
-        settings.setValue(SETTINGS_TLS, "true" if tls else "false")
-        settings.setValue(SETTINGS_CA_FILE, caFile)
         with slicer.util.tryWithErrorDisplay(_("Could not connect."), waitCursor=True):
-            self.logic.connect(address, token or None, tls, caFile or None,
-                               onDone=lambda info: self._connected(info))
+            deps.check_slicer_version(slicer.app.applicationVersion)
+            if not deps.ensure_installed(self._confirmInstall):
+                self._showStatus(_("The Python packages resecta needs are not installed."))
+                return
+            settings = qt.QSettings()
+            settings.setValue(SETTINGS_ADDRESS, address)
+            settings.setValue(SETTINGS_TOKEN, token)
+            settings.setValue(SETTINGS_TLS, "true" if tls else "false")
+            settings.setValue(SETTINGS_CA_FILE, caFile)
+            self.ui.connectionStatusLabel.text = _("Connecting to {address}…").format(address=address)
+            self.logic.connect(address, token or None, tls, caFile or None, on_done=self._connected)
 
     def _confirmInstall(self, packages) -> bool:
         return slicer.util.confirmOkCancelDisplay(
-            _("Resecta needs these Python packages, which will be installed now with pip:\n\n")
+            _("Resecta needs these Python packages, which will be installed or upgraded with "
+              "pip:\n\n")
             + "\n".join(packages), windowTitle=_("Resecta: install dependencies"))
 
     def _connected(self, info) -> None:
@@ -255,19 +294,45 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         # A scene saved with a plan remembers its server session: follow it again.
         sessionId = self._parameterNode.sessionId if self._parameterNode else ""
         if sessionId:
-            self.logic.openSession(sessionId, onDone=lambda _s: self._updateButtons())
+            self.logic.open_session(sessionId)
+        self._updateButtons()
+
+    def _sessionChanged(self) -> None:
+        if self._parameterNode and self.logic.session_id:
+            self._parameterNode.sessionId = self.logic.session_id
+        self._refreshTumours()
+        self._refreshResections()
         self._updateButtons()
 
     # --- patient ------------------------------------------------------------------------------
 
+    def _observeSegmentation(self, node) -> None:
+        if self._observedSegmentation is not None:
+            for event in SEGMENT_EVENTS:
+                self.removeObserver(self._observedSegmentation, event, self.onSegmentsChanged)
+        self._observedSegmentation = node
+        if node is not None:
+            for event in SEGMENT_EVENTS:
+                self.addObserver(node, event, self.onSegmentsChanged)
+
     def onSegmentationChanged(self, node) -> None:
+        if node is not self._observedSegmentation:
+            self._observeSegmentation(node)
+        self._fillRoleTable(node)
+        self._updateButtons()
+
+    def onSegmentsChanged(self, caller=None, event=None) -> None:
+        """A segment was added, removed or renamed: the table follows, keeping chosen roles."""
+        self._fillRoleTable(self._observedSegmentation, keep=self._roleTableFromUi())
+
+    def _fillRoleTable(self, node, keep=None) -> None:
         table = self.ui.roleTable
         table.setRowCount(0)
         if node is None:
             return
-        roles = self.logic.roleTable(node)
-        table.setRowCount(len(roles))
-        for row, (segmentId, name, role) in enumerate(roles):
+        rows = self.logic.role_table(node, keep or {})
+        table.setRowCount(len(rows))
+        for row, (segmentId, name, role) in enumerate(rows):
             item = qt.QTableWidgetItem(name)
             item.setData(qt.Qt.UserRole, segmentId)
             item.setFlags(qt.Qt.ItemIsEnabled)
@@ -285,30 +350,24 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
     def onBuildModels(self) -> None:
         p = self._parameterNode
         with slicer.util.tryWithErrorDisplay(_("Could not build the models."), waitCursor=True):
+            self.logic.upload_and_build(p.segmentation, self._roleTableFromUi(), p.method,
+                                        on_done=self._buildFinished)
             self.ui.buildProgressBar.value = 0
-            self.ui.cancelBuildButton.enabled = True
-            self.ui.buildModelsButton.enabled = False
-            self.logic.buildModels(p.segmentation, self._roleTableFromUi(), p.method,
-                                   onDone=self._buildDone)
-
-    def _buildDone(self, _models) -> None:
-        self._parameterNode.sessionId = self.logic.sessionId or ""
-        self._buildFinished()
+            self.ui.buildProgressBar.format = _("uploading %p%")
+            self._updateButtons()
 
     def _buildFinished(self, _result=None) -> None:
-        self.ui.cancelBuildButton.enabled = False
-        self.ui.buildModelsButton.enabled = True
         self._updateButtons()
 
     def onCancelBuild(self) -> None:
-        self.logic.cancelBuild()
-        self._buildFinished()
+        self.logic.cancel_build()
+        self._showStatus(_("Cancelling the reconstruction…"))
 
     def onOpacity(self, value) -> None:
-        self.logic.setOpacity(("parenchyma",), value)
+        self.logic.set_opacity(("parenchyma",), value)
 
     def onResectionOpacity(self, value) -> None:
-        self.logic.setOpacity(("resection",), value)
+        self.logic.set_opacity(("resection",), value)
 
     # --- resection ----------------------------------------------------------------------------
 
@@ -316,11 +375,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         if not checked:
             slicer.app.applicationLogic().GetInteractionNode().SwitchToViewTransformMode()
             return
-        node = self._parameterNode.endPoint
-        if node is None:
-            node = slicer.mrmlScene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", _("Resecta end point"))
-            node.SetMaximumNumberOfControlPoints(1)
-            self._parameterNode.endPoint = node
+        node = self.logic.end_point_node(self._parameterNode.endPoint, _("Resecta end point"))
+        self._parameterNode.endPoint = node
         node.RemoveAllControlPoints()
         slicer.modules.markups.logic().SetActiveList(node)
         slicer.modules.markups.logic().StartPlaceMode(False)
@@ -334,18 +390,13 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
     def _endPoint(self):
         node = self._parameterNode.endPoint if self._parameterNode else None
-        if node is None or node.GetNumberOfDefinedControlPoints() < 1:
-            return None
-        p = [0.0, 0.0, 0.0]
-        node.GetNthControlPointPositionWorld(0, p)
-        return p
+        return self.logic.end_point(node)
 
     def onPreview(self, *args) -> None:
         endPoint = self._endPoint()
         if endPoint is not None:
             self.ui.placeEndPointButton.checked = False
-        tumour = self.ui.tumorComboBox.currentText
-        self.logic.preview(tumour, endPoint)
+        self.logic.preview(self.ui.tumorComboBox.currentText, endPoint)
         self._updateButtons()
 
     def onNewResection(self) -> None:
@@ -354,61 +405,74 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             if endPoint is None:
                 raise ValueError(_("Place the end point first."))
             name = self.ui.resectionNameLineEdit.text.strip() or "r1"
-            self.logic.newResection(name, self.ui.tumorComboBox.currentText, endPoint,
-                                    marginMm=self._parameterNode.marginMm,
-                                    bandMm=self._parameterNode.bandMm)
+            self.logic.new_resection(name, self.ui.tumorComboBox.currentText, endPoint,
+                                     margin_mm=self._parameterNode.marginMm,
+                                     band_mm=self._parameterNode.bandMm)
             self.logic.preview(None, None)
 
     def _currentResection(self) -> str:
         return self.ui.resectionComboBox.currentText
 
     def onResectionSelected(self, _index=None) -> None:
-        params = self.logic.resectionParameters(self._currentResection())
+        params = self.logic.resection(self._currentResection())
         if params is not None and self._parameterNode:
             self._parameterNode.marginMm = params.margin_mm
             self._parameterNode.bandMm = params.band_mm
             self._editTimer.stop()  # the values came from the server: nothing to send
         self._updateButtons()
 
+    def onMarginBandChanged(self, _value=None) -> None:
+        self._editTimer.start()
+
     def onMarginBandSettled(self) -> None:
         name = self._currentResection()
-        if not name:
+        if not name or not self.logic.has_session:
             return
         with slicer.util.tryWithErrorDisplay(_("Could not change the margin.")):
-            self.logic.setMarginAndBand(name, self._parameterNode.marginMm, self._parameterNode.bandMm)
+            self.logic.edits.set_margin_and_band(name, self._parameterNode.marginMm,
+                                                 self._parameterNode.bandMm)
 
     def _delta(self):
         return [float(x) for x in self.ui.deltaCoordinates.coordinates.split(",")]
 
     def onMoveGroup(self) -> None:
-        group = ("inner", "outer", "all")[self.ui.groupComboBox.currentIndex]
+        group = GROUPS[self.ui.groupComboBox.currentIndex]
         with slicer.util.tryWithErrorDisplay(_("Could not move the group.")):
-            self.logic.moveGroup(self._currentResection(), group, self._delta())
+            self.logic.edits.move_group(self._currentResection(), group, self._delta())
 
     def onTranslate(self) -> None:
         with slicer.util.tryWithErrorDisplay(_("Could not translate.")):
-            self.logic.translate(self._currentResection(), self._delta())
+            self.logic.edits.translate(self._currentResection(), self._delta())
 
     def onRotate(self) -> None:
         axis = ("R", "A", "S", "normal")[self.ui.rotateAxisComboBox.currentIndex]
         with slicer.util.tryWithErrorDisplay(_("Could not rotate.")):
-            self.logic.rotate(self._currentResection(), axis, self.ui.rotateAngleSpinBox.value)
+            self.logic.edits.rotate(self._currentResection(), axis, self.ui.rotateAngleSpinBox.value)
 
     def onUndo(self) -> None:
-        with slicer.util.tryWithErrorDisplay(_("Nothing to undo.")):
-            self.logic.undo()
+        # Also reached by Ctrl+Z: without a plan there is nothing to undo, and nothing to say
+        # in a dialog.
+        if not self.logic.has_session:
+            self._showStatus(_("Nothing to undo: no plan yet."))
+            return
+        with slicer.util.tryWithErrorDisplay(_("Could not undo.")):
+            self.logic.edits.undo()
 
     def onRedo(self) -> None:
-        with slicer.util.tryWithErrorDisplay(_("Nothing to redo.")):
-            self.logic.redo()
+        if not self.logic.has_session:
+            self._showStatus(_("Nothing to redo: no plan yet."))
+            return
+        with slicer.util.tryWithErrorDisplay(_("Could not redo.")):
+            self.logic.edits.redo()
 
     def onDeleteResection(self) -> None:
         name = self._currentResection()
         if name and slicer.util.confirmYesNoDisplay(_("Delete resection {name}?").format(name=name)):
-            self.logic.deleteResection(name)
+            with slicer.util.tryWithErrorDisplay(_("Could not delete the resection.")):
+                self.logic.edits.delete(name)
 
     def onJumpToWorst(self) -> None:
-        self.logic.jumpToWorstPoint()
+        self.logic.jump_to_worst_point()
 
     # --- plan ---------------------------------------------------------------------------------
 
@@ -416,19 +480,19 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         path = qt.QFileDialog.getSaveFileName(None, _("Save plan"), "plan.json", _("Plan (*.json)"))
         if path:
             with slicer.util.tryWithErrorDisplay(_("Could not save the plan.")):
-                self.logic.savePlan(path)
+                self.logic.save_plan(path)
 
     def onLoadPlan(self) -> None:
         path = qt.QFileDialog.getOpenFileName(None, _("Load plan"), "", _("Plan (*.json)"))
         if path:
             with slicer.util.tryWithErrorDisplay(_("Could not load the plan.")):
-                self.logic.loadPlan(path)
+                self.logic.load_plan(path)
 
     def onExportModels(self) -> None:
         folder = qt.QFileDialog.getExistingDirectory(None, _("Export resection models to"))
         if folder:
             with slicer.util.tryWithErrorDisplay(_("Could not export the models.")):
-                self.logic.exportResections(folder, self.ui.exportFormatComboBox.currentText)
+                self.logic.export_resections(folder, self.ui.exportFormatComboBox.currentText)
 
     # --- what the Logic reports ---------------------------------------------------------------
 
@@ -438,20 +502,27 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
     def _showError(self, exc: Exception) -> None:
         logging.error("Resecta: %s", exc)
         self.ui.statusLabel.text = _("Error: {error}").format(error=exc)
-        self._buildFinished()
+        if not self.logic.connected:
+            self.ui.connectionStatusLabel.text = _("Not connected")
+        self._updateButtons()
 
     def _showProgress(self, fraction: float, stage: str) -> None:
         self.ui.buildProgressBar.value = int(round(100 * fraction))
         self.ui.buildProgressBar.format = f"{stage} %p%"
 
+    def _showModelBuilt(self, info) -> None:
+        self._showStatus(_("Built {name} ({count} models so far)").format(
+            name=info.name, count=len(self.logic.model_infos)))
+
     def _refreshTumours(self) -> None:
-        current = self.ui.tumorComboBox.currentText
-        self.ui.tumorComboBox.clear()
+        combo = self.ui.tumorComboBox
+        current = combo.currentText
+        combo.clear()
         for name in self.logic.tumours():
-            self.ui.tumorComboBox.addItem(name)
-        index = self.ui.tumorComboBox.findText(current)
+            combo.addItem(name)
+        index = combo.findText(current)
         if index >= 0:
-            self.ui.tumorComboBox.setCurrentIndex(index)
+            combo.setCurrentIndex(index)
         self._updateButtons()
 
     def _refreshResections(self) -> None:
@@ -459,7 +530,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         combo = self.ui.resectionComboBox
         wasBlocked = combo.blockSignals(True)
         combo.clear()
-        for name in self.logic.resectionNames():
+        for name in self.logic.resection_names():
             combo.addItem(name)
         index = combo.findText(current)
         combo.setCurrentIndex(index if index >= 0 else combo.count - 1)
@@ -486,16 +557,25 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
     def _updateButtons(self) -> None:
         connected = self.logic.connected
-        ready = self.logic.modelsReady
+        building = self.logic.building
+        ready = self.logic.models_ready
+        hasSession = self.logic.has_session
         hasResection = bool(self._currentResection())
-        self.ui.buildModelsButton.enabled = connected and self.ui.segmentationSelector.currentNode() is not None
+        if self._unsupported:
+            self.ui.connectionStatusLabel.text = self._unsupported
+        elif not connected:
+            self.ui.connectionStatusLabel.text = _("Not connected")
+        self.ui.connectButton.enabled = not self._unsupported
+        self.ui.buildModelsButton.enabled = (connected and not building
+                                             and self.ui.segmentationSelector.currentNode() is not None)
+        self.ui.cancelBuildButton.enabled = building
         self.ui.newResectionButton.enabled = ready and self.ui.tumorComboBox.count > 0
         for button in (self.ui.moveGroupButton, self.ui.translateButton, self.ui.rotateButton,
                        self.ui.deleteResectionButton, self.ui.exportModelsButton):
-            button.enabled = hasResection
+            button.enabled = hasSession and hasResection
         for button in (self.ui.undoButton, self.ui.redoButton, self.ui.savePlanButton,
                        self.ui.loadPlanButton):
-            button.enabled = ready
+            button.enabled = hasSession and ready
 
 
 #
@@ -503,126 +583,48 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 #
 
 
-class ResectaLogic(ScriptedLoadableModuleLogic):
-    """The module's Logic: no dialogs, runs without a GUI. Planning work is delegated to
-    `ResectaLib.session.PlanningSession` (server calls on worker threads, scene updates on the
-    main thread by `poll()`)."""
+class ResectaLogic(ScriptedLoadableModuleLogic, PlanningLogic):
+    """The module's Logic: no dialogs, runs without a GUI. The work is `ResectaLib.logic.
+    PlanningLogic`'s (server calls on a worker thread, scene updates on the main thread by
+    `poll()`); this class adds Slicer's parameter node, the end-point markups and the jump to
+    the closest point."""
 
     def __init__(self) -> None:
         ScriptedLoadableModuleLogic.__init__(self)
-        self._session = None
-        self._callbacks = {}
+        from ResectaLib.dispatch import ThreadDispatcher
+
+        PlanningLogic.__init__(self, slicer.mrmlScene, ThreadDispatcher())
 
     def getParameterNode(self):
         return ResectaParameterNode(super().getParameterNode())
 
-    def setCallbacks(self, **callbacks) -> None:
-        self._callbacks = callbacks
-        if self._session is not None:
-            self._session.set_callbacks(**callbacks)
-
-    @property
-    def session(self):
-        if self._session is None:
-            from ResectaLib.dispatch import ThreadDispatcher
-            from ResectaLib.session import PlanningSession
-
-            self._session = PlanningSession(slicer.mrmlScene, ThreadDispatcher())
-            self._session.set_callbacks(**self._callbacks)
-        return self._session
-
-    @property
-    def connected(self) -> bool:
-        return self._session is not None and self._session.connected
-
-    @property
-    def modelsReady(self) -> bool:
-        return self._session is not None and self._session.models_ready
-
-    def poll(self) -> None:
-        if self._session is not None:
-            self._session.poll()
-
-    def close(self) -> None:
-        if self._session is not None:
-            self._session.close()
-            self._session = None
-
-    def connect(self, address, token=None, tls=False, caFile=None, onDone=None):
-        self.session.connect(address, token=token, tls=tls, ca_file=caFile, on_done=onDone)
-
-    @property
-    def sessionId(self):
-        return self._session.session_id if self._session is not None else None
-
-    def openSession(self, sessionId, onDone=None):
-        self.session.open_session(sessionId, on_done=onDone)
-
-    def roleTable(self, segmentationNode):
+    def role_table(self, segmentationNode, keep=None):
+        """(segment id, name, role) rows: `keep`'s role where given, else a guess by name."""
         guesses = segmentation.default_role_table(segmentationNode)
-        return [(sid, name, guesses[sid]) for sid, name in segmentation.segments_of(segmentationNode)]
+        keep = keep or {}
+        return [(sid, name, keep.get(sid, guesses[sid]))
+                for sid, name in segmentation.segments_of(segmentationNode)]
 
-    def buildModels(self, segmentationNode, roleTable, method="psr", onDone=None):
-        if segmentationNode is None:
-            raise ValueError(_("Select a segmentation first."))
-        self.session.upload_and_build(segmentationNode, roleTable, method=method, on_done=onDone)
+    def end_point_node(self, node, name):
+        """`node` when it is an end-point list, else a new one (never a control grid)."""
+        if node is None or node.GetAttribute(END_POINT_ATTRIBUTE) != "1":
+            node = slicer.mrmlScene.AddNewNodeByClass("vtkMRMLMarkupsFiducialNode", name)
+            node.SetAttribute(END_POINT_ATTRIBUTE, "1")
+            node.SetMaximumNumberOfControlPoints(1)
+        return node
 
-    def cancelBuild(self) -> None:
-        if self._session is not None:
-            self._session.cancel_build()
+    @staticmethod
+    def end_point(node):
+        """The end point's RAS position, or None when `node` has no defined point."""
+        if node is None or node.GetAttribute(END_POINT_ATTRIBUTE) != "1" \
+                or node.GetNumberOfDefinedControlPoints() < 1:
+            return None
+        p = [0.0, 0.0, 0.0]
+        node.GetNthControlPointPositionWorld(0, p)
+        return p
 
-    def setOpacity(self, kinds, value) -> None:
-        if self._session is not None:
-            self._session.set_opacity(kinds, value)
-
-    def tumours(self):
-        return self.session.tumours()
-
-    def resectionNames(self):
-        return self.session.resection_names()
-
-    def resectionParameters(self, name):
-        return self.session.resection(name) if name and self._session is not None else None
-
-    def preview(self, tumour, endPoint):
-        if self._session is not None:
-            self._session.preview(tumour, endPoint)
-
-    def newResection(self, name, tumour, endPoint, marginMm=None, bandMm=None):
-        self.session.new_resection(name, tumour, endPoint, margin_mm=marginMm, band_mm=bandMm)
-
-    def setMarginAndBand(self, name, marginMm, bandMm):
-        self.session.set_margin_and_band(name, marginMm, bandMm)
-
-    def moveGroup(self, name, group, delta):
-        self.session.move_group(name, group, delta)
-
-    def translate(self, name, delta):
-        self.session.translate(name, delta)
-
-    def rotate(self, name, axis, angleDeg):
-        self.session.rotate(name, axis, angleDeg)
-
-    def undo(self):
-        self.session.undo()
-
-    def redo(self):
-        self.session.redo()
-
-    def deleteResection(self, name):
-        self.session.delete_resection(name)
-
-    def savePlan(self, path):
-        self.session.save_plan(path)
-
-    def loadPlan(self, path):
-        self.session.load_plan(path)
-
-    def exportResections(self, folder, fmt="vtp"):
-        self.session.export_resections(folder, fmt)
-
-    def jumpToWorstPoint(self) -> None:
-        state = self.session.margin_state
+    def jump_to_worst_point(self) -> None:
+        state = self.margin_state
         if state.point is None:
             return
         x, y, z = state.point
@@ -638,8 +640,8 @@ class ResectaLogic(ScriptedLoadableModuleLogic):
 
 class ResectaTest(ScriptedLoadableModuleTest):
     """The self-test: the scenario of `ResectaLib.selftest` (also run by the pytest suite)
-    against the server whose address is in the module's settings (`resecta serve` on
-    127.0.0.1:50051 by default)."""
+    against a `resecta serve` it starts on loopback (the program from the setting
+    `Resecta/ServerBinary`, `$RESECTA_BIN` or PATH); without one it reports that it skipped."""
 
     def setUp(self):
         slicer.mrmlScene.Clear()
@@ -649,17 +651,25 @@ class ResectaTest(ScriptedLoadableModuleTest):
         self.test_Scenario()
 
     def test_Scenario(self):
+        from ResectaLib import localserver
+
         self.delayDisplay("Starting the Resecta scenario")
+        binary = localserver.find_binary(qt.QSettings().value(localserver.SETTING_BINARY, ""))
+        if binary is None:
+            self.delayDisplay("Resecta self-test skipped: " + localserver.NOT_FOUND)
+            return
+        try:
+            deps.check_slicer_version(slicer.app.applicationVersion)
+        except deps.UnsupportedSlicer as exc:
+            self.delayDisplay(f"Resecta self-test skipped: {exc}")
+            return
         if not deps.ensure_installed(lambda packages: slicer.util.confirmOkCancelDisplay(
                 _("The self-test needs: ") + ", ".join(packages))):
-            self.delayDisplay("Dependencies not installed: test skipped")
+            self.delayDisplay("Resecta self-test skipped: dependencies not installed")
             return
         from ResectaLib import phantom, selftest
         from ResectaLib.dispatch import ThreadDispatcher
 
-        settings = qt.QSettings()
-        address = settings.value(SETTINGS_ADDRESS, DEFAULT_ADDRESS)
-        token = settings.value(SETTINGS_TOKEN, "") or None
         dispatcher = ThreadDispatcher()
 
         def wait(predicate, timeout=120.0):
@@ -678,6 +688,7 @@ class ResectaTest(ScriptedLoadableModuleTest):
 
         labels, ijkToRas, names, truth = phantom.make()
         segNode = segmentation.segmentation_from_labelmap_array(slicer.mrmlScene, labels, ijkToRas, names)
-        report = selftest.run(slicer.mrmlScene, segNode, truth, dispatcher, wait,
-                              address=address, token=token, log=self.delayDisplay)
+        with localserver.LocalServer(binary) as server:
+            report = selftest.run(slicer.mrmlScene, segNode, truth, dispatcher, wait,
+                                  address=server.grpc, log=self.delayDisplay)
         self.delayDisplay("Resecta scenario passed: " + report)

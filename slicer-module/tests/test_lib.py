@@ -111,25 +111,37 @@ def _grid_mesh(n=5, z=0.0):
     return pos, np.array(tri, dtype=np.uint32)
 
 
+def _surface(name, kind, pos, tri, normals=None, margins=None, classes=None):
+    from resecta_client import SurfaceState
+
+    return SurfaceState(name, kind, 0, None, pos, normals, tri, margins, classes)
+
+
 def test_models_are_updated_in_place_and_rebuilt_on_new_topology(scene):
     up = models.ModelUpdater(scene, "s1")
     pos, tri = _grid_mesh()
     normals = np.tile([0, 0, 1], (len(pos), 1)).astype(np.float32)
     marg = np.linspace(0, 20, len(pos)).astype(np.float32)
     cls = np.ones(len(pos), np.uint8)
-    node = up.upsert("r1", "resection", pos, tri, normals=normals, margins=marg, classes=cls)
+    node = up.upsert(_surface("r1", "resection", pos, tri, normals, marg, cls))
     poly = node.GetPolyData()
     margins_array = poly.GetPointData().GetArray(models.MARGIN_ARRAY)
-    node2 = up.upsert("r1", "resection", pos + 1, tri, normals=normals, margins=marg + 1, classes=cls * 3)
+    points_array = poly.GetPoints().GetData()
+    # Rows only (not in the update's `rebuilt`): the same arrays, new values.
+    node2 = up.upsert(_surface("r1", "resection", pos + 1, tri, normals, marg + 1, cls * 3),
+                      rebuild=False)
     assert node2 is node and node.GetPolyData() is poly
     assert poly.GetPointData().GetArray(models.MARGIN_ARRAY) is margins_array
+    assert poly.GetPoints().GetData() is points_array
     got = models.polydata_arrays(node)
     assert np.allclose(got["positions"], pos + 1) and np.allclose(got[models.MARGIN_ARRAY], marg + 1)
     assert (got[models.CLASS_ARRAY] == 3).all()
     assert up.rebuilds["r1"] == 1 and up.updates["r1"] == 1
     pos3, tri3 = _grid_mesh(6)
-    node3 = up.upsert("r1", "resection", pos3, tri3)
-    assert node3 is node and node.GetPolyData() is not poly and up.rebuilds["r1"] == 2
+    # A new mesh: rebuilt in the same polydata object, even when asked for rows only.
+    node3 = up.upsert(_surface("r1", "resection", pos3, tri3), rebuild=False)
+    assert node3 is node and node.GetPolyData() is poly and up.rebuilds["r1"] == 2
+    assert poly.GetNumberOfPoints() == len(pos3) and poly.GetNumberOfPolys() == len(tri3)
     assert len(models.model_nodes(scene)) == 1
     display = node.GetDisplayNode()
     assert display.GetActiveScalarName() == models.CLASS_ARRAY and display.GetScalarVisibility()
@@ -140,7 +152,7 @@ def test_models_are_updated_in_place_and_rebuilt_on_new_topology(scene):
     assert rgba[0] > 0.8 and rgba[1] < 0.2  # violation is red
     table.GetColor(2, rgba)
     assert rgba[0] > 0.9 and rgba[1] > 0.8 and rgba[2] < 0.1  # warning is yellow
-    up.upsert("r2", "resection", pos, tri)
+    up.upsert(_surface("r2", "resection", pos, tri))
     assert scene.GetNumberOfNodesByClass("vtkMRMLColorTableNode") >= 1
     names = [scene.GetNthNodeByClass(i, "vtkMRMLColorTableNode").GetName()
              for i in range(scene.GetNumberOfNodesByClass("vtkMRMLColorTableNode"))]
@@ -151,8 +163,8 @@ def test_models_are_updated_in_place_and_rebuilt_on_new_topology(scene):
 def test_model_palette_and_opacity(scene):
     up = models.ModelUpdater(scene, "s1")
     pos, tri = _grid_mesh()
-    liver = up.upsert("parenchyma", "parenchyma", pos, tri)
-    tumour = up.upsert("tumor_1", models.kind_name(2), pos, tri)
+    liver = up.upsert(_surface("parenchyma", "parenchyma", pos, tri))
+    tumour = up.upsert(_surface("tumor_1", 2, pos, tri))
     assert tumour.GetAttribute(models.KIND_ATTRIBUTE) == "tumor"
     assert np.allclose(liver.GetDisplayNode().GetColor(), models.PALETTE["parenchyma"][0])
     assert liver.GetDisplayNode().GetVisibility2D()
@@ -162,7 +174,7 @@ def test_model_palette_and_opacity(scene):
     # another session's nodes are not touched
     other = models.ModelUpdater(scene, "s2")
     assert models.find_model(scene, "parenchyma", "s2") is None
-    assert other.upsert("parenchyma", "parenchyma", pos, tri) is not liver
+    assert other.upsert(_surface("parenchyma", "parenchyma", pos, tri)) is not liver
 
 
 # --- control grid -----------------------------------------------------------------------------

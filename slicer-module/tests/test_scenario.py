@@ -63,14 +63,14 @@ def test_build_progress_and_cancel(scene, dispatcher, planning_server, phantom):
     and keeps the session usable."""
     import threading
 
-    from ResectaLib.session import PlanningSession
+    from ResectaLib.logic import PlanningLogic
 
     _lm, seg = load_phantom_segmentation(scene, phantom)
     ids = [seg.GetSegmentation().GetNthSegmentID(i) for i in range(3)]
     roles = dict(zip(ids, ["parenchyma", "tumor", "portal"]))
     main = threading.get_ident()
     progress = []
-    s = PlanningSession(scene, dispatcher)
+    s = PlanningLogic(scene, dispatcher)
     s.set_callbacks(progress=lambda f, stage: progress.append((f, stage, threading.get_ident())))
     try:
         s.connect(planning_server.grpc_addr)
@@ -97,11 +97,11 @@ def test_wrong_token_is_reported(scene, dispatcher, tmp_path):
     from resecta_client import AuthError
     from conftest import Server
 
-    from ResectaLib.session import PlanningSession
+    from ResectaLib.logic import PlanningLogic
 
     server = Server("--token", "correct-horse-battery-staple")
     try:
-        s = PlanningSession(scene, dispatcher)
+        s = PlanningLogic(scene, dispatcher)
         errors = []
         s.set_callbacks(error=errors.append)
         s.connect(server.grpc_addr, "wrong")
@@ -117,15 +117,15 @@ def test_wrong_token_is_reported(scene, dispatcher, tmp_path):
 def test_edits_from_another_client_reach_the_scene(scene, dispatcher, planning_server, phantom):
     """A second client (a script, another Slicer) edits the session the module watches: the
     resection, its model and its control-grid markups appear and follow; reopening the session
-    in a new PlanningSession finds the same model nodes again (updated, not duplicated)."""
+    in a new PlanningLogic finds the same model nodes again (updated, not duplicated)."""
     from resecta_client import Client
 
     from ResectaLib import controlgrid, models
-    from ResectaLib.session import PlanningSession
+    from ResectaLib.logic import PlanningLogic
 
     _lm, seg = load_phantom_segmentation(scene, phantom)
     ids = [seg.GetSegmentation().GetNthSegmentID(i) for i in range(3)]
-    s = PlanningSession(scene, dispatcher)
+    s = PlanningLogic(scene, dispatcher)
     try:
         s.connect(planning_server.grpc_addr)
         dispatcher.wait_until(lambda: s.connected, 30)
@@ -150,13 +150,13 @@ def test_edits_from_another_client_reach_the_scene(scene, dispatcher, planning_s
     markups = scene.GetNumberOfNodesByClass("vtkMRMLMarkupsFiducialNode")
     sid = s.session_id
     s.close()
-    again = PlanningSession(scene, dispatcher.__class__())
+    again = PlanningLogic(scene, dispatcher.__class__())
     try:
         again.connect(planning_server.grpc_addr)
         again.dispatcher.wait_until(lambda: again.connected, 30)
         opened = []
         again.open_session(sid, on_done=opened.append)
-        again.dispatcher.wait_until(lambda: opened and again.applied_updates > 0, 30)
+        again.dispatcher.wait_until(lambda: opened and again.applier is not None and again.applier.flushes > 0, 30)
         assert sorted(n.GetID() for n in models.model_nodes(scene)) == node_ids
         assert scene.GetNumberOfNodesByClass("vtkMRMLMarkupsFiducialNode") == markups
         assert again.grids["scripted"] is grid

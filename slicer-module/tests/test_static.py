@@ -45,8 +45,8 @@ def test_ui_is_designer_xml_with_custom_widgets_declared():
     used = {w.get("class") for w in widgets.values()}
     qt = {c for c in used if c.startswith("Q")}
     assert used - qt <= declared, f"custom widgets not declared: {used - qt - declared}"
-    names = [w.get("name") for w in root.iter("widget")]
-    assert len(names) == len(set(names)), "duplicate widget names"
+    names = [w.get("name") for w in root.iter("widget")] + [w.get("name") for w in root.iter("layout")]
+    assert len(names) == len(set(names)), "duplicate widget or layout names"
 
 
 def test_every_widget_the_module_uses_is_in_the_ui():
@@ -79,7 +79,7 @@ def test_module_follows_the_scripted_module_template():
     bases = {name: [ast.unparse(b) for b in c.bases] for name, c in classes.items()}
     assert bases["Resecta"] == ["ScriptedLoadableModule"]
     assert "ScriptedLoadableModuleWidget" in bases["ResectaWidget"]
-    assert bases["ResectaLogic"] == ["ScriptedLoadableModuleLogic"]
+    assert bases["ResectaLogic"][0] == "ScriptedLoadableModuleLogic"
     assert bases["ResectaTest"] == ["ScriptedLoadableModuleTest"]
     decorators = [ast.unparse(d) for d in classes["ResectaParameterNode"].decorator_list]
     assert decorators == ["parameterNodeWrapper"]
@@ -154,19 +154,37 @@ def _attribute_uses(cls: ast.ClassDef, owner: str) -> set[str]:
     return out
 
 
-def test_widget_calls_only_what_the_logic_has_and_the_logic_only_what_the_session_has():
+def _instance_attributes(cls) -> set[str]:
+    """Members of `cls` and the attributes its `__init__` sets on `self`."""
+    import inspect
+
+    tree = ast.parse(inspect.getsource(cls.__init__).strip().replace("\n    ", "\n"))
+    assigned = {t.attr for node in ast.walk(tree) if isinstance(node, (ast.Assign, ast.AnnAssign))
+                for t in getattr(node, "targets", [getattr(node, "target", None)])
+                if isinstance(t, ast.Attribute)}
+    return set(dir(cls)) | assigned
+
+
+def test_widget_calls_only_what_the_logic_has():
+    """The Widget's `self.logic.x` and `self.logic.edits.y` exist (the Logic is ResectaLib's
+    PlanningLogic plus the methods ResectaLogic adds)."""
     import sys
 
     sys.path.insert(0, str(MODULE))
-    from ResectaLib.session import PlanningSession
+    from ResectaLib.edits import EditCommands
+    from ResectaLib.logic import PlanningLogic
 
     classes = {n.name: n for n in _module_ast().body if isinstance(n, ast.ClassDef)}
     logic = classes["ResectaLogic"]
-    logic_members = {n.name for n in logic.body if isinstance(n, ast.FunctionDef)}
-    logic_members |= {"getParameterNode"}  # ScriptedLoadableModuleLogic's, wrapped
-    missing = _attribute_uses(classes["ResectaWidget"], "logic") - logic_members
+    assert [ast.unparse(b) for b in logic.bases] == ["ScriptedLoadableModuleLogic", "PlanningLogic"]
+    members = {n.name for n in logic.body if isinstance(n, ast.FunctionDef)}
+    members |= _instance_attributes(PlanningLogic)
+    widget = classes["ResectaWidget"]
+    missing = _attribute_uses(widget, "logic") - members
     assert not missing, f"the Widget calls Logic members that do not exist: {sorted(missing)}"
-    session_members = set(dir(PlanningSession))
-    session_attrs = {"session", "margin_state", "dispatcher", "client"}  # set in __init__
-    missing = _attribute_uses(logic, "session") - session_members - session_attrs
-    assert not missing, f"the Logic calls PlanningSession members that do not exist: {sorted(missing)}"
+    edit_uses = {node.attr for node in ast.walk(widget)
+                 if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Attribute)
+                 and node.value.attr == "edits"}
+    assert edit_uses, "the Widget sends no edit through the Logic?"
+    missing = edit_uses - _instance_attributes(EditCommands)
+    assert not missing, f"the Widget calls edit commands that do not exist: {sorted(missing)}"

@@ -31,6 +31,11 @@ class EditCoalescer:
         return self._busy
 
     @property
+    def in_flight(self) -> Hashable | None:
+        """The key of the value on its way, or None."""
+        return self._in_flight
+
+    @property
     def pending(self) -> dict:
         return dict(self._pending)
 

@@ -1,11 +1,12 @@
 """Meshes from the server → model nodes, created once and then updated in place.
 
-The client hands us numpy arrays (positions (N, 3) float32 in RAS mm, normals (N, 3), triangles
-(T, 3) uint32, and for resections margins (N,) float32 mm and classes (N,) uint8). A model node is
-made the first time a name appears; later frames of the same name rewrite the arrays of the same
-`vtkPolyData` (same node, same polydata object, same point arrays when the vertex count holds), so
-views, slice intersections and anything observing the node keep working while the surface is
-dragged. Nodes carry the attribute `Resecta.Name` so they are found again after a scene reload.
+The client holds every watched surface as numpy arrays (`resecta_client.SurfaceState`) and
+builds VTK polydata from them (`resecta_client.to_vtk_polydata`, the one numpy → VTK builder).
+A model node is made the first time a name appears; later frames of the same name go into the
+same `vtkPolyData` (same node, same polydata object; the same point arrays when the Watch update
+changed rows only), so views, slice intersections and anything observing the node keep working
+while the surface is dragged. Nodes carry the attribute `Resecta.Name` so they are found again
+after a scene reload.
 """
 
 from __future__ import annotations
@@ -107,41 +108,6 @@ def model_nodes(scene, session_id: str | None = None) -> list:
     return out
 
 
-def _triangles_to_cells(triangles: np.ndarray) -> vtk.vtkCellArray:
-    tri = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
-    offsets = np.arange(0, 3 * len(tri) + 1, 3, dtype=np.int64)
-    cells = vtk.vtkCellArray()
-    cells.SetData(numpy_support.numpy_to_vtk(offsets, deep=True, array_type=vtk.VTK_ID_TYPE),
-                  numpy_support.numpy_to_vtk(tri.ravel(), deep=True, array_type=vtk.VTK_ID_TYPE))
-    return cells
-
-
-def _cells_equal(cells: vtk.vtkCellArray, triangles: np.ndarray) -> bool:
-    conn = cells.GetConnectivityArray()
-    if conn is None or cells.GetNumberOfCells() != len(triangles):
-        return False
-    return np.array_equal(numpy_support.vtk_to_numpy(conn), np.asarray(triangles).ravel())
-
-
-def _set_array(data: vtk.vtkDataSetAttributes, name: str, values: np.ndarray, vtk_type: int):
-    """Writes `values` into the array `name`, in place when its shape holds."""
-    values = np.asarray(values)
-    comps = 1 if values.ndim == 1 else values.shape[1]
-    arr = data.GetArray(name)
-    if arr is not None and arr.GetNumberOfTuples() == len(values) \
-            and arr.GetNumberOfComponents() == comps and arr.GetDataType() == vtk_type:
-        view = numpy_support.vtk_to_numpy(arr)
-        view[...] = values.reshape(view.shape)
-        arr.Modified()
-        return arr
-    new = numpy_support.numpy_to_vtk(np.ascontiguousarray(values), deep=True, array_type=vtk_type)
-    new.SetName(name)
-    if arr is not None:
-        data.RemoveArray(name)
-    data.AddArray(new)
-    return new
-
-
 class ModelUpdater:
     """Creates and updates the model nodes of one session in a scene."""
 
@@ -149,20 +115,23 @@ class ModelUpdater:
         self.scene = scene
         self.session_id = session_id
         self.prefix = prefix
-        #: how many times a name's polydata was rebuilt (topology change) vs updated in place
+        #: how many times a name's polydata was rebuilt (new mesh) vs updated in place
         self.rebuilds: dict[str, int] = {}
         self.updates: dict[str, int] = {}
 
     def node_name(self, name: str) -> str:
         return f"{self.prefix} {name}"
 
-    def upsert(self, name: str, kind, positions: np.ndarray, triangles: np.ndarray,
-               normals: np.ndarray | None = None, margins: np.ndarray | None = None,
-               classes: np.ndarray | None = None, color=None):
-        """The model node of surface `name`, made or updated from the arrays."""
-        kind = kind_name(kind)
-        positions = np.asarray(positions, dtype=np.float32).reshape(-1, 3)
-        triangles = np.asarray(triangles).reshape(-1, 3)
+    def upsert(self, surface, rebuild: bool = True):
+        """The model node of `surface` (a `resecta_client.SurfaceState`), made or updated.
+
+        With ``rebuild=False`` (the Watch update changed rows only, the name is not in its
+        `rebuilt` set) the node's polydata keeps its VTK arrays and gets the new values in
+        place; otherwise, or when the shapes no longer fit, it is rebuilt. Either way the node
+        and its polydata object stay the same, so views and slice intersections follow."""
+        from resecta_client.vtk_adapter import to_vtk_polydata
+
+        name, kind = surface.name, kind_name(surface.kind)
         node = find_model(self.scene, name, self.session_id)
         created = node is None
         if created:
@@ -173,39 +142,20 @@ class ModelUpdater:
                 node.SetAttribute(SESSION_ATTRIBUTE, self.session_id)
             node.CreateDefaultDisplayNodes()
         poly = node.GetPolyData()
-        if poly is None or poly.GetNumberOfPoints() != len(positions) \
-                or not _cells_equal(poly.GetPolys(), triangles):
+        fresh = poly is None
+        if fresh:
             poly = vtk.vtkPolyData()
-            points = vtk.vtkPoints()
-            points.SetData(numpy_support.numpy_to_vtk(positions, deep=True,
-                                                      array_type=vtk.VTK_FLOAT))
-            poly.SetPoints(points)
-            poly.SetPolys(_triangles_to_cells(triangles))
-            self.rebuilds[name] = self.rebuilds.get(name, 0) + 1
-            fresh = True
-        else:
-            fresh = False
-            view = numpy_support.vtk_to_numpy(poly.GetPoints().GetData())
-            view[...] = positions
-            poly.GetPoints().GetData().Modified()
-            poly.GetPoints().Modified()
-            self.updates[name] = self.updates.get(name, 0) + 1
-        pd = poly.GetPointData()
-        if normals is not None:
-            arr = _set_array(pd, "Normals", np.asarray(normals, dtype=np.float32).reshape(-1, 3),
-                             vtk.VTK_FLOAT)
-            pd.SetNormals(arr)
-        if margins is not None:
-            _set_array(pd, MARGIN_ARRAY, np.asarray(margins, dtype=np.float32), vtk.VTK_FLOAT)
-        if classes is not None:
-            _set_array(pd, CLASS_ARRAY, np.asarray(classes, dtype=np.uint8), vtk.VTK_UNSIGNED_CHAR)
+        before = poly.GetPoints().GetData() if poly.GetPoints() is not None else None
+        to_vtk_polydata(surface, poly, rebuild=rebuild or fresh)
+        in_place = not fresh and poly.GetPoints().GetData() is before
+        counter = self.updates if in_place else self.rebuilds
+        counter[name] = counter.get(name, 0) + 1
         if fresh:
             node.SetAndObservePolyData(poly)
         else:
-            poly.Modified()
             node.Modified()
         if created:
-            self._style(node, kind, color)
+            self._style(node, kind, surface.color)
         return node
 
     def _style(self, node, kind: str, color=None) -> None:

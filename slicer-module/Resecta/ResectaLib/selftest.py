@@ -23,7 +23,8 @@ from typing import Any, Callable
 import numpy as np
 
 from . import controlgrid, models, phantom, segmentation
-from .session import PlanningSession
+from .edits import grid_normal
+from .logic import PlanningLogic
 
 #: Tolerances of the geometric checks, mm. Models are reconstructed from 2×2×3 mm voxels: the
 #: bounding box of a voxelised ellipsoid differs from the analytic one by up to about one voxel
@@ -44,12 +45,12 @@ def _bounds(node) -> np.ndarray:
     return np.array(b).reshape(3, 2)
 
 
-def check_models(session: PlanningSession, truth: dict) -> dict:
+def check_models(logic: PlanningLogic, truth: dict) -> dict:
     """Parenchyma and tumour model nodes are where the analytic shapes are."""
     from .preview import mesh_centroid
 
     out = {}
-    liver = next((n for n in models.model_nodes(session.scene, session.session_id)
+    liver = next((n for n in models.model_nodes(logic.scene, logic.session_id)
                   if n.GetAttribute(models.KIND_ATTRIBUTE) == "parenchyma"), None)
     _check(liver is not None, "no parenchyma model node")
     half = phantom.ellipsoid_half_extent(truth["liver"]["radii"], truth["liver"]["rotation"])
@@ -65,18 +66,18 @@ def check_models(session: PlanningSession, truth: dict) -> dict:
     cerr = float(np.linalg.norm(centroid - c))
     _check(cerr <= CENTROID_TOL_MM, f"liver centroid {centroid.round(2)} vs {c}: {cerr:.2f} mm")
     out["liver_centroid_err_mm"] = cerr
-    tumours = session.tumours()
+    tumours = logic.tumours()
     _check(len(tumours) == 1, f"expected one tumour model, got {tumours}")
-    t = session.tumour_centroid(tumours[0])
+    t = logic.tumour_centroid(tumours[0])
     terr = float(np.linalg.norm(t - truth["tumour"]["center"]))
     _check(terr <= TUMOUR_CENTROID_TOL_MM,
            f"tumour centroid {t.round(2)} vs {truth['tumour']['center']}: {terr:.2f} mm")
     out["tumour_centroid_err_mm"] = terr
-    tb = _bounds(session.model_node(tumours[0]))
+    tb = _bounds(logic.model_node(tumours[0]))
     radius = (tb[:, 1] - tb[:, 0]).mean() / 2
     _check(abs(radius - truth["tumour"]["radius"]) <= BOUNDS_TOL_MM / 2 + 0.5,
            f"tumour model half-size {radius:.2f} mm vs radius {truth['tumour']['radius']}")
-    for node in models.model_nodes(session.scene, session.session_id):
+    for node in models.model_nodes(logic.scene, logic.session_id):
         kind = node.GetAttribute(models.KIND_ATTRIBUTE)
         display = node.GetDisplayNode()
         _check(display is not None and display.GetVisibility2D(),
@@ -90,10 +91,10 @@ def run(scene, segmentation_node, truth: dict, dispatcher, wait: Callable[..., A
         address: str, token: str | None = None, tls: bool = False, ca_file: str | None = None,
         role_table: dict[str, str] | None = None, method: str = "psr",
         engine_check: Callable[[str, Any], None] | None = None,
-        log: Callable[[str], None] = print, session: PlanningSession | None = None) -> str:
-    """Runs the scenario; returns a one-line report. Leaves the session open when given one."""
-    own = session is None
-    s = session or PlanningSession(scene, dispatcher)
+        log: Callable[[str], None] = print, logic: PlanningLogic | None = None) -> str:
+    """Runs the scenario; returns a one-line report. Leaves `logic` open when given one."""
+    own = logic is None
+    s = logic or PlanningLogic(scene, dispatcher)
     try:
         return _run(s, segmentation_node, truth, wait, address, token, tls, ca_file, role_table,
                     method, engine_check, log)
@@ -102,7 +103,7 @@ def run(scene, segmentation_node, truth: dict, dispatcher, wait: Callable[..., A
             s.close()
 
 
-def _run(s: PlanningSession, seg_node, truth, wait, address, token, tls, ca_file, role_table,
+def _run(s: PlanningLogic, seg_node, truth, wait, address, token, tls, ca_file, role_table,
          method, engine_check, log) -> str:
     results: dict[str, Any] = {}
 
@@ -153,24 +154,24 @@ def _run(s: PlanningSession, seg_node, truth, wait, address, token, tls, ca_file
     log("dragging a control point (a burst of positions)")
     k = controlgrid.index(1, 1, 4)
     start = controlgrid.control_point(grid, k)
-    toward = -s.grid_normal("r1")  # the surface normal faces the remnant, away from the tumour
+    toward = -grid_normal(s.resection("r1"))  # the surface normal faces the remnant, away from the tumour
     version_before = s.session.plan_version
     positions = [start + toward * d for d in np.linspace(1.0, 9.0, 9)]
-    pushed_before, sent_before = s.coalescer.pushed, s.coalescer.sent
+    pushed_before, sent_before = s.edits.coalescer.pushed, s.edits.coalescer.sent
     for p in positions:
         grid.SetNthControlPointPosition(k, *p)
     target = positions[-1]
 
     def dragged():
         r = s.resection("r1")
-        return (not s.coalescer.busy and r is not None
+        return (not s.edits.coalescer.busy and r is not None
                 and np.allclose(r.control_points[1, 1], target, atol=1e-6)
                 and not np.array_equal(models.polydata_arrays(node)[models.MARGIN_ARRAY],
                                        before[models.MARGIN_ARRAY]))
 
     wait(lambda: no_errors() and dragged(), 60)
-    pushed = s.coalescer.pushed - pushed_before
-    sent = s.coalescer.sent - sent_before
+    pushed = s.edits.coalescer.pushed - pushed_before
+    sent = s.edits.coalescer.sent - sent_before
     _check(pushed == len(positions), f"{pushed} positions pushed, expected {len(positions)}")
     _check(1 <= sent <= pushed, f"{sent} edits sent for {pushed} positions")
     _check(s.model_node("r1") is node and node.GetPolyData() is poly,
@@ -187,14 +188,14 @@ def _run(s: PlanningSession, seg_node, truth, wait, address, token, tls, ca_file
 
     log("volumes")
     server_volumes = {}
-    s._call(s.session.volumes, finished("volumes"))
+    s.call(s.session.volumes, finished("volumes"))
     wait(lambda: no_errors() and "volumes" in results
          and results["volumes"].plan_version >= s.session.plan_version
          and s.volume_table.plan_version >= results["volumes"].plan_version, 60)
     v = results["volumes"]
     if s.volume_table.plan_version != v.plan_version:  # the watch brought a newer report: re-ask
         results.pop("volumes")
-        s._call(s.session.volumes, finished("volumes"))
+        s.call(s.session.volumes, finished("volumes"))
         wait(lambda: no_errors() and "volumes" in results, 60)
         v = results["volumes"]
     row_total = s.volume_table.row("Total liver")
@@ -208,28 +209,28 @@ def _run(s: PlanningSession, seg_node, truth, wait, address, token, tls, ca_file
     report["volumes_ml"] = {k2: round(x, 3) for k2, x in server_volumes.items() if x is not None}
     if engine_check is not None:
         results.pop("plan", None)
-        s._call(s.session.export_plan, finished("plan"))
+        s.call(s.session.export_plan, finished("plan"))
         wait(lambda: no_errors() and "plan" in results, 30)
         engine_check(results["plan"], v)
 
     log("margin and band, translate, group move, rotate")
-    s.set_margin_and_band("r1", 12.0, 4.0, on_done=finished("margin"))
+    s.edits.set_margin_and_band("r1", 12.0, 4.0, on_done=finished("margin"))
     wait(lambda: no_errors() and "margin" in results and s.resection("r1").margin_mm == 12.0
          and s.resection("r1").band_mm == 4.0, 30)
     cp0 = s.resection("r1").control_points.copy()
-    s.translate("r1", (0.0, 0.0, 2.0), on_done=finished("translate"))
+    s.edits.translate("r1", (0.0, 0.0, 2.0), on_done=finished("translate"))
     wait(lambda: no_errors() and "translate" in results
          and np.allclose(s.resection("r1").control_points, cp0 + [0, 0, 2.0], atol=1e-6), 30)
     _check(np.allclose(controlgrid.grid_points(grid), (cp0 + [0, 0, 2.0]).reshape(-1, 3), atol=1e-6),
            "the markups did not follow the translation")
     cp1 = s.resection("r1").control_points.copy()
-    s.move_group("r1", "inner", (1.0, 0.0, 0.0), on_done=finished("group"))
+    s.edits.move_group("r1", "inner", (1.0, 0.0, 0.0), on_done=finished("group"))
     wait(lambda: no_errors() and "group" in results
          and not np.allclose(s.resection("r1").control_points, cp1), 30)
     moved = np.abs(s.resection("r1").control_points - cp1).sum(axis=2) > 1e-9
     _check(moved[1:3, 1:3].all() and moved.sum() == 4, "the inner group did not move alone")
     cp2 = s.resection("r1").control_points.copy()
-    s.rotate("r1", "S", 5.0, on_done=finished("rotate"))
+    s.edits.rotate("r1", "S", 5.0, on_done=finished("rotate"))
     wait(lambda: no_errors() and "rotate" in results
          and not np.allclose(s.resection("r1").control_points, cp2), 30)
     c2 = cp2.reshape(-1, 3).mean(axis=0)
@@ -237,11 +238,11 @@ def _run(s: PlanningSession, seg_node, truth, wait, address, token, tls, ca_file
     _check(np.allclose(c2, c3, atol=1e-6), "rotation about the centroid moved the centroid")
 
     log("undo")
-    s.undo(on_done=finished("undo"))
+    s.edits.undo(on_done=finished("undo"))
     wait(lambda: no_errors() and "undo" in results
          and np.allclose(s.resection("r1").control_points, cp2, atol=1e-9)
          and np.allclose(controlgrid.grid_points(grid), cp2.reshape(-1, 3), atol=1e-6), 30)
-    s.redo(on_done=finished("redo"))
+    s.edits.redo(on_done=finished("redo"))
     wait(lambda: no_errors() and "redo" in results
          and not np.allclose(s.resection("r1").control_points, cp2), 30)
     rotated = s.resection("r1").control_points.copy()
@@ -251,7 +252,7 @@ def _run(s: PlanningSession, seg_node, truth, wait, address, token, tls, ca_file
         path = Path(tmp) / "plan.json"
         s.save_plan(path, on_done=finished("saved"))
         wait(lambda: no_errors() and "saved" in results and path.is_file(), 30)
-        s.delete_resection("r1", on_done=finished("deleted"))
+        s.edits.delete("r1", on_done=finished("deleted"))
         wait(lambda: no_errors() and "deleted" in results and s.model_node("r1") is None
              and "r1" not in s.grids, 30)
         s.load_plan(path, on_done=finished("loaded"))

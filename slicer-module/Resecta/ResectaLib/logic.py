@@ -1,0 +1,486 @@
+"""`PlanningLogic`: the Logic of the Resecta module, without Qt (`ResectaLogic` in Resecta.py
+is this plus Slicer's Logic base class).
+
+It owns the connection to a resecta server and one server session, and keeps the scene in step
+with it. Every server call runs on a worker (the dispatcher's pool, one call at a time so that
+edits reach the server in the order they were made); the watch stream runs on its own thread;
+their results come back to the main thread through the dispatcher's queue (`poll()`), where the
+scene changes. The work is split into parts with one job each:
+
+- `sceneupdate.WatchApplier`: watch updates → model nodes, by the server's `changed`/`rebuilt`/
+  `removed` lists;
+- `gridsync.GridSync`: control grids ↔ markups nodes (drags go to `edits.drag`);
+- `edits.EditCommands`: the edit commands (and the coalescing of drags).
+
+Callbacks (all optional, all on the main thread): `status(text)`, `error(exception)`,
+`progress(fraction, stage)`, `model_built(info)`, `models()` (model nodes added or removed),
+`resections()` (resections added or removed), `volumes(VolumeTable)`, `margin(MarginIndicator)`,
+`session()` (the server session was opened or forgotten).
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import vtk
+
+from . import margin, models, planfile, preview, segmentation, volumetry
+from .dispatch import ThreadDispatcher
+from .edits import EditCommands
+from .gridsync import GridSync
+from .sceneupdate import WatchApplier
+
+PREVIEW_NODE_NAME = "Resecta preview contour"
+
+
+class PlanningLogic:
+    def __init__(self, scene, dispatcher=None, client_factory: Callable[..., Any] | None = None):
+        self.scene = scene
+        self.dispatcher = dispatcher if dispatcher is not None else ThreadDispatcher(workers=1)
+        self._client_factory = client_factory
+        self.client = None
+        self.server_info = None
+        self.session = None  # resecta_client.Session
+        self.watch = None  # resecta_client.Watch
+        self.grids: GridSync | None = None
+        self.applier: WatchApplier | None = None
+        self.edits = EditCommands(self.call, self._need_session, self.resection,
+                                  self._edit_done, self._resync_grids)
+        self.margin_state = margin.NONE
+        self.volume_table = volumetry.EMPTY
+        self.verdicts: dict[str, tuple[float, Any]] = {}
+        self.model_infos: dict[str, Any] = {}
+        self.label_map_summary = None
+        self.errors: list[BaseException] = []
+        self._callbacks: dict[str, Callable] = {}
+        self._cancel = threading.Event()
+        self._building = False
+        self._centroids: dict[str, np.ndarray] = {}
+        self._threads: list[threading.Thread] = []
+
+    # --- plumbing -----------------------------------------------------------------------------
+
+    def set_callbacks(self, **callbacks: Callable) -> None:
+        self._callbacks = {k: v for k, v in callbacks.items() if v is not None}
+
+    def _emit(self, name: str, *args) -> None:
+        cb = self._callbacks.get(name)
+        if cb is not None:
+            cb(*args)
+
+    def _status(self, text: str) -> None:
+        self._emit("status", text)
+
+    def _error(self, exc: BaseException) -> None:
+        self.errors.append(exc)
+        self._emit("error", exc)
+
+    def call(self, fn: Callable[[], Any], on_done: Callable[[Any], None] | None = None,
+             user_done: Callable[[Any], None] | None = None,
+             on_error: Callable[[BaseException], None] | None = None) -> None:
+        """Runs `fn` on the worker; `on_done(result)` then `user_done(result)` on the main
+        thread, or `on_error(exc)` and the `error` callback."""
+
+        def done(result):
+            if on_done is not None:
+                on_done(result)
+            if user_done is not None:
+                user_done(result)
+
+        def failed(exc):
+            if on_error is not None:
+                on_error(exc)
+            self._error(exc)
+
+        self.dispatcher.submit(fn, done, failed)
+
+    def poll(self) -> int:
+        """Delivers worker results on the calling (main) thread; Slicer calls it from a timer."""
+        return self.dispatcher.poll()
+
+    @property
+    def connected(self) -> bool:
+        return self.client is not None
+
+    @property
+    def session_id(self) -> str | None:
+        return self.session.id if self.session is not None else None
+
+    @property
+    def has_session(self) -> bool:
+        return self.session is not None
+
+    @property
+    def models_ready(self) -> bool:
+        return self.session is not None and any(
+            n.GetAttribute(models.KIND_ATTRIBUTE) == "parenchyma"
+            for n in models.model_nodes(self.scene, self.session_id))
+
+    @property
+    def threads_alive(self) -> list[threading.Thread]:
+        """The watch and reconstruction threads still running (tests: none after close)."""
+        self._threads = [t for t in self._threads if t.is_alive()]
+        return list(self._threads)
+
+    def _need_session(self):
+        if self.session is None:
+            raise ValueError("no server session: connect and build the models first")
+        return self.session
+
+    def _require_client(self):
+        if self.client is None:
+            raise ValueError("not connected to a resecta server")
+        return self.client
+
+    # --- connection and session ---------------------------------------------------------------
+
+    def connect(self, address: str, token: str | None = None, tls: bool = False,
+                ca_file: str | None = None, on_done: Callable | None = None) -> None:
+        """Connects (on the worker) and checks the server; `on_done(server_info)`."""
+        factory = self._client_factory
+        if factory is None:
+            from resecta_client import Client as factory  # installed on first use in Slicer
+
+        def work():
+            client = factory(address, token, tls=tls, ca_cert=ca_file or None)
+            try:
+                info = client.server_info()
+            except BaseException:
+                client.close()
+                raise
+            return client, info
+
+        def done(result):
+            self.disconnect()
+            self.client, self.server_info = result
+            self._status(f"Connected to resecta {self.server_info.server_version} at {address}")
+
+        self.call(work, done, lambda r: on_done(r[1]) if on_done else None)
+
+    def open_session(self, session_id: str, on_done: Callable | None = None) -> None:
+        """Follows an existing server session (e.g. after a scene reload)."""
+        client = self._require_client()
+
+        def done(sess):
+            self._use_session(sess)
+            self.start_watch()
+
+        self.call(lambda: client.session(session_id), done, on_done)
+
+    def _use_session(self, sess) -> None:
+        if self.session is not None and self.session.id == sess.id:
+            self.session = sess
+            return
+        self._drop_session()
+        self.session = sess
+        updater = models.ModelUpdater(self.scene, sess.id)
+        self.grids = GridSync(self.scene, sess.id, self.edits.drag, self.edits.busy,
+                              self._resync_grids)
+        self.applier = WatchApplier(updater, self.grids)
+        self._emit("session")
+
+    def _drop_session(self) -> bool:
+        """Stops following the session; True when there was one."""
+        self.stop_watch()
+        self.edits.coalescer.clear()
+        if self.grids is not None:
+            self.grids.close()
+        had = self.session is not None
+        self.session = self.grids = self.applier = None
+        self.verdicts.clear()
+        self._centroids.clear()
+        self.model_infos = {}
+        self.margin_state = margin.NONE
+        self.volume_table = volumetry.EMPTY
+        return had
+
+    def forget_session(self) -> None:
+        """Stops following the server session and cancels a running reconstruction (the scene
+        was closed); the connection stays and the server keeps the session."""
+        self._cancel.set()
+        if self._drop_session():
+            self._emit("session")
+            self._emit("margin", self.margin_state)
+            self._emit("volumes", self.volume_table)
+
+    def disconnect(self) -> None:
+        """Forgets the session and closes the connection."""
+        self.forget_session()
+        if self.client is not None:
+            self.client.close()
+        self.client = self.server_info = None
+
+    def close(self) -> None:
+        """Everything ends: session, connection, worker threads (the server keeps the session)."""
+        self.disconnect()
+        self.dispatcher.shutdown()
+
+    # --- upload and models --------------------------------------------------------------------
+
+    def upload_and_build(self, segmentation_node, role_table: dict[str, str], method: str = "psr",
+                         display_name: str = "Slicer", on_done: Callable | None = None,
+                         **reconstruct_options) -> None:
+        """Merges the segmentation (main thread), then on the worker: creates a session if there
+        is none, uploads, reconstructs with progress (`progress`, `model_built` callbacks);
+        the watch's snapshot brings the models into the scene. `cancel_build()` cancels."""
+        client = self._require_client()
+        if self._building:
+            raise ValueError("a reconstruction is already running")
+        labelmap = segmentation.labelmap_from_segmentation(segmentation_node, role_table)
+        self._building = True
+        self._cancel.clear()
+        existing = self.session
+        cancel = self._cancel
+
+        def progress(fraction, stage):
+            self.dispatcher.call_soon(lambda: self._emit("progress", fraction, stage))
+
+        def model_built(info):
+            self.dispatcher.call_soon(lambda: self._model_built(info))
+
+        def upload():
+            sess = existing if existing is not None else client.create_session(display_name)
+            summary = sess.upload_label_map(labelmap.labels, labelmap.ijk_to_ras, labelmap.roles)
+            return sess, summary
+
+        def uploaded(result):
+            sess, summary = result
+            if cancel.is_set():
+                self._building = False
+                return
+            self._use_session(sess)
+            self.label_map_summary = summary
+            self.model_infos = {}
+            self._status(f"Label map uploaded ({summary.liver_volume_ml:.1f} ml of liver); "
+                         "building models…")
+            self.start_watch()
+            self._start_thread(lambda: build(sess), "resecta-reconstruct")
+
+        def build(sess):
+            try:
+                infos = sess.reconstruct(method, progress=progress, cancel=cancel,
+                                         on_model=model_built, **reconstruct_options)
+            except BaseException as exc:  # noqa: BLE001 - reported on the main thread
+                self.dispatcher.call_soon(lambda exc=exc: self._build_failed(exc))
+                return
+            self.dispatcher.call_soon(lambda: self._build_done(infos, on_done))
+
+        def upload_failed(_exc):
+            self._building = False
+
+        self.call(upload, uploaded, on_error=upload_failed)
+
+    def _model_built(self, info) -> None:
+        self.model_infos[info.name] = info
+        self._emit("model_built", info)
+
+    def _build_done(self, infos, on_done) -> None:
+        self._building = False
+        self.model_infos = {i.name: i for i in infos}
+        self._status(f"{len(infos)} models built")
+        if on_done is not None:
+            on_done(infos)
+
+    def _build_failed(self, exc) -> None:
+        self._building = False
+        self._error(exc)
+
+    def cancel_build(self) -> None:
+        self._cancel.set()
+
+    @property
+    def building(self) -> bool:
+        return self._building
+
+    # --- watch --------------------------------------------------------------------------------
+
+    def _start_thread(self, target: Callable[[], None], name: str) -> None:
+        self._threads.append(self.dispatcher.start_thread(target, name))
+
+    def start_watch(self) -> None:
+        """Follows the session on a thread; updates reach the scene on `poll()`."""
+        sess = self._need_session()
+        if self.watch is not None and self.watch.session.id == sess.id:
+            return
+        self.stop_watch()
+        watch = sess.watch()
+        self.watch = watch
+        applier = self.applier
+
+        def loop():
+            try:
+                for update in watch:
+                    if applier.enqueue(update):
+                        self.dispatcher.call_soon(lambda: self._flush(watch, applier))
+            except BaseException as exc:  # noqa: BLE001 - reported on the main thread
+                if self.watch is watch:
+                    self.dispatcher.call_soon(lambda exc=exc: self._error(exc))
+
+        self._start_thread(loop, "resecta-watch")
+
+    def stop_watch(self) -> None:
+        watch, self.watch = self.watch, None
+        if watch is not None:
+            watch.stop()
+
+    def _flush(self, watch, applier) -> None:
+        if self.watch is not watch or self.applier is not applier:
+            return  # the session was forgotten meanwhile
+        applied = applier.flush(watch.scene)
+        for name in applied.remeshed | applied.removed:
+            self._centroids.pop(name, None)
+        for name in applied.removed:
+            self.verdicts.pop(name, None)
+        self.verdicts.update(applied.verdicts)
+        if applied.models_added_or_removed:
+            self._emit("models")
+        if applied.resections_added_or_removed or applied.snapshot:
+            self._emit("resections")
+        self._update_margin()
+        if applied.volumes is not None:
+            self.volume_table = volumetry.table(applied.volumes)
+            self._emit("volumes", self.volume_table)
+
+    def _update_margin(self) -> None:
+        state = margin.indicator(self.verdicts)
+        if state != self.margin_state:
+            self.margin_state = state
+            self._emit("margin", state)
+
+    def _resync_grids(self) -> None:
+        if self.watch is not None and self.applier is not None:
+            self.applier.resync_grids(self.watch.scene)
+
+    def _edit_done(self, result) -> None:
+        for status in result.resections:
+            self.verdicts[status.resection.name] = (status.resection.margin_mm, status.verdict)
+        for name in result.removed:
+            self.verdicts.pop(name, None)
+        self._update_margin()
+
+    # --- queries --------------------------------------------------------------------------------
+
+    def surfaces(self) -> dict:
+        if self.watch is None:
+            return {}
+        with self.watch.scene.lock:
+            return dict(self.watch.scene.surfaces)
+
+    def tumours(self) -> list[str]:
+        return sorted(n for n, s in self.surfaces().items() if models.kind_name(s.kind) == "tumor")
+
+    def resection_names(self) -> list[str]:
+        return sorted(n for n, s in self.surfaces().items() if s.is_resection)
+
+    def resection(self, name: str):
+        """The resection's parameters (`resecta_client.Resection`) as last seen."""
+        s = self.surfaces().get(name)
+        return s.resection if s is not None and s.is_resection else None
+
+    def model_node(self, name: str):
+        return models.find_model(self.scene, name, self.session_id)
+
+    def tumour_centroid(self, name: str) -> np.ndarray:
+        if name not in self._centroids:
+            node = self.model_node(name)
+            if node is None or node.GetPolyData() is None:
+                raise ValueError(f"no tumour model {name!r}")
+            self._centroids[name] = preview.mesh_centroid(node.GetPolyData())
+        return self._centroids[name]
+
+    def set_opacity(self, kinds, value: float) -> None:
+        if self.applier is not None:
+            self.applier.updater.set_opacity(tuple(kinds), value)
+
+    # --- resections -----------------------------------------------------------------------------
+
+    def new_resection(self, name: str, tumour: str, end_point, margin_mm: float | None = None,
+                      band_mm: float | None = None, grid=(4, 4), on_done: Callable | None = None):
+        """Adds resection `name` targeting the tumour model `tumour`, from the end point; its
+        control grid appears as a markups node when the watch brings it."""
+        from resecta_client import Target
+
+        if name in self.surfaces():
+            raise ValueError(f"a surface named {name!r} exists already: choose another name")
+        s = self.surfaces().get(tumour)
+        if s is None or models.kind_name(s.kind) != "tumor":
+            raise ValueError(f"{tumour!r} is not a tumour model")
+        centroid = self.tumour_centroid(tumour)
+        target = Target(labels=(s.label,) if s.label else (),
+                        points=(tuple(float(x) for x in centroid),))
+        self.edits.new_resection(name, end_point, target, margin_mm, band_mm, grid, on_done)
+
+    # --- preview ------------------------------------------------------------------------------
+
+    def preview(self, tumour: str | None, end_point) -> Any:
+        """Draws (or with None hides) the parenchyma's contour on Algorithm 1's plane."""
+        node = self.scene.GetFirstNodeByName(PREVIEW_NODE_NAME)
+        parenchyma = next((m for m in models.model_nodes(self.scene, self.session_id)
+                           if m.GetAttribute(models.KIND_ATTRIBUTE) == "parenchyma"), None)
+        if not tumour or end_point is None or parenchyma is None or self.session is None:
+            if node is not None and node.GetDisplayNode():
+                node.GetDisplayNode().SetVisibility(False)
+            return None
+        try:
+            point, normal = preview.initial_plane(self.tumour_centroid(tumour), end_point)
+        except ValueError as exc:
+            self._status(str(exc))
+            return None
+        if node is None:
+            node = self.scene.AddNewNodeByClass("vtkMRMLModelNode", PREVIEW_NODE_NAME)
+            node.CreateDefaultDisplayNodes()
+            display = node.GetDisplayNode()
+            display.SetColor(1.0, 0.9, 0.1)
+            display.SetLineWidth(3)
+            display.SetVisibility2D(True)
+            node.SetAndObservePolyData(vtk.vtkPolyData())
+        preview.contour(parenchyma.GetPolyData(), point, normal, node.GetPolyData())
+        node.GetPolyData().Modified()
+        node.GetDisplayNode().SetVisibility(True)
+        return node
+
+    # --- volumes, plans, exports ----------------------------------------------------------------
+
+    def refresh_volumes(self, on_done: Callable | None = None) -> None:
+        sess = self._need_session()
+
+        def done(v):
+            self.volume_table = volumetry.table(v)
+            self._emit("volumes", self.volume_table)
+
+        self.call(sess.volumes, done, on_done)
+
+    def save_plan(self, path, on_done: Callable | None = None) -> None:
+        sess = self._need_session()
+
+        def done(text):
+            planfile.save(path, text)
+            self._status(f"Plan saved to {path}")
+
+        self.call(sess.export_plan, done, on_done)
+
+    def load_plan(self, path, on_done: Callable | None = None) -> None:
+        text = planfile.load(path)
+        self.edits.import_plan(text, lambda v: (
+            self._status(f"Plan loaded from {path} (version {v})"),
+            on_done(v) if on_done else None))
+
+    def export_resections(self, folder, fmt: str = "vtp", on_done: Callable | None = None) -> None:
+        """Writes every resection's mesh as `<folder>/<name>.<fmt>` (RAS; VTP with margins)."""
+        sess = self._need_session()
+        names = self.resection_names()
+        folder = Path(folder)
+
+        def work():
+            out = []
+            for name in names:
+                path = folder / f"{name}.{fmt}"
+                path.write_bytes(sess.export_model(name, fmt, resection=True))
+                out.append(path)
+            return out
+
+        self.call(work, lambda paths: self._status(
+            f"Exported {len(paths)} resection(s) to {folder}"), on_done)
