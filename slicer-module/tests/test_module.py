@@ -1,7 +1,7 @@
 """Resecta.py itself outside Slicer: its Logic and its self-test run on real MRML (slicer-core)
-against a real server, with small stand-ins for what only the Slicer application has (Qt, the
-ScriptedLoadableModule base classes, the parameter-node wrapper, `slicer.app`). The Widget needs
-Qt and is covered by the static checks (every widget it uses exists in the .ui)."""
+against a real server, with `fake_gui`'s stand-ins for what only the Slicer application has (Qt,
+the ScriptedLoadableModule base classes, the parameter-node wrapper, `slicer.app`). The Widget's
+lifecycle is `test_widget.py`'s."""
 
 import importlib
 import sys
@@ -10,97 +10,17 @@ import types
 import numpy as np
 import pytest
 
-import slicer
-from conftest import MODULE_DIR, load_phantom_segmentation
-
-
-class _Settings:
-    values: dict = {}
-
-    def value(self, key, default=None):
-        return self.values.get(key, default)
-
-    def setValue(self, key, value):
-        self.values[key] = value
-
-
-class _MarkupsLogic:
-    def __init__(self):
-        self.jumps = []
-
-    def JumpSlicesToLocation(self, x, y, z, centered, *rest):
-        self.jumps.append((x, y, z))
-
-
-def _stand_ins(scene):
-    qt = types.ModuleType("qt")
-    qt.QSettings = _Settings
-    slm = types.ModuleType("slicer.ScriptedLoadableModule")
-
-    class ScriptedLoadableModule:
-        def __init__(self, parent):
-            self.parent = parent
-
-    class ScriptedLoadableModuleWidget:
-        def __init__(self, parent=None):
-            self.parent = parent
-
-    class ScriptedLoadableModuleLogic:
-        def __init__(self, parent=None):
-            pass
-
-        def getParameterNode(self):
-            node = scene.AddNewNodeByClass("vtkMRMLScriptedModuleNode")
-            node.SetAttribute("ModuleName", "Resecta")
-            return node
-
-    class ScriptedLoadableModuleTest:
-        def __init__(self):
-            self.messages = []
-
-        def delayDisplay(self, message, msec=None):
-            self.messages.append(message)
-
-    for cls in (ScriptedLoadableModule, ScriptedLoadableModuleWidget, ScriptedLoadableModuleLogic,
-                ScriptedLoadableModuleTest):
-        setattr(slm, cls.__name__, cls)
-    pnw = types.ModuleType("slicer.parameterNodeWrapper")
-
-    def parameterNodeWrapper(cls):
-        defaults = {k: getattr(cls, k, None) for k in cls.__annotations__}
-
-        def init(self, node):
-            self.parameterNode = node
-            for k, v in defaults.items():
-                setattr(self, k, v)
-
-        cls.__init__ = init
-        return cls
-
-    pnw.parameterNodeWrapper = parameterNodeWrapper
-    pnw.Choice = lambda values: ("choice", tuple(values))
-    pnw.WithinRange = lambda lo, hi: ("range", lo, hi)
-    i18n = types.ModuleType("slicer.i18n")
-    i18n.tr = lambda text: text
-    i18n.translate = lambda context, text: text
-    app = types.SimpleNamespace(processEvents=lambda: None)
-    markups = _MarkupsLogic()
-    modules = types.SimpleNamespace(markups=types.SimpleNamespace(logic=lambda: markups))
-    return {"qt": qt, "slicer.ScriptedLoadableModule": slm, "slicer.parameterNodeWrapper": pnw,
-            "slicer.i18n": i18n}, {"mrmlScene": scene, "app": app, "modules": modules}, markups
+import fake_gui
+from conftest import load_phantom_segmentation, resecta_bin
 
 
 @pytest.fixture
 def Resecta(scene, monkeypatch):
-    mods, attrs, markups = _stand_ins(scene)
-    for name, module in mods.items():
-        monkeypatch.setitem(sys.modules, name, module)
-    for name, value in attrs.items():
-        monkeypatch.setattr(slicer, name, value, raising=False)
-    monkeypatch.syspath_prepend(str(MODULE_DIR))
+    gui = fake_gui.install(monkeypatch, scene)
     sys.modules.pop("Resecta", None)
     module = importlib.import_module("Resecta")
-    module._markups = markups
+    module._markups = gui.markups
+    module._gui = gui
     yield module
     sys.modules.pop("Resecta", None)
 
@@ -115,67 +35,95 @@ def test_module_metadata(Resecta):
 
 def test_logic_drives_a_plan(Resecta, scene, planning_server, phantom, tmp_path):
     logic = Resecta.ResectaLogic()
-    assert not logic.connected and not logic.modelsReady
+    assert not logic.connected and not logic.models_ready
 
     def wait(predicate, timeout=60):
-        return logic.session.dispatcher.wait_until(predicate, timeout)
+        return logic.dispatcher.wait_until(predicate, timeout)
 
     try:
-        assert logic.sessionId is None
+        assert logic.session_id is None
         infos = []
-        logic.connect(planning_server.grpc_addr, onDone=infos.append)
+        logic.connect(planning_server.grpc_addr, on_done=infos.append)
         wait(lambda: infos)
         assert logic.connected and infos[0].api_version == "resecta.v1"
         _lm, seg = load_phantom_segmentation(scene, phantom)
-        rows = logic.roleTable(seg)
+        rows = logic.role_table(seg)
         assert [r[2] for r in rows] == ["ignore"] * 3  # "Label_1"...: nothing to guess from
         roles = {sid: role for (sid, _n, _g), role in zip(rows, ["parenchyma", "tumor", "portal"])}
-        built = []
-        logic.buildModels(seg, roles, "psr", onDone=built.append)
-        wait(lambda: built and logic.modelsReady and logic.tumours(), 120)
-        assert logic.sessionId
+        assert [r[2] for r in logic.role_table(seg, keep=roles)] == ["parenchyma", "tumor", "portal"]
+        built, seen = [], []
+        logic.set_callbacks(model_built=seen.append)
+        logic.upload_and_build(seg, roles, "psr", on_done=built.append)
+        wait(lambda: built and logic.models_ready and logic.tumours(), 120)
+        assert logic.session_id
+        assert sorted(i.name for i in seen) == sorted(i.name for i in built[0])
         tumour = logic.tumours()[0]
-        end = logic.session.tumour_centroid(tumour) + [-40.0, 0, 0]
+        end = logic.tumour_centroid(tumour) + [-40.0, 0, 0]
         logic.preview(tumour, end)
-        logic.newResection("r1", tumour, end, marginMm=8.0, bandMm=3.0)
-        wait(lambda: logic.resectionNames() == ["r1"] and logic.resectionParameters("r1").margin_mm == 8.0
-             and logic.resectionParameters("r1").band_mm == 3.0)
-        logic.setMarginAndBand("r1", 9.0, 3.0)
-        wait(lambda: logic.resectionParameters("r1").margin_mm == 9.0)
-        cp = logic.resectionParameters("r1").control_points.copy()
-        logic.moveGroup("r1", "outer", (0, 0, 1.0))
-        wait(lambda: not np.allclose(logic.resectionParameters("r1").control_points, cp)
-             and not np.allclose(logic.session.last_edit["r1"].resection.control_points, cp))
-        edits = logic.session.acknowledged_edits
-        logic.translate("r1", (1.0, 0, 0))
-        logic.rotate("r1", "normal", 3.0)
-        wait(lambda: logic.session.acknowledged_edits == edits + 2)
-        rotated = logic.session.last_edit["r1"].resection.control_points.copy()
-        logic.undo()
-        logic.redo()
-        wait(lambda: logic.session.acknowledged_edits == edits + 4 and not logic.session.errors)
-        wait(lambda: np.allclose(logic.resectionParameters("r1").control_points, rotated))
-        logic.jumpToWorstPoint()
+        logic.new_resection("r1", tumour, end, margin_mm=8.0, band_mm=3.0)
+        wait(lambda: logic.resection_names() == ["r1"] and logic.resection("r1").margin_mm == 8.0
+             and logic.resection("r1").band_mm == 3.0)
+        with pytest.raises(ValueError, match="exists already"):
+            logic.new_resection("r1", tumour, end)
+        logic.edits.set_margin_and_band("r1", 9.0, 3.0)
+        wait(lambda: logic.resection("r1").margin_mm == 9.0)
+        cp = logic.resection("r1").control_points.copy()
+        logic.edits.move_group("r1", "outer", (0, 0, 1.0))
+        wait(lambda: not np.allclose(logic.resection("r1").control_points, cp)
+             and not np.allclose(logic.edits.last["r1"].resection.control_points, cp))
+        edits = logic.edits.acknowledged
+        logic.edits.translate("r1", (1.0, 0, 0))
+        logic.edits.rotate("r1", "normal", 3.0)
+        wait(lambda: logic.edits.acknowledged == edits + 2)
+        rotated = logic.edits.last["r1"].resection.control_points.copy()
+        logic.edits.undo()
+        logic.edits.redo()
+        wait(lambda: logic.edits.acknowledged == edits + 4 and not logic.errors)
+        wait(lambda: np.allclose(logic.resection("r1").control_points, rotated))
+        logic.jump_to_worst_point()
         assert len(Resecta._markups.jumps) == 1
-        assert np.allclose(Resecta._markups.jumps[0], logic.session.margin_state.point)
-        logic.savePlan(tmp_path / "plan.json")
+        assert np.allclose(Resecta._markups.jumps[0], logic.margin_state.point)
+        logic.save_plan(tmp_path / "plan.json")
         wait(lambda: (tmp_path / "plan.json").is_file())
-        logic.exportResections(tmp_path, "stl")
+        logic.export_resections(tmp_path, "stl")
         wait(lambda: (tmp_path / "r1.stl").is_file())
-        logic.deleteResection("r1")
-        wait(lambda: logic.resectionNames() == [])
-        logic.loadPlan(tmp_path / "plan.json")
-        wait(lambda: logic.resectionNames() == ["r1"])
-        logic.setOpacity(("parenchyma",), 0.5)
-        assert not logic.session.errors
+        logic.edits.delete("r1")
+        wait(lambda: logic.resection_names() == [])
+        logic.load_plan(tmp_path / "plan.json")
+        wait(lambda: logic.resection_names() == ["r1"])
+        logic.set_opacity(("parenchyma",), 0.5)
+        assert not logic.errors
     finally:
         logic.close()
     assert not logic.connected
 
 
-def test_self_test_runs_as_in_slicer(Resecta, planning_server):
-    """`ResectaTest.runTest()` exactly as Slicer runs it, with the server from the settings."""
-    _Settings.values = {Resecta.SETTINGS_ADDRESS: planning_server.grpc_addr}
+def test_self_test_starts_its_own_server(Resecta, monkeypatch):
+    """`ResectaTest.runTest()` exactly as Slicer runs it: it starts `resecta serve` itself."""
+    monkeypatch.setenv("RESECTA_BIN", resecta_bin())
     test = Resecta.ResectaTest()
     test.runTest()
-    assert test.messages[-1].startswith("Resecta scenario passed")
+    assert test.messages[-1].startswith("Resecta scenario passed"), test.messages
+
+
+def test_self_test_without_a_server_program_skips(Resecta, monkeypatch):
+    """On a dashboard without `resecta`: a visible skip, never a false failure."""
+    monkeypatch.delenv("RESECTA_BIN", raising=False)
+    monkeypatch.setenv("PATH", "/nonexistent")
+    test = Resecta.ResectaTest()
+    test.runTest()
+    assert test.messages[-1].startswith("Resecta self-test skipped: no resecta server program")
+
+
+def test_old_slicer_is_refused_with_a_clear_message(Resecta, scene):
+    Resecta._gui.slicer_version = "5.8.1"
+    import slicer
+
+    slicer.app.applicationVersion = "5.8.1"
+    w = Resecta.ResectaWidget(types.SimpleNamespace(isEntered=False))
+    w.setup()
+    try:
+        assert "5.10 or newer" in w.ui.connectionStatusLabel.text
+        assert not w.ui.connectButton.enabled
+    finally:
+        w.cleanup()

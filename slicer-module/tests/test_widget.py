@@ -1,0 +1,211 @@
+"""The Widget's lifecycle in a fake of the Qt/CTK surface (`fake_gui.py`) on real MRML and a real
+server: what `setup`/`enter` take (timers, observers, shortcuts, GUI connections, threads) is
+given back by `exit`/`cleanup` (a reload), the status is truthful, and the panel's controls
+follow the scene."""
+
+import importlib
+import sys
+import threading
+import types
+
+import pytest
+
+import fake_gui
+from conftest import load_phantom_segmentation
+
+
+@pytest.fixture
+def app(scene, monkeypatch):
+    gui = fake_gui.install(monkeypatch, scene)
+    sys.modules.pop("Resecta", None)
+    gui.Resecta = importlib.import_module("Resecta")
+    yield gui
+    sys.modules.pop("Resecta", None)
+
+
+def _widget(app):
+    w = app.Resecta.ResectaWidget(types.SimpleNamespace(isEntered=True))
+    w.setup()
+    return w
+
+
+def _connect(app, w, server):
+    w.ui.serverAddressLineEdit.text = server.grpc_addr
+    w.ui.connectButton.emit("clicked", True)
+    app.wait(lambda: w.ui.connectionStatusLabel.text.startswith("Connected"), 30)
+
+
+def _pick_phantom(app, w, phantom):
+    _lm, seg = load_phantom_segmentation(app.scene, phantom)
+    w.ui.segmentationSelector.setCurrentNode(seg)
+    for row, role in enumerate(["parenchyma", "tumor", "portal"]):
+        w.ui.roleTable.cellWidget(row, 1).currentText = role
+    return seg
+
+
+def _alive(prefix="resecta"):
+    return [t for t in threading.enumerate() if t.name.startswith(prefix) and t.is_alive()]
+
+
+def test_enter_exit_and_reload_give_back_what_they_took(app, planning_server, phantom):
+    w = _widget(app)
+    assert [t.interval for t in app.running_timers] == [20]  # the poll timer
+    undo, redo = app.main_window.actions[:2]
+    w.enter()
+    w.enter()  # Slicer may enter twice: still one shortcut per key
+    keys = sorted(s.sequence.keys for s in app.main_window.shortcuts)
+    assert keys == ["Ctrl+Y", "Ctrl+Z"]
+    assert undo.shortcut.keys == "" and redo.shortcut.keys == ""  # lent to the panel
+    w.exit()
+    assert app.main_window.shortcuts == [] and not app.gui_connections
+    assert (undo.shortcut.keys, redo.shortcut.keys) == ("Ctrl+Z", "Ctrl+Y")
+
+    w.enter()
+    _connect(app, w, planning_server)
+    _pick_phantom(app, w, phantom)
+    w.ui.buildModelsButton.emit("clicked", True)
+    app.wait(lambda: app.errors or (w.logic.models_ready and w.ui.tumorComboBox.count > 0), 120)
+    assert not app.errors and _alive("resecta-watch")
+    # Reload: Slicer calls cleanup() on the old widget (no exit() first) and makes a new one.
+    w.cleanup()
+    assert app.main_window.shortcuts == [], "the shortcuts leaked"
+    assert (undo.shortcut.keys, redo.shortcut.keys) == ("Ctrl+Z", "Ctrl+Y")
+    assert app.running_timers == [] and not app.gui_connections
+    assert w.Observations == [], f"observers left: {w.Observations}"
+    app.wait(lambda: not w.logic.threads_alive, 10)
+    assert not w.logic.connected
+    again = _widget(app)
+    again.enter()
+    assert len(app.main_window.shortcuts) == 2 and len(app.running_timers) == 1
+    again.cleanup()
+    assert app.main_window.shortcuts == [] and app.running_timers == []
+    assert not app.dialogs, app.dialogs
+
+
+def test_scene_close_clears_the_panel_and_it_tells_the_truth(app, planning_server, phantom):
+    w = _widget(app)
+    w.enter()
+    try:
+        assert w.ui.connectionStatusLabel.text == "Not connected"
+        assert not w.ui.buildModelsButton.enabled
+        _connect(app, w, planning_server)
+        assert not w.ui.buildModelsButton.enabled  # no segmentation yet
+        # The segmentation picked after connecting enables Build.
+        _pick_phantom(app, w, phantom)
+        assert w.ui.buildModelsButton.enabled and w.ui.roleTable.rowCount == 3
+        w.ui.buildModelsButton.emit("clicked", True)
+        assert not w.ui.buildModelsButton.enabled and w.ui.cancelBuildButton.enabled
+        app.wait(lambda: w.logic.models_ready and w.ui.tumorComboBox.count > 0
+                 and not w.logic.building, 120)
+        assert w.ui.buildModelsButton.enabled and not w.ui.cancelBuildButton.enabled
+        assert "models so far" in w.ui.statusLabel.text or "models built" in w.ui.statusLabel.text
+        assert w.ui.buildProgressBar.value == 100
+        sid = w.logic.session_id
+        assert w._parameterNode.sessionId == sid
+
+        app.scene.Clear(0)
+        assert w.ui.tumorComboBox.count == 0 and w.ui.resectionComboBox.count == 0
+        assert w.ui.roleTable.rowCount == 0
+        assert w.ui.marginIndicatorButton.text == "No resection"
+        assert not w.logic.has_session and not w._parameterNode.sessionId
+        # The connection is the application's, not the scene's: still open, and said so.
+        assert w.logic.connected and w.ui.connectionStatusLabel.text.startswith("Connected")
+        assert not w.ui.undoButton.enabled and not w.ui.newResectionButton.enabled
+        assert not app.dialogs, app.dialogs
+    finally:
+        w.cleanup()
+
+
+def _add_segment(node, segment_id, name):
+    import slicer
+    import vtk
+
+    segment = slicer.vtkSegment()
+    segment.SetName(name)
+    mask = slicer.vtkOrientedImageData()
+    mask.SetDimensions(2, 2, 2)
+    mask.AllocateScalars(vtk.VTK_UNSIGNED_CHAR, 1)
+    segment.AddRepresentation(
+        slicer.vtkSegmentationConverter.GetSegmentationBinaryLabelmapRepresentationName(), mask)
+    node.GetSegmentation().AddSegment(segment, segment_id)
+
+
+def test_role_table_follows_the_segments(app, scene):
+    import slicer
+
+    w = _widget(app)
+    try:
+        seg = scene.AddNewNodeByClass("vtkMRMLSegmentationNode", "seg")
+        _add_segment(seg, "liver", "Liver")
+        w.ui.segmentationSelector.setCurrentNode(seg)
+        assert w.ui.roleTable.rowCount == 1
+        assert w.ui.roleTable.cellWidget(0, 1).currentText == "parenchyma"
+        w.ui.roleTable.cellWidget(0, 1).currentText = "ignore"  # the user's choice is kept
+        _add_segment(seg, "tumour", "Tumour")
+        assert w.ui.roleTable.rowCount == 2
+        assert [w.ui.roleTable.cellWidget(r, 1).currentText for r in range(2)] == ["ignore", "tumor"]
+        seg.GetSegmentation().GetSegment("tumour").SetName("Lesion 2")
+        seg.GetSegmentation().Modified()
+        w.onSegmentsChanged()  # SegmentModified is sent by Slicer's editor; renaming here is silent
+        assert w.ui.roleTable.item(1, 0).text() == "Lesion 2"
+        seg.GetSegmentation().RemoveSegment("liver")
+        assert w.ui.roleTable.rowCount == 1
+        assert w.ui.roleTable.item(0, 0).data(256) == "tumour"
+        assert isinstance(seg, slicer.vtkMRMLSegmentationNode)
+    finally:
+        w.cleanup()
+
+
+def test_end_point_selector_never_offers_a_control_grid(app, scene):
+    import numpy as np
+
+    from ResectaLib import controlgrid
+
+    w = _widget(app)
+    w.enter()
+    try:
+        grid = controlgrid.make_grid_node(scene, "r1", np.zeros((16, 3)), 4, 4)
+        w.ui.placeEndPointButton.checked = True
+        end = w._parameterNode.endPoint
+        assert end is not None and end is not grid and app.markups.active is end
+        assert w.ui.endPointSelector.nodes() == [end]
+        # A grid forced into the selector (an old scene) is not used as the end point.
+        w._parameterNode.endPoint = grid
+        w.ui.placeEndPointButton.checked = False
+        w.ui.placeEndPointButton.checked = True
+        assert w._parameterNode.endPoint is not grid
+        assert grid.GetNumberOfControlPoints() == 16, "Place wiped the control grid"
+        assert w.logic.end_point(grid) is None
+    finally:
+        w.cleanup()
+
+
+def test_undo_without_a_plan_and_install_failures_stay_in_the_panel(app, monkeypatch):
+    w = _widget(app)
+    w.enter()
+    try:
+        ctrl_z = next(s for s in app.main_window.shortcuts if s.sequence.keys == "Ctrl+Z")
+        ctrl_z.emit("activated")
+        assert not app.dialogs and "Nothing to undo" in w.ui.statusLabel.text
+
+        def broken(confirm):
+            raise RuntimeError("pip failed: no network")
+
+        monkeypatch.setattr(app.Resecta.deps, "ensure_installed", broken)
+        w.ui.connectButton.emit("clicked", True)
+        assert [str(e) for e in app.errors] == ["pip failed: no network"]
+        assert w.ui.connectionStatusLabel.text == "Not connected"
+    finally:
+        w.cleanup()
+
+
+def test_a_failed_connection_says_not_connected(app):
+    w = _widget(app)
+    try:
+        w.ui.serverAddressLineEdit.text = "127.0.0.1:9"  # nothing listens there
+        w.ui.connectButton.emit("clicked", True)
+        app.wait(lambda: w.logic.errors, 30)
+        assert w.ui.connectionStatusLabel.text == "Not connected"
+        assert w.ui.statusLabel.text.startswith("Error")
+    finally:
+        w.cleanup()
