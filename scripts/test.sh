@@ -10,9 +10,10 @@ step() { printf '\n== %s ==\n' "$*" >&2; }
 
 step "system packages"
 df -h . >&2 || true
-# Mesa's lavapipe gives wgpu a CPU Vulkan device (with f64), so the GPU tests really run here.
+# Mesa's lavapipe gives wgpu a CPU Vulkan device (with f64), so the GPU tests really run here;
+# Mesa's EGL lets VTK render offscreen (the Slicer module's displayable-manager tests).
 need_apt=()
-for p in mesa-vulkan-drivers libvulkan1; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
+for p in mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
 if ((${#need_apt[@]})); then
   sudo_=""; [ "$(id -u)" = 0 ] || sudo_=sudo
   export DEBIAN_FRONTEND=noninteractive
