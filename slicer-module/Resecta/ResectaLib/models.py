@@ -118,6 +118,19 @@ class ModelUpdater:
         #: how many times a name's polydata was rebuilt (new mesh) vs updated in place
         self.rebuilds: dict[str, int] = {}
         self.updates: dict[str, int] = {}
+        self._nodes: dict[str, object] = {}
+
+    def find(self, name: str):
+        """The model node of `name`: remembered, else looked up in the scene (after a reload
+        the nodes are there before this updater knew them)."""
+        node = self._nodes.get(name)
+        if node is None or self.scene.GetNodeByID(node.GetID()) is not node:
+            node = find_model(self.scene, name, self.session_id)
+            if node is None:
+                self._nodes.pop(name, None)
+            else:
+                self._nodes[name] = node
+        return node
 
     def node_name(self, name: str) -> str:
         return f"{self.prefix} {name}"
@@ -132,10 +145,11 @@ class ModelUpdater:
         from resecta_client.vtk_adapter import to_vtk_polydata
 
         name, kind = surface.name, kind_name(surface.kind)
-        node = find_model(self.scene, name, self.session_id)
+        node = self.find(name)
         created = node is None
         if created:
             node = self.scene.AddNewNodeByClass("vtkMRMLModelNode", self.node_name(name))
+            self._nodes[name] = node
             node.SetAttribute(NAME_ATTRIBUTE, name)
             node.SetAttribute(KIND_ATTRIBUTE, kind)
             if self.session_id:
@@ -181,9 +195,10 @@ class ModelUpdater:
             display.SetSliceIntersectionThickness(3)
 
     def remove(self, name: str) -> bool:
-        node = find_model(self.scene, name, self.session_id)
+        node = self.find(name)
         if node is None:
             return False
+        self._nodes.pop(name, None)
         self.scene.RemoveNode(node)
         return True
 

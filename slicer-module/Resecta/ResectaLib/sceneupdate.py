@@ -87,7 +87,7 @@ class WatchApplier:
                 s = surfaces.get(name)
                 if s is None:
                     continue
-                is_new = models.find_model(scene, name, session_id) is None
+                is_new = self.updater.find(name) is None
                 self.updater.upsert(s, rebuild=name in p.rebuilt)
                 if s.is_resection:
                     out.resections_added_or_removed |= is_new
@@ -100,10 +100,8 @@ class WatchApplier:
             if p.volumes or p.snapshot:
                 out.volumes = live.volumes
         for name in sorted(p.removed):
-            kind = None
-            node = models.find_model(scene, name, session_id)
-            if node is not None:
-                kind = node.GetAttribute(models.KIND_ATTRIBUTE)
+            node = self.updater.find(name)
+            kind = node.GetAttribute(models.KIND_ATTRIBUTE) if node is not None else None
             if self.updater.remove(name):
                 if kind == "resection":
                     out.resections_added_or_removed = True
