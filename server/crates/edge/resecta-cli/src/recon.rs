@@ -8,7 +8,7 @@ use resecta_io::{read_label_map, read_mesh, write_mesh};
 use resecta_poisson::OrientedPoints;
 use resecta_recon::study::{self, StudyConfig};
 use resecta_recon::{
-    McsdParams, ParenchymaMethod, Quality, mask, mcsd, measure, patient_models, psr,
+    McsdParams, ModelOptions, ParenchymaMethod, Quality, mask, mcsd, measure, patient_models, psr,
 };
 use serde::Serialize;
 
@@ -301,9 +301,19 @@ pub struct ModelsArgs {
     /// Folder for the meshes (created if missing).
     #[arg(long)]
     pub out_dir: PathBuf,
+    /// How the parenchyma is built (tumours and vessels always by MCSD).
+    #[arg(long, value_enum, default_value_t = Method::Psr)]
+    pub method: Method,
     /// PSR depth for the parenchyma.
     #[arg(long, default_value_t = 7)]
     pub depth: u32,
+    /// One vessel model per face-connected component instead of one per label.
+    #[arg(long)]
+    pub split_components: bool,
+    /// Vessel components smaller than this (mm³) get no model and are counted (tumours: always
+    /// 10 mm³, the planner's rule).
+    #[arg(long, default_value_t = resecta_recon::SPECK_MM3)]
+    pub min_component_mm3: Real,
     /// Mesh format (file extension).
     #[arg(long, default_value = "vtp")]
     pub format: String,
@@ -315,6 +325,8 @@ pub struct ModelsArgs {
 struct ModelEntry {
     name: String,
     role: String,
+    /// The label value it was built from (parenchyma: when the role has one).
+    label: Option<u16>,
     method: &'static str,
     voxels: usize,
     polys: usize,
@@ -325,8 +337,23 @@ struct ModelEntry {
 }
 
 #[derive(Debug, Serialize)]
+struct DroppedEntry {
+    role: &'static str,
+    components: usize,
+    voxels: usize,
+    volume_ml: Real,
+}
+
+#[derive(Debug, Serialize)]
 struct ModelsSummary {
     models: Vec<ModelEntry>,
+    /// Components left out as specks, per role with any.
+    dropped: Vec<DroppedEntry>,
+    min_component_mm3: Real,
+    read_ms: Real,
+    /// Label map → meshes in memory.
+    reconstruct_ms: Real,
+    /// The whole command, writing included.
     time_ms: Real,
 }
 
@@ -341,28 +368,34 @@ pub fn models(args: &ModelsArgs) -> Result<(), CliError> {
     let start = Instant::now();
     pb.set_message("reading label map");
     let labels = read_labels(&args.input)?;
+    let read_ms = ms(start);
     std::fs::create_dir_all(&args.out_dir)
         .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
     let mut built = |name: &str| {
         pb.set_message(format!("built {name}"));
         true
     };
-    let models = patient_models(
-        &labels,
-        &roles,
-        ParenchymaMethod::Psr { depth: args.depth },
-        &McsdParams::default(),
-        &mut built,
-    )
-    .map_err(recon_err)?;
+    let options = ModelOptions {
+        parenchyma: match args.method {
+            Method::Psr => ParenchymaMethod::Psr { depth: args.depth },
+            Method::Mcsd => ParenchymaMethod::Mcsd,
+        },
+        mcsd: McsdParams::default(),
+        split_components: args.split_components,
+        min_component_mm3: args.min_component_mm3,
+    };
+    let recon_start = Instant::now();
+    let built = patient_models(&labels, &roles, &options, &mut built).map_err(recon_err)?;
+    let reconstruct_ms = ms(recon_start);
     let mut entries = Vec::new();
-    for m in &models {
+    for m in &built.models {
         let file = args.out_dir.join(format!("{}.{}", m.name(), args.format));
         write_mesh(&file, &m.mesh)?;
         let report = m.mesh.report();
         entries.push(ModelEntry {
             name: m.name(),
             role: m.role.name().to_owned(),
+            label: m.label,
             method: m.method,
             voxels: m.voxels,
             polys: m.mesh.triangles().len(),
@@ -375,6 +408,19 @@ pub fn models(args: &ModelsArgs) -> Result<(), CliError> {
     pb.finish_and_clear();
     let summary = ModelsSummary {
         models: entries,
+        dropped: built
+            .dropped
+            .iter()
+            .map(|d| DroppedEntry {
+                role: d.role.name(),
+                components: d.components,
+                voxels: d.voxels,
+                volume_ml: d.volume_mm3 / 1000.0,
+            })
+            .collect(),
+        min_component_mm3: args.min_component_mm3,
+        read_ms,
+        reconstruct_ms,
         time_ms: ms(start),
     };
     if args.json {
@@ -393,6 +439,12 @@ pub fn models(args: &ModelsArgs) -> Result<(), CliError> {
                 "NOT watertight"
             },
             e.file.display()
+        );
+    }
+    for d in &summary.dropped {
+        println!(
+            "{}: {} component(s) below {} mm³ left out ({:.4} ml)",
+            d.role, d.components, summary.min_component_mm3, d.volume_ml
         );
     }
     println!(

@@ -374,6 +374,16 @@ pub fn reconstruct_options(r: &pb::ReconstructRequest) -> Wire<ReconOptions> {
         }
         options.decimation = Some(v);
     }
+    if let Some(v) = o.min_component_mm3 {
+        if finite("options.min_component_mm3", v)? < 0.0 {
+            return Err(WireError::invalid(
+                "options.min_component_mm3",
+                format!("{v} is negative"),
+            ));
+        }
+        options.min_component_mm3 = Some(v);
+    }
+    options.split_components = o.split_components.unwrap_or(false);
     Ok(options)
 }
 
@@ -551,9 +561,23 @@ pub fn reconstruct_event(e: ReconstructEvent) -> pb::ReconstructResponse {
             Event::Progress(pb::ReconstructProgress { stage, fraction })
         }
         ReconstructEvent::Model { model } => Event::Model(model_info(&model)),
-        ReconstructEvent::Done { models, time_ms } => Event::Done(pb::ReconstructDone {
+        ReconstructEvent::Done {
+            models,
+            time_ms,
+            dropped,
+            min_component_mm3,
+        } => Event::Done(pb::ReconstructDone {
             model_count: u32::try_from(models).unwrap_or(u32::MAX),
             elapsed_s: time_ms / 1000.0,
+            dropped: dropped
+                .into_iter()
+                .map(|d| pb::DroppedComponents {
+                    kind: surface_kind(d.kind),
+                    count: u32::try_from(d.count).unwrap_or(u32::MAX),
+                    volume_ml: d.volume_ml,
+                })
+                .collect(),
+            min_component_mm3,
         }),
     };
     pb::ReconstructResponse { event: Some(event) }

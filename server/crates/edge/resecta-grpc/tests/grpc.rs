@@ -862,6 +862,26 @@ async fn reconstruction_streams_to_done_and_models_export_in_chunks() {
             ),
             "options.smoothing",
         ),
+        (
+            bad(
+                psr,
+                pb::ReconstructOptions {
+                    min_component_mm3: Some(-1.0),
+                    ..Default::default()
+                },
+            ),
+            "options.min_component_mm3",
+        ),
+        (
+            bad(
+                psr,
+                pb::ReconstructOptions {
+                    min_component_mm3: Some(f64::NAN),
+                    ..Default::default()
+                },
+            ),
+            "options.min_component_mm3",
+        ),
         (bad(99, pb::ReconstructOptions::default()), "method"),
     ];
     for (request, field) in cases {
@@ -900,11 +920,14 @@ async fn reconstruction_streams_to_done_and_models_export_in_chunks() {
     let done = done.expect("done");
     assert!(progress > 0);
     assert_eq!(done.model_count as usize, models.len());
+    assert_eq!(done.min_component_mm3, 10.0);
+    assert!(done.dropped.is_empty(), "{:?}", done.dropped);
     let tumour = models
         .iter()
         .find(|m| m.name == "tumor_1")
         .expect("tumor_1");
     assert_eq!(tumour.kind, pb::SurfaceKind::Tumor as i32);
+    assert_eq!(tumour.label, 2);
     assert_eq!(
         session(&mut c, &id).await.state,
         pb::SessionState::Ready as i32
@@ -1010,6 +1033,7 @@ async fn mcsd_and_reconstruction_options_are_honoured() {
                 psr_depth: None,
                 smoothing: Some(0.3),
                 decimation: Some(0.5),
+                ..Default::default()
             }),
         },
     )

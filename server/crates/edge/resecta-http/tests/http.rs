@@ -293,6 +293,8 @@ async fn reconstruction_streams_progress_models_and_done() {
     let done = done.expect("a done event");
     assert!(progress > 0);
     assert_eq!(done["models"].as_u64(), Some(models.len() as u64));
+    assert_eq!(done["dropped"], json!([]));
+    assert_eq!(done["min_component_mm3"], 10.0);
     assert!(models.contains(&"tumor_1".to_owned()), "{models:?}");
     assert_eq!(
         get(s.addr, &format!("/v1/sessions/{id}")).await.json()["state"],
@@ -351,6 +353,8 @@ async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
         (json!({"method": "mcsd", "smoothing": 1.5}), "smoothing"),
         (json!({"decimation": 1.0}), "decimation"),
         (json!({"smoothness": 0.5}), "smoothness"),
+        (json!({"min_component_mm3": -1}), "min_component_mm3"),
+        (json!({"split_components": "yes"}), "boolean"),
     ] {
         let p = post_json(s.addr, &url, &body)
             .await
@@ -384,6 +388,21 @@ async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
         liver(&reconstructed(s.addr, &id, &json!({"method": "psr", "psr_depth": 4})).await);
     assert_eq!(coarse["method"], "psr");
     assert!(coarse["triangles"].as_u64() < psr["triangles"].as_u64());
+    let split = reconstructed(
+        s.addr,
+        &id,
+        &json!({"split_components": true, "min_component_mm3": 0}),
+    )
+    .await;
+    let names: Vec<_> = split.iter().map(|m| (&m["name"], &m["label"])).collect();
+    assert_eq!(
+        names,
+        [
+            (&json!("parenchyma"), &json!(1)),
+            (&json!("tumor_1"), &json!(2)),
+            (&json!("portal_1"), &json!(3))
+        ]
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

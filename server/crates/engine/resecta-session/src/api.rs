@@ -180,7 +180,8 @@ pub struct Versioned<T> {
 pub struct ModelInfo {
     pub name: String,
     pub kind: SurfaceKind,
-    /// The label value the model was built from when its role has one label; 0 otherwise.
+    /// The label value (segment) the model was built from; for the parenchyma its label when
+    /// the role has one, 0 otherwise.
     #[serde(default)]
     pub label: u16,
     pub method: String,
@@ -201,7 +202,8 @@ pub enum ReconMethod {
 }
 
 /// Options of one reconstruction; every field defaults to the server's choice (PSR at the
-/// configured depth, MCSD smoothing 0.5 and no decimation). Also the HTTP request body.
+/// configured depth, MCSD smoothing 0.5 and no decimation, one model per vessel label, specks
+/// below 10 mm³ left out). Also the HTTP request body.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ReconOptions {
@@ -212,14 +214,40 @@ pub struct ReconOptions {
     pub smoothing: Option<Real>,
     /// MCSD fraction of triangles removed, in [0, 1); 0 disables decimation.
     pub decimation: Option<Real>,
+    /// One vessel model per face-connected component instead of one per label (tumours are
+    /// always one per component).
+    pub split_components: bool,
+    /// Vessel components smaller than this (mm³, ≥ 0) are left out and counted; absent: 10.
+    /// Tumours always use 10 mm³, the planner's rule for targets.
+    pub min_component_mm3: Option<Real>,
+}
+
+/// Components of one role left out of the models as specks.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DroppedComponents {
+    pub kind: SurfaceKind,
+    pub count: usize,
+    pub volume_ml: Real,
 }
 
 #[derive(Debug, Clone, Serialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
 pub enum ReconstructEvent {
-    Progress { stage: String, fraction: Real },
-    Model { model: ModelInfo },
-    Done { models: usize, time_ms: Real },
+    Progress {
+        stage: String,
+        fraction: Real,
+    },
+    Model {
+        model: ModelInfo,
+    },
+    Done {
+        models: usize,
+        time_ms: Real,
+        /// Specks left out, one entry per role with any.
+        dropped: Vec<DroppedComponents>,
+        /// The vessel speck volume used (mm³).
+        min_component_mm3: Real,
+    },
 }
 
 /// What a surface shows.

@@ -23,15 +23,17 @@ use resecta_plan::{
     Anatomy, History, LogEntry, Plan, PlanEvent, Planner, SlicePositions, SliceProjections,
     VolumeReport, slice_projections,
 };
-use resecta_recon::{McsdParams, ParenchymaMethod, ReconError, patient_models};
+use resecta_recon::{
+    McsdParams, ModelOptions, ParenchymaMethod, ReconError, SPECK_MM3, patient_models,
+};
 use resecta_store::{Blob, SessionRecord, SessionStore};
 use serde::{Deserialize, Serialize};
 use tokio::sync::{Mutex as AsyncMutex, mpsc};
 
 use crate::api::{
-    API_VERSION, EditOp, EditOutcome, LabelMapSource, LabelMapSummary, Limits, ModelInfo,
-    ReconMethod, ReconOptions, ReconstructEvent, ResectionStatus, ServerInfo, SessionInfo,
-    SessionState, Surface, SurfaceKind, Versioned,
+    API_VERSION, DroppedComponents, EditOp, EditOutcome, LabelMapSource, LabelMapSummary, Limits,
+    ModelInfo, ReconMethod, ReconOptions, ReconstructEvent, ResectionStatus, ServerInfo,
+    SessionInfo, SessionState, Surface, SurfaceKind, Versioned,
 };
 use crate::error::{Missing, Quota, Result, SessionError};
 use crate::labelmap;
@@ -718,9 +720,9 @@ impl Service {
         Ok(summary)
     }
 
-    /// The parenchyma method and MCSD parameters of `options`, or [`SessionError::Invalid`]
-    /// naming the field out of range.
-    fn recon_params(&self, options: &ReconOptions) -> Result<(ParenchymaMethod, McsdParams)> {
+    /// The model options of `options`, or [`SessionError::Invalid`] naming the field out of
+    /// range.
+    fn recon_params(&self, options: &ReconOptions) -> Result<ModelOptions> {
         let depth = options.psr_depth.unwrap_or(self.config.psr_depth);
         if !(1..=10).contains(&depth) {
             return Err(SessionError::Invalid(format!(
@@ -740,33 +742,41 @@ impl Service {
                 "decimation {decimation} is outside [0, 1)"
             )));
         }
+        let min_component_mm3 = options.min_component_mm3.unwrap_or(SPECK_MM3);
+        if !(min_component_mm3 >= 0.0 && min_component_mm3.is_finite()) {
+            return Err(SessionError::Invalid(format!(
+                "min_component_mm3 {min_component_mm3} is not a finite volume ≥ 0"
+            )));
+        }
         let parenchyma = match options.method {
             ReconMethod::Psr => ParenchymaMethod::Psr { depth },
             ReconMethod::Mcsd => ParenchymaMethod::Mcsd,
         };
-        Ok((
+        Ok(ModelOptions {
             parenchyma,
-            McsdParams {
+            mcsd: McsdParams {
                 smoothing,
                 decimation,
             },
-        ))
+            split_components: options.split_components,
+            min_component_mm3,
+        })
     }
 
-    /// Builds the surface models (parenchyma by screened Poisson or, on request, MCSD; tumours
-    /// and vessels by MCSD) off the runtime with `options`, checked before anything starts.
+    /// Builds the surface models (parenchyma by screened Poisson or, on request, MCSD; one MCSD
+    /// model per vessel label and per tumour component, specks counted in `Done`) off the
+    /// runtime with `options`, checked before anything starts.
     /// Events arrive on the returned channel; dropping it cancels the work.
     pub async fn reconstruct(
         self: &Arc<Self>,
         id: &str,
         options: ReconOptions,
     ) -> Result<mpsc::Receiver<Result<ReconstructEvent>>> {
-        let (parenchyma, mcsd_params) = self.recon_params(&options)?;
+        let model_options = self.recon_params(&options)?;
         let (s, st) = self.open(id).await?;
         let loaded = st.loaded.as_ref().ok_or_else(no_label_map)?;
         let labels = Arc::clone(&loaded.labels);
         let roles = loaded.summary.roles.clone();
-        let model_roles = roles.clone();
         let generation = loaded.generation;
         drop(st);
         let (tx, rx) = mpsc::channel(64);
@@ -787,7 +797,7 @@ impl Service {
                     };
                     progress_tx.blocking_send(Ok(event)).is_ok()
                 };
-                patient_models(&labels, &roles, parenchyma, &mcsd_params, &mut progress).map_err(
+                patient_models(&labels, &roles, &model_options, &mut progress).map_err(
                     |e| match e {
                         ReconError::Cancelled => SessionError::Cancelled,
                         e => SessionError::Precondition(
@@ -800,15 +810,25 @@ impl Service {
             .await
             .and_then(|built| built);
             let result = match built {
-                Ok(models) => {
+                Ok(built) => {
+                    let dropped = built
+                        .dropped
+                        .iter()
+                        .map(|d| DroppedComponents {
+                            kind: surface_kind(d.role),
+                            count: d.components,
+                            volume_ml: d.volume_mm3 / 1000.0,
+                        })
+                        .collect();
                     service
-                        .install_models(&s, generation, &model_roles, models)
+                        .install_models(&s, generation, built.models)
                         .await
+                        .map(|infos| (infos, dropped))
                 }
                 Err(e) => Err(e),
             };
             let end = match result {
-                Ok(infos) => {
+                Ok((infos, dropped)) => {
                     for model in &infos {
                         let _ = tx
                             .send(Ok(ReconstructEvent::Model {
@@ -819,6 +839,8 @@ impl Service {
                     Ok(ReconstructEvent::Done {
                         models: infos.len(),
                         time_ms: started.elapsed().as_secs_f64() * 1e3,
+                        dropped,
+                        min_component_mm3: model_options.min_component_mm3,
                     })
                 }
                 Err(e) => Err(e),
@@ -832,21 +854,16 @@ impl Service {
         &self,
         s: &Arc<Session>,
         generation: u64,
-        roles: &RoleMap,
         built: Vec<resecta_recon::PatientModel>,
     ) -> Result<Vec<ModelInfo>> {
         let encode = self.config.encode;
         let models: Vec<Model> = built
             .into_iter()
             .map(|m| -> Result<Model> {
-                let label = match roles.labels(m.role) {
-                    [one] => *one,
-                    _ => 0,
-                };
                 let info = ModelInfo {
                     name: m.name(),
                     kind: surface_kind(m.role),
-                    label,
+                    label: m.label.unwrap_or(0),
                     method: m.method.to_owned(),
                     triangles: m.mesh.triangles().len(),
                     vertices: m.mesh.vertices().len(),

@@ -1,9 +1,11 @@
 //! The patient as the planner needs it, built once from a label map: the liver envelope (for
 //! "inside the liver" tests), the functional liver (for volumetry), the parenchyma surface (for
-//! the initial contour) and the tumour components with their surface models.
+//! the initial contour) and the tumour components with their surface models: the components of
+//! at least [`resecta_recon::SPECK_MM3`], the same list as the reconstruction's tumour models.
 
 use rayon::prelude::*;
 use resecta_geom::{LabelMap, Real, Role, RoleMap, TriMesh, Vec3, Volume};
+use resecta_recon::models::{self, LabelParts};
 use resecta_recon::{McsdParams, mask, mcsd};
 
 use crate::error::PlanError;
@@ -43,7 +45,7 @@ pub fn tumour_model(mask: &Volume<bool>) -> Result<TriMesh, PlanError> {
 /// A target point picks the tumour component containing it or the nearest within this (mm).
 pub const TARGET_POINT_SNAP_MM: Real = 5.0;
 
-/// One connected tumour.
+/// One connected tumour (a planning target).
 #[derive(Debug, Clone)]
 pub struct Tumour {
     pub label: u16,
@@ -103,13 +105,9 @@ impl Anatomy {
         let functional = Volume::from_vec(labels.grid().clone(), functional_data)?;
         let parenchyma = mcsd::reconstruct(&envelope, &McsdParams::default())?;
         let mut tumours = Vec::new();
-        for &label in tumour_labels {
-            if !present.contains_key(&label) {
-                continue;
-            }
-            let m = mask::select(labels, &[label])?;
-            for comp in mask::components(&m)? {
-                tumours.push(tumour(labels, &lut, label, &comp)?);
+        for LabelParts { label, parts } in models::tumours(labels, roles)? {
+            for k in 0..parts.len() {
+                tumours.push(tumour(labels, &lut, label, &parts.crop(k)?)?);
             }
         }
         Ok(Self {

@@ -376,3 +376,46 @@ fn tumour_models_keep_their_volume_also_when_small_and_coarse() {
     let ball = 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
     assert!((big.mesh.enclosed_volume() - ball).abs() < 0.05 * ball);
 }
+
+#[test]
+fn the_targets_are_the_reconstructions_tumour_models_specks_left_out() {
+    // Two tumours, one-voxel tumour specks (1.3 mm³) inside and outside the liver: neither speck
+    // is a target (the one outside would otherwise refuse the anatomy) nor gets a model.
+    let mut s = spec();
+    s.tumors.push(SphereSpec {
+        center: [-30.0, 5.0, 0.0],
+        radius: 6.0,
+    });
+    let mut labels = generate(&s).unwrap().labels;
+    for p in [[0.0, 30.0, 0.0], [64.0, 0.0, 0.0]] {
+        let c = labels
+            .grid()
+            .world_to_index(Vec3::from(p))
+            .map(|c| c.round() as usize);
+        assert!(labels.set([c.x, c.y, c.z], 2));
+    }
+    let a = Anatomy::new(&labels, &s.roles).unwrap();
+    let options = resecta_recon::ModelOptions {
+        parenchyma: resecta_recon::ParenchymaMethod::Mcsd,
+        ..Default::default()
+    };
+    let built = resecta_recon::patient_models(&labels, &s.roles, &options, &mut |_| true).unwrap();
+    let models: Vec<_> = built
+        .models
+        .iter()
+        .filter(|m| m.role == Role::Tumor)
+        .map(|m| (m.label, m.voxels))
+        .collect();
+    let targets: Vec<_> = a
+        .tumours()
+        .iter()
+        .map(|t| (Some(t.label), t.voxels))
+        .collect();
+    assert_eq!(models.len(), 2);
+    assert_eq!(models, targets);
+    assert_eq!(built.dropped.len(), 1);
+    assert_eq!(
+        (built.dropped[0].role, built.dropped[0].components),
+        (Role::Tumor, 2)
+    );
+}

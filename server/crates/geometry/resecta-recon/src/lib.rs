@@ -3,7 +3,8 @@
 //! - [`psr`]: Poisson surface reconstruction from the mask's oriented points (parenchyma).
 //! - [`mcsd`]: marching cubes, decimation, windowed-sinc smoothing — 3D Slicer's method
 //!   (tumours, vessels, and the comparison).
-//! - [`models`]: the complete patient model of Fig. 6.9, one mesh per role and component.
+//! - [`models`]: the complete patient model of Fig. 6.9: one mesh per vessel label (segment), per
+//!   tumour component, and the liver; specks counted, not modelled.
 //! - [`quality`]: accuracy against the oriented points, polygons, volume, curvature.
 //! - [`study`]: the Paper I study (PSR depths × MCSD parameters, σ, Pareto front) and the
 //!   per-patient choice of depth.
@@ -18,7 +19,9 @@ pub mod quality;
 pub mod study;
 
 pub use mcsd::McsdParams;
-pub use models::{ParenchymaMethod, PatientModel, patient_models};
+pub use models::{
+    Dropped, ModelOptions, ParenchymaMethod, PatientModel, PatientModels, SPECK_MM3, patient_models,
+};
 pub use psr::PsrModel;
 pub use quality::{Quality, measure};
 

@@ -94,58 +94,154 @@ pub fn crop(mask: &Volume<bool>, pad: usize) -> Result<Volume<bool>, ReconError>
 /// order), each cropped to itself with one voxel of margin. Face connectivity matches the
 /// surfaces: marching cubes separates objects that touch only along an edge or a corner.
 pub fn components(mask: &Volume<bool>) -> Result<Vec<Volume<bool>>, ReconError> {
-    let [nx, ny, nz] = mask.grid().dims();
-    let data = mask.data();
-    let mut label = vec![u32::MAX; data.len()];
-    // (size, first voxel, bounds lo, bounds hi)
-    let mut sizes: Vec<(usize, usize, [usize; 3], [usize; 3])> = Vec::new();
-    let mut stack = Vec::new();
-    for start in 0..data.len() {
-        if !data[start] || label[start] != u32::MAX {
-            continue;
-        }
-        let id = sizes.len() as u32;
-        label[start] = id;
-        stack.push(start);
-        let mut size = 0usize;
-        let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
-        while let Some(v) = stack.pop() {
-            size += 1;
-            let (i, j, k) = (v % nx, (v / nx) % ny, v / (nx * ny));
-            for (a, c) in [i, j, k].into_iter().enumerate() {
-                lo[a] = lo[a].min(c);
-                hi[a] = hi[a].max(c + 1);
+    let parts = Components::new(mask, 0)?;
+    (0..parts.len()).map(|k| parts.crop(k)).collect()
+}
+
+/// One kept component: voxel count and index bounds `[lo, hi)`.
+#[derive(Debug, Clone, Copy)]
+struct Part {
+    voxels: usize,
+    lo: [usize; 3],
+    hi: [usize; 3],
+}
+
+/// The face-connected components of a mask with at least `min_voxels` voxels, largest first
+/// (ties: first voxel in memory order), and the count and voxels of those left out.
+#[derive(Debug)]
+pub struct Components {
+    /// Per voxel the rank of its kept component, `u32::MAX` for background and dropped ones.
+    ids: Volume<u32>,
+    parts: Vec<Part>,
+    /// Components below `min_voxels`, left out.
+    pub dropped: usize,
+    /// Their voxels.
+    pub dropped_voxels: usize,
+}
+
+impl Components {
+    pub fn new(mask: &Volume<bool>, min_voxels: usize) -> Result<Self, ReconError> {
+        let dims @ [nx, ny, _] = mask.grid().dims();
+        let data = mask.data();
+        let mut ids = vec![u32::MAX; data.len()];
+        // (part, first voxel) in discovery order.
+        let mut found: Vec<(Part, usize)> = Vec::new();
+        let mut stack = Vec::new();
+        for start in 0..data.len() {
+            if !data[start] || ids[start] != u32::MAX {
+                continue;
             }
-            for n in face_neighbours(v, [nx, ny, nz]) {
-                if data[n] && label[n] == u32::MAX {
-                    label[n] = id;
-                    stack.push(n);
+            let id = found.len() as u32;
+            ids[start] = id;
+            stack.push(start);
+            let mut part = Part {
+                voxels: 0,
+                lo: [usize::MAX; 3],
+                hi: [0; 3],
+            };
+            while let Some(v) = stack.pop() {
+                part.voxels += 1;
+                let (i, j, k) = (v % nx, (v / nx) % ny, v / (nx * ny));
+                for (a, c) in [i, j, k].into_iter().enumerate() {
+                    part.lo[a] = part.lo[a].min(c);
+                    part.hi[a] = part.hi[a].max(c + 1);
+                }
+                for n in face_neighbours(v, dims) {
+                    if data[n] && ids[n] == u32::MAX {
+                        ids[n] = id;
+                        stack.push(n);
+                    }
                 }
             }
+            found.push((part, start));
         }
-        sizes.push((size, start, lo, hi));
-    }
-    let mut order: Vec<usize> = (0..sizes.len()).collect();
-    order.sort_by(|&a, &b| {
-        sizes[b]
-            .0
-            .cmp(&sizes[a].0)
-            .then(sizes[a].1.cmp(&sizes[b].1))
-    });
-    let dims = [nx, ny, nz];
-    let ids = Volume::from_vec(mask.grid().clone(), label)?;
-    order
-        .into_iter()
-        .map(|id| {
-            let (_, _, lo, hi) = sizes[id];
-            let lo = lo.map(|v| v.saturating_sub(1));
-            let hi = [0, 1, 2].map(|a| (hi[a] + 1).min(dims[a]));
-            let sub = sub_volume(&ids, lo, hi)?;
-            let id = id as u32;
-            let data = sub.data().iter().map(|&l| l == id).collect();
-            Ok(Volume::from_vec(sub.grid().clone(), data)?)
+        let mut order: Vec<usize> = (0..found.len()).collect();
+        order.sort_by(|&a, &b| {
+            (found[b].0.voxels)
+                .cmp(&found[a].0.voxels)
+                .then(found[a].1.cmp(&found[b].1))
+        });
+        let kept = order
+            .iter()
+            .take_while(|&&c| found[c].0.voxels >= min_voxels)
+            .count();
+        let mut rank = vec![u32::MAX; found.len()];
+        for (r, &c) in order[..kept].iter().enumerate() {
+            rank[c] = r as u32;
+        }
+        ids.par_iter_mut().for_each(|id| {
+            if *id != u32::MAX {
+                *id = rank[*id as usize];
+            }
+        });
+        Ok(Self {
+            ids: Volume::from_vec(mask.grid().clone(), ids)?,
+            parts: order[..kept].iter().map(|&c| found[c].0).collect(),
+            dropped: found.len() - kept,
+            dropped_voxels: order[kept..].iter().map(|&c| found[c].0.voxels).sum(),
         })
-        .collect()
+    }
+
+    /// Kept components.
+    pub fn len(&self) -> usize {
+        self.parts.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.parts.is_empty()
+    }
+
+    /// Voxels of kept component `k`.
+    pub fn voxels(&self, k: usize) -> usize {
+        self.parts[k].voxels
+    }
+
+    /// Voxels of all kept components.
+    pub fn kept_voxels(&self) -> usize {
+        self.parts.iter().map(|p| p.voxels).sum()
+    }
+
+    /// Kept component `k` alone, cropped to it with one voxel of margin.
+    pub fn crop(&self, k: usize) -> Result<Volume<bool>, ReconError> {
+        let Part { lo, hi, .. } = self.parts[k];
+        self.cropped(lo, hi, |id| id == k as u32)
+    }
+
+    /// Every kept component in one mask, cropped to them with one voxel of margin;
+    /// [`ReconError::EmptyMask`] when none is kept.
+    pub fn union(&self) -> Result<Volume<bool>, ReconError> {
+        let (lo, hi) = self
+            .parts
+            .iter()
+            .map(|p| (p.lo, p.hi))
+            .reduce(|(alo, ahi), (blo, bhi)| {
+                (
+                    [0, 1, 2].map(|a| alo[a].min(blo[a])),
+                    [0, 1, 2].map(|a| ahi[a].max(bhi[a])),
+                )
+            })
+            .ok_or(ReconError::EmptyMask)?;
+        self.cropped(lo, hi, |id| id != u32::MAX)
+    }
+
+    fn cropped(
+        &self,
+        lo: [usize; 3],
+        hi: [usize; 3],
+        keep: impl Fn(u32) -> bool + Sync,
+    ) -> Result<Volume<bool>, ReconError> {
+        let dims = self.ids.grid().dims();
+        let lo = lo.map(|v| v.saturating_sub(1));
+        let hi = [0, 1, 2].map(|a| (hi[a] + 1).min(dims[a]));
+        let sub = sub_volume(&self.ids, lo, hi)?;
+        let data = sub.data().par_iter().map(|&id| keep(id)).collect();
+        Ok(Volume::from_vec(sub.grid().clone(), data)?)
+    }
+}
+
+/// Smallest whole number of voxels of `grid` holding at least `mm3` (0 for `mm3` ≤ 0).
+pub fn voxels_for_mm3(grid: &Grid, mm3: Real) -> usize {
+    (mm3 / grid.voxel_volume_mm3()).ceil().max(0.0) as usize
 }
 
 /// Vessel voxels within this distance (mm) of the parenchyma count as liver for the envelope.

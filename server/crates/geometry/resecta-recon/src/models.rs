@@ -1,9 +1,17 @@
-//! The complete patient model (Fig. 6.9): the liver by PSR (or MCSD, on request), every tumour
-//! and vessel component by MCSD, one mesh each.
+//! The complete patient model (Fig. 6.9) as 3D Slicer shows a segmentation: the liver by PSR
+//! (or MCSD, on request), one MCSD model per vessel label (segment) holding all its pieces and
+//! one per tumour component (each is a planning target). Specks — components below a volume —
+//! are left out and counted, never silently.
 
-use resecta_geom::{LabelMap, Role, RoleMap, TriMesh};
+use resecta_geom::{LabelMap, Real, Role, RoleMap, TriMesh};
 
-use crate::{McsdParams, ReconError, mask, mcsd, psr};
+use crate::mask::{self, Components};
+use crate::{McsdParams, ReconError, mcsd, psr};
+
+/// Default speck volume (mm³, 0.01 ml): smaller components are segmentation noise (one to a few
+/// voxels of a CT) and get no model. Tumours always use it, so the tumour models are exactly the
+/// planner's targets ([`tumours`]); vessels take it per request ([`ModelOptions`]).
+pub const SPECK_MM3: Real = 10.0;
 
 /// How the parenchyma (the liver envelope) is reconstructed; tumours and vessels are always
 /// built by MCSD.
@@ -25,15 +33,51 @@ impl ParenchymaMethod {
     }
 }
 
+/// What [`patient_models`] builds and how.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ModelOptions {
+    pub parenchyma: ParenchymaMethod,
+    pub mcsd: McsdParams,
+    /// One vessel model per face-connected component instead of one per label.
+    pub split_components: bool,
+    /// Vessel components smaller than this (mm³, ≥ 0) are left out and counted.
+    pub min_component_mm3: Real,
+}
+
+impl Default for ModelOptions {
+    fn default() -> Self {
+        Self {
+            parenchyma: ParenchymaMethod::Psr { depth: 7 },
+            mcsd: McsdParams::default(),
+            split_components: false,
+            min_component_mm3: SPECK_MM3,
+        }
+    }
+}
+
+impl ModelOptions {
+    fn check(&self) -> Result<(), ReconError> {
+        if !(self.min_component_mm3 >= 0.0 && self.min_component_mm3.is_finite()) {
+            return Err(ReconError::InvalidParameter {
+                name: "min_component_mm3",
+                reason: "must be a finite volume ≥ 0",
+            });
+        }
+        Ok(())
+    }
+}
+
 /// One model of the patient.
 #[derive(Debug, Clone)]
 pub struct PatientModel {
     pub role: Role,
-    /// Component index within the role, largest first.
-    pub component: usize,
+    /// Position within the role: labels in role-map order, then components largest first.
+    pub index: usize,
+    /// The label value it was built from; for the parenchyma its label when the role has one.
+    pub label: Option<u16>,
     /// `"psr"` or `"mcsd"`.
     pub method: &'static str,
-    /// Voxels of the component.
+    /// Voxels it was built from.
     pub voxels: usize,
     pub mesh: TriMesh,
 }
@@ -44,40 +88,104 @@ impl PatientModel {
         if self.role == Role::Parenchyma {
             self.role.name().to_owned()
         } else {
-            format!("{}_{}", self.role.name(), self.component + 1)
+            format!("{}_{}", self.role.name(), self.index + 1)
         }
     }
 }
 
-/// Builds every model, the parenchyma by `parenchyma`, the other roles by MCSD with
-/// `mcsd_params`; `progress(name)` is called after each one and stops the work with
-/// [`ReconError::Cancelled`] when it returns `false`.
+/// Components of one role left out as specks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Dropped {
+    pub role: Role,
+    pub components: usize,
+    pub voxels: usize,
+    pub volume_mm3: Real,
+}
+
+/// Every model, and the specks left out (one entry per role with any).
+#[derive(Debug, Clone)]
+pub struct PatientModels {
+    pub models: Vec<PatientModel>,
+    pub dropped: Vec<Dropped>,
+}
+
+/// One present label of a role and its components above the speck volume.
+#[derive(Debug)]
+pub struct LabelParts {
+    pub label: u16,
+    pub parts: Components,
+}
+
+/// The labels of `role` present in `labels` (role-map order), each with its components of at
+/// least `min_mm3`.
+pub fn label_parts(
+    labels: &LabelMap,
+    roles: &RoleMap,
+    role: Role,
+    min_mm3: Real,
+) -> Result<Vec<LabelParts>, ReconError> {
+    let min_voxels = mask::voxels_for_mm3(labels.grid(), min_mm3);
+    let mut out = Vec::new();
+    for &label in roles.labels(role) {
+        let selected = match mask::select(labels, &[label]) {
+            Ok(m) => m,
+            Err(ReconError::LabelsAbsent { .. }) => continue,
+            Err(e) => return Err(e),
+        };
+        out.push(LabelParts {
+            label,
+            parts: Components::new(&selected, min_voxels)?,
+        });
+    }
+    Ok(out)
+}
+
+/// The tumours: per tumour label its components of at least [`SPECK_MM3`], largest first — the
+/// tumour models and the planner's targets alike.
+pub fn tumours(labels: &LabelMap, roles: &RoleMap) -> Result<Vec<LabelParts>, ReconError> {
+    label_parts(labels, roles, Role::Tumor, SPECK_MM3)
+}
+
+/// Builds every model: the parenchyma, then tumours (one per component), then vessels (one per
+/// label, or per component with `split_components`). `progress(name)` is called after each one
+/// and stops the work with [`ReconError::Cancelled`] when it returns `false`.
 pub fn patient_models(
     labels: &LabelMap,
     roles: &RoleMap,
-    parenchyma: ParenchymaMethod,
-    mcsd_params: &McsdParams,
+    options: &ModelOptions,
     progress: &mut dyn FnMut(&str) -> bool,
-) -> Result<Vec<PatientModel>, ReconError> {
-    let mut out = Vec::new();
+) -> Result<PatientModels, ReconError> {
+    options.check()?;
+    let mcsd_params = &options.mcsd;
+    let mut out = PatientModels {
+        models: Vec::new(),
+        dropped: Vec::new(),
+    };
     let all: Vec<u16> = roles.roles().flat_map(|(_, l)| l.iter().copied()).collect();
     let any = mask::select(labels, &all)?;
     let (lo, hi) = mask::bounds(&any).ok_or(ReconError::EmptyMask)?;
+    drop(any);
     let dims = labels.grid().dims();
     let lo = lo.map(|v| v.saturating_sub(2));
     let hi = [0, 1, 2].map(|a| (hi[a] + 2).min(dims[a]));
     let region = mask::sub_volume(labels, lo, hi)?;
-    if !roles.labels(Role::Parenchyma).is_empty() {
+    let voxel_mm3 = labels.grid().voxel_volume_mm3();
+    let parenchyma_labels = roles.labels(Role::Parenchyma);
+    if !parenchyma_labels.is_empty() {
         let envelope = mask::liver_envelope(&region, roles)?;
         let voxels = envelope.data().iter().filter(|&&b| b).count();
-        let mesh = match parenchyma {
+        let mesh = match options.parenchyma {
             ParenchymaMethod::Psr { depth } => psr::reconstruct(&envelope, depth)?.mesh,
             ParenchymaMethod::Mcsd => mcsd::reconstruct(&envelope, mcsd_params)?,
         };
-        out.push(PatientModel {
+        out.models.push(PatientModel {
             role: Role::Parenchyma,
-            component: 0,
-            method: parenchyma.name(),
+            index: 0,
+            label: match parenchyma_labels {
+                [one] => Some(*one),
+                _ => None,
+            },
+            method: options.parenchyma.name(),
             voxels,
             mesh,
         });
@@ -86,29 +194,49 @@ pub fn patient_models(
         }
     }
     for role in [Role::Tumor, Role::Portal, Role::Hepatic, Role::Vessel] {
-        let wanted = roles.labels(role);
-        if wanted.is_empty() {
-            continue;
-        }
-        let selected = match mask::select(&region, wanted) {
-            Ok(m) => m,
-            Err(ReconError::LabelsAbsent { .. }) => continue,
-            Err(e) => return Err(e),
+        let per_label = if role == Role::Tumor {
+            tumours(&region, roles)?
+        } else {
+            label_parts(&region, roles, role, options.min_component_mm3)?
         };
-        for (component, part) in mask::components(&selected)?.into_iter().enumerate() {
-            let voxels = part.data().iter().filter(|&&b| b).count();
-            let mesh = mcsd::reconstruct(&part, mcsd_params)?;
-            let model = PatientModel {
-                role,
-                component,
-                method: "mcsd",
-                voxels,
-                mesh,
+        let split = role == Role::Tumor || options.split_components;
+        let mut index = 0;
+        let mut dropped = (0, 0);
+        for LabelParts { label, parts } in per_label {
+            dropped = (dropped.0 + parts.dropped, dropped.1 + parts.dropped_voxels);
+            let masks = if split {
+                (0..parts.len())
+                    .map(|k| Ok((parts.voxels(k), parts.crop(k)?)))
+                    .collect::<Result<Vec<_>, ReconError>>()?
+            } else if parts.is_empty() {
+                Vec::new()
+            } else {
+                vec![(parts.kept_voxels(), parts.union()?)]
             };
-            if !progress(&model.name()) {
-                return Err(ReconError::Cancelled);
+            drop(parts);
+            for (voxels, m) in masks {
+                let model = PatientModel {
+                    role,
+                    index,
+                    label: Some(label),
+                    method: "mcsd",
+                    voxels,
+                    mesh: mcsd::reconstruct(&m, mcsd_params)?,
+                };
+                index += 1;
+                if !progress(&model.name()) {
+                    return Err(ReconError::Cancelled);
+                }
+                out.models.push(model);
             }
-            out.push(model);
+        }
+        if dropped.0 > 0 {
+            out.dropped.push(Dropped {
+                role,
+                components: dropped.0,
+                voxels: dropped.1,
+                volume_mm3: dropped.1 as Real * voxel_mm3,
+            });
         }
     }
     Ok(out)

@@ -5,7 +5,9 @@
 use resecta_geom::{Grid, LabelMap, Mat3, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_recon::study::{StudyConfig, auto_depth, run};
-use resecta_recon::{McsdParams, ParenchymaMethod, ReconError, mask, mcsd, patient_models, psr};
+use resecta_recon::{
+    McsdParams, ModelOptions, ParenchymaMethod, ReconError, mask, mcsd, patient_models, psr,
+};
 
 const CENTRE: Vec3 = Vec3::new(3.0, -4.0, 7.0);
 const RADIUS: Real = 30.0;
@@ -218,14 +220,14 @@ fn patient_model_of_the_small_phantom() {
     let models = patient_models(
         &phantom.labels,
         &roles,
-        ParenchymaMethod::Psr { depth: 7 },
-        &McsdParams::default(),
+        &ModelOptions::default(),
         &mut |n| {
             names.push(n.to_owned());
             true
         },
     )
-    .unwrap();
+    .unwrap()
+    .models;
     let by_role = |r: Role| models.iter().filter(|m| m.role == r).count();
     assert_eq!(by_role(Role::Parenchyma), 1);
     assert_eq!(by_role(Role::Tumor), 1);
@@ -235,8 +237,7 @@ fn patient_model_of_the_small_phantom() {
     let cancelled = patient_models(
         &phantom.labels,
         &roles,
-        ParenchymaMethod::Psr { depth: 7 },
-        &McsdParams::default(),
+        &ModelOptions::default(),
         &mut |_| false,
     );
     assert!(matches!(
@@ -270,14 +271,13 @@ fn patient_model_of_the_small_phantom() {
 fn mcsd_parenchyma_of_the_small_phantom_is_labelled_and_volume_true() {
     let phantom = generate(&PhantomSpec::small()).unwrap();
     let roles = RoleMap::default();
-    let models = patient_models(
-        &phantom.labels,
-        &roles,
-        ParenchymaMethod::Mcsd,
-        &McsdParams::default(),
-        &mut |_| true,
-    )
-    .unwrap();
+    let options = ModelOptions {
+        parenchyma: ParenchymaMethod::Mcsd,
+        ..ModelOptions::default()
+    };
+    let models = patient_models(&phantom.labels, &roles, &options, &mut |_| true)
+        .unwrap()
+        .models;
     let liver = &models[0];
     assert_eq!(liver.role, Role::Parenchyma);
     assert_eq!(liver.method, "mcsd");
