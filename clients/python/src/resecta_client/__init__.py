@@ -33,6 +33,7 @@ from .geometry import compose, decompose, label_bytes
 from .scene import LiveScene, SceneUpdate, SurfaceState
 from .types import (
     ControlGroup,
+    DroppedComponents,
     EditResult,
     LabelCount,
     LabelMapSummary,
@@ -41,6 +42,7 @@ from .types import (
     ModelFormat,
     ModelInfo,
     Polyline,
+    Reconstruction,
     Resection,
     ResectionStatus,
     ResectionVolume,
@@ -67,6 +69,7 @@ __all__ = [
     "Client",
     "ControlGroup",
     "DeadlineExceeded",
+    "DroppedComponents",
     "EditResult",
     "FailedPrecondition",
     "InvalidArgument",
@@ -80,6 +83,7 @@ __all__ = [
     "NotFound",
     "Polyline",
     "QuotaExceeded",
+    "Reconstruction",
     "ResectaError",
     "Resection",
     "ResectionStatus",

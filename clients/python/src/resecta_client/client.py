@@ -27,6 +27,7 @@ from .types import (
     ModelFormat,
     ModelInfo,
     Point,
+    Reconstruction,
     ServerInfo,
     SessionInfo,
     Slices,
@@ -306,12 +307,18 @@ class Session:
         psr_depth: int | None = None,
         smoothing: float | None = None,
         decimation: float | None = None,
+        split_components: bool | None = None,
+        min_component_mm3: float | None = None,
         progress: ProgressCallback | None = None,
         on_model: Callable[[ModelInfo], None] | None = None,
         cancel: threading.Event | None = None,
         timeout: float | None = None,
-    ) -> list[ModelInfo]:
-        """Builds the surface models of the label map and returns them once all are built.
+    ) -> Reconstruction:
+        """Builds the surface models of the label map and returns them once all are built: one
+        per vessel label (segment) and per tumour component, or per vessel component with
+        `split_components`; components below `min_component_mm3` (vessels; server default 10)
+        or 10 mm³ (tumours, as the planning targets) get no model and are counted in the
+        result's `dropped`. Absent options take the server's defaults.
 
         `progress(fraction, stage)` is called for every progress event and `on_model(info)` for
         every model as it comes, from this thread (an exception from them cancels the work and
@@ -319,7 +326,11 @@ class Session:
         keeps the previous models, and raises `Cancelled`.
         `FailedPrecondition` without a label map."""
         options = reconstruction_pb2.ReconstructOptions(
-            psr_depth=psr_depth, smoothing=smoothing, decimation=decimation
+            psr_depth=psr_depth,
+            smoothing=smoothing,
+            decimation=decimation,
+            split_components=split_components,
+            min_component_mm3=min_component_mm3,
         )
         request = pb.ReconstructRequest(
             session_id=self.id, method=Method.parse(method).to_pb(), options=options
@@ -336,6 +347,7 @@ class Session:
 
             threading.Thread(target=canceller, name="resecta-reconstruct-cancel", daemon=True).start()
         models: list[ModelInfo] = []
+        done_event = reconstruction_pb2.ReconstructDone()
         try:
             for event in call:
                 kind = event.WhichOneof("event")
@@ -345,8 +357,10 @@ class Session:
                     models.append(ModelInfo.from_pb(event.model))
                     if on_model is not None:
                         on_model(models[-1])
-                elif kind == "done" and progress is not None:
-                    progress(1.0, "done")
+                elif kind == "done":
+                    done_event = event.done
+                    if progress is not None:
+                        progress(1.0, "done")
         except grpc.RpcError as e:
             err = from_rpc_error(e)
             if cancel is not None and cancel.is_set():
@@ -357,7 +371,7 @@ class Session:
         finally:
             done.set()
             call.cancel()  # a no-op after `done`; stops the server's work if a callback raised
-        return models
+        return Reconstruction.from_pb(models, done_event)
 
     # --- resection edits ----------------------------------------------------------------------
 

@@ -288,6 +288,44 @@ class ModelInfo:
         return cls(m.name, kind, m.label, m.triangle_count, m.vertex_count, m.volume_ml)
 
 
+@dataclass(frozen=True)
+class DroppedComponents:
+    """Components of one role too small to model (below the speck volume)."""
+
+    kind: SurfaceKind
+    count: int
+    volume_ml: float
+
+    @classmethod
+    def from_pb(cls, m: reconstruction_pb2.DroppedComponents) -> DroppedComponents:
+        return cls(SurfaceKind.from_pb(m.kind), m.count, m.volume_ml)
+
+
+@dataclass(frozen=True)
+class Reconstruction(Sequence[ModelInfo]):
+    """The models a reconstruction built, in order (a sequence of `ModelInfo`), with the specks
+    it left out (`dropped`, one entry per role with any), the vessel speck volume it used (mm³)
+    and its wall time on the server."""
+
+    models: tuple[ModelInfo, ...]
+    dropped: tuple[DroppedComponents, ...]
+    min_component_mm3: float
+    elapsed_s: float
+
+    @classmethod
+    def from_pb(
+        cls, models: Iterable[ModelInfo], done: reconstruction_pb2.ReconstructDone
+    ) -> Reconstruction:
+        dropped = tuple(DroppedComponents.from_pb(d) for d in done.dropped)
+        return cls(tuple(models), dropped, done.min_component_mm3, done.elapsed_s)
+
+    def __len__(self) -> int:
+        return len(self.models)
+
+    def __getitem__(self, index: Any) -> Any:
+        return self.models[index]
+
+
 # --- resections ------------------------------------------------------------------------------
 
 
