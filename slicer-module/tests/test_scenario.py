@@ -163,3 +163,38 @@ def test_edits_from_another_client_reach_the_scene(scene, dispatcher, planning_s
         assert not again.errors
     finally:
         again.close()
+
+
+def test_models_one_per_segment_and_left_out_fragments_are_reported(scene, dispatcher,
+                                                                    planning_server):
+    """A vessel segment in two pieces gives one model; a one-voxel fragment of it is left out
+    and the status line says so."""
+    from ResectaLib import phantom, segmentation
+    from ResectaLib.logic import PlanningLogic
+
+    labels, ijk_to_ras, names, _truth = phantom.make()
+    vessel = np.argwhere(labels == 3)
+    mid = int(np.median(vessel[:, 2]))
+    cut = vessel[np.abs(vessel[:, 2] - mid) <= 1]
+    labels[tuple(cut.T)] = 1  # the portal vessel (along i) cut in two: still one segment
+    inner = np.argwhere(labels == 1)
+    deep = next(v for v in inner[len(inner) // 2:]
+                if (labels[tuple(slice(c - 1, c + 2) for c in v)] == 1).all())
+    labels[tuple(deep)] = 3  # and a one-voxel fragment of it, alone inside the liver
+    seg = segmentation.segmentation_from_labelmap_array(scene, labels, ijk_to_ras, names)
+    s = PlanningLogic(scene, dispatcher)
+    statuses = []
+    s.set_callbacks(status=statuses.append)
+    try:
+        s.connect(planning_server.grpc_addr)
+        dispatcher.wait_until(lambda: s.connected, 30)
+        built = []
+        # A voxel here is 2×2×3 = 12 mm³: above the server's default speck size (10 mm³).
+        s.upload_and_build(seg, segmentation.default_role_table(seg), on_done=built.append,
+                           min_component_mm3=20.0)
+        dispatcher.wait_until(lambda: built and s.models_ready, 120)
+        assert not s.errors
+        assert sorted(info.name for info in built[0]) == ["parenchyma", "portal_1", "tumor_1"]
+        assert "1 fragment(s) under" in statuses[-1], statuses[-1]
+    finally:
+        s.close()

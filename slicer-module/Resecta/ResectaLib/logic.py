@@ -277,12 +277,19 @@ class PlanningLogic:
         self.model_infos[info.name] = info
         self._emit("model_built", info)
 
-    def _build_done(self, infos, on_done) -> None:
+    def _build_done(self, result, on_done) -> None:
+        """`result` is the client's `Reconstruction`: the models and the specks left out."""
         self._building = False
-        self.model_infos = {i.name: i for i in infos}
-        self._status(f"{len(infos)} models built")
+        self.model_infos = {i.name: i for i in result}
+        text = f"{len(result)} models built"
+        specks = sum(d.count for d in result.dropped)
+        if specks:
+            ml = sum(d.volume_ml for d in result.dropped)
+            text += (f"; {specks} fragment(s) under {result.min_component_mm3:g} mm³ left out "
+                     f"({ml:.3f} ml)")
+        self._status(text)
         if on_done is not None:
-            on_done(infos)
+            on_done(result)
 
     def _build_failed(self, exc) -> None:
         self._building = False
