@@ -82,7 +82,7 @@ def test_enter_exit_and_reload_give_back_what_they_took(app, planning_server, ph
     assert not app.dialogs, app.dialogs
 
 
-def test_scene_close_clears_the_panel_and_it_tells_the_truth(app, planning_server, phantom):
+def test_scene_close_and_reopen(app, planning_server, phantom):
     w = _widget(app)
     w.enter()
     try:
@@ -111,6 +111,13 @@ def test_scene_close_clears_the_panel_and_it_tells_the_truth(app, planning_serve
         # The connection is the application's, not the scene's: still open, and said so.
         assert w.logic.connected and w.ui.connectionStatusLabel.text.startswith("Connected")
         assert not w.ui.undoButton.enabled and not w.ui.newResectionButton.enabled
+        assert app.gui_connections, "the panel is shown: the new scene's parameter node is bound"
+
+        # Reopen: a scene saved with the plan remembers its session; Connect follows it again.
+        w._parameterNode.sessionId = sid
+        w.ui.connectButton.emit("clicked", True)
+        app.wait(lambda: w.logic.session_id == sid and w.ui.tumorComboBox.count > 0, 30)
+        assert w.logic.models_ready and w.ui.undoButton.enabled
         assert not app.dialogs, app.dialogs
     finally:
         w.cleanup()
