@@ -188,3 +188,10 @@ def test_widget_calls_only_what_the_logic_has():
     assert edit_uses, "the Widget sends no edit through the Logic?"
     missing = edit_uses - _instance_attributes(EditCommands)
     assert not missing, f"the Widget calls edit commands that do not exist: {sorted(missing)}"
+
+
+@pytest.mark.parametrize("path", [MODULE / "Resecta.py", *sorted(LIB.glob("*.py"))],
+                         ids=lambda p: p.name)
+def test_module_parses_on_the_python_of_old_slicers(path):
+    """Slicer 5.4–5.8 (Python 3.9) must load the module far enough to say it is not supported."""
+    ast.parse(path.read_text(encoding="utf-8"), filename=str(path), feature_version=(3, 9))
