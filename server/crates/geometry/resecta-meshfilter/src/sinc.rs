@@ -295,7 +295,7 @@ fn edge_aware_stencil(
     }
     let weighted = params.non_manifold_smoothing && params.weight_non_manifold_edges;
     let (mut total, mut non_manifold) = (0usize, 0usize);
-    let mut boundary: Vec<u32> = Vec::with_capacity(2);
+    let (mut boundary, mut boundaries) = ([0u32; 2], 0usize);
     let mut start = 0;
     while start < seg.len() {
         let e = seg[start];
@@ -305,10 +305,11 @@ fn edge_aware_stencil(
         }
         let uses = end - start;
         if uses == 1 {
-            if boundary.len() == 2 {
+            if boundaries == 2 {
                 return 0;
             }
-            boundary.push(e);
+            boundary[boundaries] = e;
+            boundaries += 1;
         } else if uses > 2 {
             non_manifold += 1;
         }
@@ -317,7 +318,7 @@ fn edge_aware_stencil(
         total += copies;
         start = end;
     }
-    match (boundary.as_slice(), non_manifold) {
+    match (&boundary[..boundaries], non_manifold) {
         ([], 0) => total,
         ([], _) if params.non_manifold_smoothing => total,
         (&[b0, b1], 0) => {
@@ -341,17 +342,19 @@ fn unit_or_zero(v: Vec3) -> Vec3 {
     if n > 0.0 { v / n } else { v }
 }
 
-type P3 = [Real; 3];
+/// A position padded to four lanes (the last one 0), so the stencil sums vectorise.
+type P4 = [Real; 4];
 
-/// `x_v − mean(x_stencil)`, summed term by term as VTK does.
+/// `x_v − mean(x_stencil)`, summed term by term as VTK does (every term divided by the stencil
+/// size, in stencil order: VTK's result to the bit; the padding lane costs nothing extra).
 #[inline]
-fn neg_laplacian(x: &[P3], v: usize, stencil: &[u32]) -> P3 {
-    let n = stencil.len() as Real;
+fn neg_laplacian(x: &[P4], v: usize, stencil: &[u32]) -> P4 {
     let xv = x[v];
-    let mut d = [0.0; 3];
+    let n = stencil.len() as Real;
+    let mut d = [0.0; 4];
     for &j in stencil {
         let y = x[j as usize];
-        for k in 0..3 {
+        for k in 0..4 {
             d[k] += (xv[k] - y[k]) / n;
         }
     }
@@ -359,7 +362,7 @@ fn neg_laplacian(x: &[P3], v: usize, stencil: &[u32]) -> P3 {
 }
 
 /// Bounding-box centre and diagonal of all vertices (used or not, as VTK's `GetLength`).
-fn normalization(mesh: &TriMesh) -> (P3, Real) {
+fn normalization(mesh: &TriMesh) -> ([Real; 3], Real) {
     let mut lo = [Real::INFINITY; 3];
     let mut hi = [Real::NEG_INFINITY; 3];
     for p in mesh.vertices() {
@@ -390,44 +393,37 @@ pub fn windowed_sinc(mesh: &TriMesh, params: &SincParams) -> Result<TriMesh, Fil
     } else {
         ([0.0; 3], 1.0)
     };
-    let mut x0: Vec<P3> = mesh
+    let mut x0: Vec<P4> = mesh
         .vertices()
         .par_iter()
         .map(|p| {
-            if params.normalize_coordinates {
-                [0, 1, 2].map(|k| (p[k] - center[k]) / length)
-            } else {
-                [p.x, p.y, p.z]
-            }
+            let [x, y, z] = [0, 1, 2].map(|k| (p[k] - center[k]) / length);
+            [x, y, z, 0.0]
         })
         .collect();
     let n = x0.len();
-    let mut x1 = vec![[0.0; 3]; n];
-    let mut x3 = vec![[0.0; 3]; n];
+    let mut x1 = vec![[0.0; 4]; n];
+    let mut x3 = vec![[0.0; 4]; n];
     // First step: x1 = (I − K/2) x0, accumulator x3 = c0 x0 + c1 x1.
-    x1.par_iter_mut()
-        .zip(x3.par_iter_mut())
-        .enumerate()
-        .for_each(|(v, (x1v, x3v))| {
-            let d = neg_laplacian(&x0, v, stencils.of(v));
-            let x = x0[v];
-            *x1v = [0, 1, 2].map(|k| x[k] - 0.5 * d[k]);
-            *x3v = [0, 1, 2].map(|k| c[0] * x[k] + c[1] * x1v[k]);
-        });
+    per_vertex(&mut x1, &mut x3, |v, x1v, x3v| {
+        let d = neg_laplacian(&x0, v, stencils.of(v));
+        let x = x0[v];
+        for k in 0..4 {
+            x1v[k] = x[k] - 0.5 * d[k];
+            x3v[k] = c[0] * x[k] + c[1] * x1v[k];
+        }
+    });
     // Chebyshev recurrence x2 = 2(I − K/2) x1 − x0, accumulated with weight c_j.
-    let mut x2 = vec![[0.0; 3]; n];
+    let mut x2 = vec![[0.0; 4]; n];
     for &cj in &c[2..] {
-        x2.par_iter_mut()
-            .zip(x3.par_iter_mut())
-            .enumerate()
-            .for_each(|(v, (x2v, x3v))| {
-                let d = neg_laplacian(&x1, v, stencils.of(v));
-                let (a, b) = (x1[v], x0[v]);
-                *x2v = [0, 1, 2].map(|k| a[k] - b[k] + a[k] - d[k]);
-                for k in 0..3 {
-                    x3v[k] += cj * x2v[k];
-                }
-            });
+        per_vertex(&mut x2, &mut x3, |v, x2v, x3v| {
+            let d = neg_laplacian(&x1, v, stencils.of(v));
+            let (a, b) = (x1[v], x0[v]);
+            for k in 0..4 {
+                x2v[k] = a[k] - b[k] + a[k] - d[k];
+                x3v[k] += cj * x2v[k];
+            }
+        });
         // (x0, x1, x2) ← (x1, x2, old x0)
         std::mem::swap(&mut x0, &mut x1);
         std::mem::swap(&mut x1, &mut x2);
@@ -437,6 +433,21 @@ pub fn windowed_sinc(mesh: &TriMesh, params: &SincParams) -> Result<TriMesh, Fil
         .map(|p| Vec3::new(p[0], p[1], p[2]) * length + Vec3::new(center[0], center[1], center[2]))
         .collect();
     rebuild(mesh, vertices)
+}
+
+/// Vertices per rayon task: large enough that scheduling costs little next to the work.
+const CHUNK: usize = 4096;
+
+/// `f(v, &mut out[v], &mut acc[v])` for every vertex, in parallel chunks.
+fn per_vertex(out: &mut [P4], acc: &mut [P4], f: impl Fn(usize, &mut P4, &mut P4) + Sync) {
+    out.par_chunks_mut(CHUNK)
+        .zip(acc.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(c, (out, acc))| {
+            for (i, (o, a)) in out.iter_mut().zip(acc).enumerate() {
+                f(c * CHUNK + i, o, a);
+            }
+        });
 }
 
 /// `mesh`'s triangles and scalars on new vertex positions.
