@@ -10,40 +10,98 @@ use crate::ReconError;
 
 /// Voxels whose label is one of `labels`. Fails naming the labels that do not occur at all.
 pub fn select(labels: &LabelMap, wanted: &[u16]) -> Result<Volume<bool>, ReconError> {
-    if wanted.is_empty() {
-        return Err(ReconError::NoLabels);
+    fn with<F: Fn(u16) -> bool + Sync>(labels: &LabelMap, is: F) -> Vec<bool> {
+        labels.data().par_iter().map(|&l| is(l)).collect()
     }
-    let set: BTreeSet<u16> = wanted.iter().copied().collect();
-    let mut lut = vec![false; usize::from(u16::MAX) + 1];
-    for &l in &set {
-        lut[usize::from(l)] = true;
-    }
-    let data: Vec<bool> = labels
-        .data()
-        .par_iter()
-        .map(|&l| lut[usize::from(l)])
-        .collect();
+    let data = match Wanted::new(wanted)? {
+        Wanted::One(one) => with(labels, |l| l == one),
+        Wanted::Table(t) => with(labels, |l| t[usize::from(l)]),
+    };
     if !data.par_iter().any(|&b| b) {
-        let present: BTreeSet<u16> = labels.data().par_iter().copied().collect();
-        let absent: Vec<u16> = set
-            .iter()
-            .copied()
-            .filter(|l| !present.contains(l))
-            .collect();
-        return Err(ReconError::LabelsAbsent { labels: absent });
+        return Err(absent(labels, wanted));
     }
     Ok(Volume::from_vec(labels.grid().clone(), data)?)
 }
 
+/// [`select`] cropped to the selected voxels plus `pad` voxels of margin (within the volume),
+/// in one scan of the label map and without a mask of its full size.
+pub fn select_cropped(
+    labels: &LabelMap,
+    wanted: &[u16],
+    pad: usize,
+) -> Result<Volume<bool>, ReconError> {
+    fn with<F: Fn(u16) -> bool + Sync>(
+        labels: &LabelMap,
+        pad: usize,
+        is: F,
+    ) -> Option<Result<Volume<bool>, ReconError>> {
+        let (lo, hi) = bounds_where(labels, &is)?;
+        let (lo, hi) = padded(labels.grid(), lo, hi, pad);
+        Some(sub_volume_map(labels, lo, hi, &is))
+    }
+    let cropped = match Wanted::new(wanted)? {
+        Wanted::One(one) => with(labels, pad, |l| l == one),
+        Wanted::Table(t) => with(labels, pad, |l| t[usize::from(l)]),
+    };
+    cropped.unwrap_or_else(|| Err(absent(labels, wanted)))
+}
+
+/// Which labels [`select`] takes: a comparison for one (it vectorises), a table otherwise.
+enum Wanted {
+    One(u16),
+    Table(Vec<bool>),
+}
+
+impl Wanted {
+    fn new(wanted: &[u16]) -> Result<Self, ReconError> {
+        match wanted {
+            [] => Err(ReconError::NoLabels),
+            [one] => Ok(Self::One(*one)),
+            _ => {
+                let mut t = vec![false; usize::from(u16::MAX) + 1];
+                for &l in wanted {
+                    t[usize::from(l)] = true;
+                }
+                Ok(Self::Table(t))
+            }
+        }
+    }
+}
+
+/// [`ReconError::LabelsAbsent`] naming the labels of `wanted` that `labels` lacks.
+pub(crate) fn absent(labels: &LabelMap, wanted: &[u16]) -> ReconError {
+    let present: BTreeSet<u16> = labels.data().par_iter().copied().collect();
+    let absent: BTreeSet<u16> = wanted
+        .iter()
+        .copied()
+        .filter(|l| !present.contains(l))
+        .collect();
+    ReconError::LabelsAbsent {
+        labels: absent.into_iter().collect(),
+    }
+}
+
 /// Index bounds `[lo, hi)` of the set voxels, or `None` for an empty mask.
 pub fn bounds(mask: &Volume<bool>) -> Option<([usize; 3], [usize; 3])> {
-    let [nx, ny, _] = mask.grid().dims();
-    mask.data()
+    bounds_where(mask, |b| b)
+}
+
+/// Index bounds `[lo, hi)` of the voxels where `is` holds, or `None` where it never does.
+pub fn bounds_where<T: Copy + Sync>(
+    vol: &Volume<T>,
+    is: impl Fn(T) -> bool + Sync,
+) -> Option<([usize; 3], [usize; 3])> {
+    let [nx, ny, _] = vol.grid().dims();
+    vol.data()
         .par_chunks(nx)
         .enumerate()
         .filter_map(|(r, row)| {
-            let first = row.iter().position(|&b| b)?;
-            let last = row.iter().rposition(|&b| b)?;
+            // A branch-free test first (it vectorises); most rows hold nothing.
+            if !row.iter().fold(false, |any, &v| any | is(v)) {
+                return None;
+            }
+            let first = row.iter().position(|&v| is(v))?;
+            let last = row.iter().rposition(|&v| is(v))?;
             let (j, k) = (r % ny, r / ny);
             Some(([first, j, k], [last + 1, j + 1, k + 1]))
         })
@@ -55,12 +113,31 @@ pub fn bounds(mask: &Volume<bool>) -> Option<([usize; 3], [usize; 3])> {
         })
 }
 
+/// `[lo, hi)` grown by `pad` voxels on every side, within `grid`.
+pub fn padded(grid: &Grid, lo: [usize; 3], hi: [usize; 3], pad: usize) -> ([usize; 3], [usize; 3]) {
+    let dims = grid.dims();
+    (
+        lo.map(|v| v.saturating_sub(pad)),
+        [0, 1, 2].map(|a| (hi[a] + pad).min(dims[a])),
+    )
+}
+
 /// The sub-volume `[lo, hi)` of `vol`, with its grid moved so world positions are unchanged.
 pub fn sub_volume<T: Copy + Send + Sync>(
     vol: &Volume<T>,
     lo: [usize; 3],
     hi: [usize; 3],
 ) -> Result<Volume<T>, ReconError> {
+    sub_volume_map(vol, lo, hi, |v| v)
+}
+
+/// [`sub_volume`] with `f` applied to every value.
+pub fn sub_volume_map<T: Copy + Sync, U: Copy + Send>(
+    vol: &Volume<T>,
+    lo: [usize; 3],
+    hi: [usize; 3],
+    f: impl Fn(T) -> U + Sync,
+) -> Result<Volume<U>, ReconError> {
     let g = vol.grid();
     let [nx, ny, _] = g.dims();
     let dims = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
@@ -71,11 +148,13 @@ pub fn sub_volume<T: Copy + Send + Sync>(
     ));
     let grid = Grid::new(dims, g.spacing(), origin, g.direction())?;
     let src = vol.data();
-    let data: Vec<T> = (0..dims[1] * dims[2])
+    let data: Vec<U> = (0..dims[1] * dims[2])
         .into_par_iter()
         .flat_map_iter(|r| {
             let (j, k) = (lo[1] + r % dims[1], lo[2] + r / dims[1]);
-            src[lo[0] + nx * (j + ny * k)..][..dims[0]].iter().copied()
+            src[lo[0] + nx * (j + ny * k)..][..dims[0]]
+                .iter()
+                .map(|&v| f(v))
         })
         .collect();
     Ok(Volume::from_vec(grid, data)?)
@@ -84,9 +163,7 @@ pub fn sub_volume<T: Copy + Send + Sync>(
 /// The mask cropped to its set voxels plus `pad` voxels of margin (within the volume).
 pub fn crop(mask: &Volume<bool>, pad: usize) -> Result<Volume<bool>, ReconError> {
     let (lo, hi) = bounds(mask).ok_or(ReconError::EmptyMask)?;
-    let dims = mask.grid().dims();
-    let lo = lo.map(|v| v.saturating_sub(pad));
-    let hi = [0, 1, 2].map(|a| (hi[a] + pad).min(dims[a]));
+    let (lo, hi) = padded(mask.grid(), lo, hi, pad);
     sub_volume(mask, lo, hi)
 }
 
@@ -230,12 +307,8 @@ impl Components {
         hi: [usize; 3],
         keep: impl Fn(u32) -> bool + Sync,
     ) -> Result<Volume<bool>, ReconError> {
-        let dims = self.ids.grid().dims();
-        let lo = lo.map(|v| v.saturating_sub(1));
-        let hi = [0, 1, 2].map(|a| (hi[a] + 1).min(dims[a]));
-        let sub = sub_volume(&self.ids, lo, hi)?;
-        let data = sub.data().par_iter().map(|&id| keep(id)).collect();
-        Ok(Volume::from_vec(sub.grid().clone(), data)?)
+        let (lo, hi) = padded(self.ids.grid(), lo, hi, 1);
+        sub_volume_map(&self.ids, lo, hi, keep)
     }
 }
 

@@ -55,11 +55,19 @@ impl McsdParams {
     }
 }
 
-/// Marching cubes of `mask` in the voxel coordinates of its crop, and that crop's index→RAS
-/// affine.
+/// Marching cubes of `mask` in the voxel coordinates of its crop (one voxel of margin), and that
+/// crop's index→RAS affine.
 pub fn marching(mask: &Volume<bool>) -> Result<(TriMesh, Mat4), ReconError> {
-    let crop = mask::crop(mask, 1)?;
-    Ok((extract_mask(&crop)?, crop.grid().affine()))
+    let (lo, hi) = mask::bounds(mask).ok_or(ReconError::EmptyMask)?;
+    let (lo, hi) = mask::padded(mask.grid(), lo, hi, 1);
+    let cropped;
+    let crop = if lo == [0; 3] && hi == mask.grid().dims() {
+        mask // already cropped (e.g. by `mask::select_cropped`)
+    } else {
+        cropped = mask::sub_volume(mask, lo, hi)?;
+        &cropped
+    };
+    Ok((extract_mask(crop)?, crop.grid().affine()))
 }
 
 /// Decimation and smoothing of a voxel-space surface (Slicer's filters), then the map to RAS.

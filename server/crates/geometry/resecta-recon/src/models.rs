@@ -127,7 +127,7 @@ pub fn label_parts(
     let min_voxels = mask::voxels_for_mm3(labels.grid(), min_mm3);
     let mut out = Vec::new();
     for &label in roles.labels(role) {
-        let selected = match mask::select(labels, &[label]) {
+        let selected = match mask::select_cropped(labels, &[label], 1) {
             Ok(m) => m,
             Err(ReconError::LabelsAbsent { .. }) => continue,
             Err(e) => return Err(e),
@@ -162,12 +162,13 @@ pub fn patient_models(
         dropped: Vec::new(),
     };
     let all: Vec<u16> = roles.roles().flat_map(|(_, l)| l.iter().copied()).collect();
-    let any = mask::select(labels, &all)?;
-    let (lo, hi) = mask::bounds(&any).ok_or(ReconError::EmptyMask)?;
-    drop(any);
-    let dims = labels.grid().dims();
-    let lo = lo.map(|v| v.saturating_sub(2));
-    let hi = [0, 1, 2].map(|a| (hi[a] + 2).min(dims[a]));
+    if all.is_empty() {
+        return Err(ReconError::NoLabels);
+    }
+    let lut = roles.lookup_table();
+    let (lo, hi) = mask::bounds_where(labels, |l| lut[usize::from(l)].is_some())
+        .ok_or_else(|| mask::absent(labels, &all))?;
+    let (lo, hi) = mask::padded(labels.grid(), lo, hi, 2);
     let region = mask::sub_volume(labels, lo, hi)?;
     let voxel_mm3 = labels.grid().voxel_volume_mm3();
     let parenchyma_labels = roles.labels(Role::Parenchyma);

@@ -165,6 +165,10 @@ fn bad_input_is_refused() {
         mask::select(&labels, &[3, 7]),
         Err(ReconError::LabelsAbsent { labels }) if labels == vec![3, 7]
     ));
+    assert!(matches!(
+        mask::select_cropped(&labels, &[7, 3], 1),
+        Err(ReconError::LabelsAbsent { labels }) if labels == vec![3, 7]
+    ));
     let empty = Volume::filled(grid, false);
     assert!(matches!(
         psr::reconstruct(&empty, 7),
@@ -188,6 +192,32 @@ fn bad_input_is_refused() {
             psr::reconstruct(&ball(), depth),
             Err(ReconError::Poisson(_))
         ));
+    }
+}
+
+#[test]
+fn a_cropped_selection_is_the_crop_of_the_selection() {
+    let grid = Grid::new(
+        [20, 16, 12],
+        [1.1, 0.9, 1.6],
+        Vec3::new(-3.0, 2.0, 5.0),
+        nalgebra::Rotation3::from_euler_angles(0.2, -0.1, 0.3).into_inner(),
+    )
+    .unwrap();
+    let data = (0..grid.len())
+        .map(|o| {
+            let [i, j, k] = grid.ijk(o);
+            ((i * 7 + j * 3 + k * 5) % 11 % 4) as u16 * u16::from((3..15).contains(&i) && j > 2)
+        })
+        .collect();
+    let labels: LabelMap = Volume::from_vec(grid, data).unwrap();
+    for wanted in [&[2u16][..], &[1, 3]] {
+        for pad in [0, 1, 2] {
+            let direct = mask::select_cropped(&labels, wanted, pad).unwrap();
+            let full = mask::crop(&mask::select(&labels, wanted).unwrap(), pad).unwrap();
+            assert_eq!(direct.grid(), full.grid());
+            assert_eq!(direct.data(), full.data());
+        }
     }
 }
 
