@@ -14,6 +14,14 @@ same points) is recorded beside it.
 
 Until ``resecta reconstruct`` exists, our methods are skipped with a message and the anchors run
 on test-only oriented points computed here from the mask (``anchors.gradient_points``).
+
+``--patient`` instead benchmarks a whole patient map (issue #16): an MSD Task08 case as a label map
+with the automatic liver mask as parenchyma (1) and the case's tumour (2) and vessel (3) labels
+inside that mask only, as when vessels are segmented in the liver (they fall apart into pieces);
+``--z-repeat 2`` repeats every slice (512×512×132 for case 002). It reports ``resecta models``
+(one model per segment, the default, against ``--split-components --min-component-mm3 0``, one
+per component) and, per segment, our MCSD (``select_ms + reconstruct_ms``: label map in memory
+→ mesh, both cores and one) against Slicer's ``rule.Convert`` of the same label value.
 """
 
 from __future__ import annotations
@@ -212,7 +220,10 @@ def bench_input(name, inp, labels, rs: Resecta, args, work: Path) -> dict:
                 continue
             res["methods"][method] = {
                 "time_s": min(r["cli"]["reconstruct_ms"] for r in runs) / 1000.0,
-                "total_s": min(r["cli"]["read_ms"] + r["cli"]["reconstruct_ms"] for r in runs)
+                "total_s": min(
+                    r["cli"]["read_ms"] + r["cli"].get("select_ms", 0) + r["cli"]["reconstruct_ms"]
+                    for r in runs
+                )
                 / 1000.0,
                 "process_s": best(runs, "process_s"),
                 "timed_region": "reconstruct: mask → mesh in memory (PSR: oriented points, solve, "
@@ -496,6 +507,235 @@ def plot(report: dict, stem: Path) -> None:
     plt.close(fig)
 
 
+# ---------------------------------------------------------------- patient map (issue #16)
+
+PATIENT_ROLES = '{"parenchyma":[1],"tumor":[2],"vessel":[3]}'
+SEGMENTS = {1: "parenchyma", 2: "tumour", 3: "vessel"}
+
+
+def patient_map(case: str, z_repeat: int, work: Path) -> Path:
+    """The MSD case as a patient label map: liver mask 1, tumour 2 and vessel 3 inside it."""
+    import nibabel as nib  # noqa: PLC0415
+
+    folder = SHARED / "msd-task08-hepaticvessel"
+    img = nib.load(folder / f"hepaticvessel_{case}_label.nii.gz")
+    msd = np.asarray(img.dataobj)
+    liver = np.asarray(nib.load(folder / f"hepaticvessel_{case}_liver_pred.nii.gz").dataobj) == 1
+    labels = np.where(liver, 1, 0).astype(np.uint8)
+    labels[liver & (msd == 1)] = 3
+    labels[liver & (msd == 2)] = 2
+    affine = img.affine.copy()
+    if z_repeat > 1:
+        labels = np.repeat(labels, z_repeat, axis=2)
+        affine[:3, 2] /= z_repeat
+        affine[:3, 3] -= affine[:3, 2] * (z_repeat - 1) / 2  # keep slice centres in place
+    out = work / "patient" / f"msd-{case}-liver-clipped-z{z_repeat}.nii.gz"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    nib.save(nib.Nifti1Image(labels, affine), out)
+    return out
+
+
+def with_threads(threads: int | None):
+    env = dict(os.environ)
+    if threads is not None:
+        env["RAYON_NUM_THREADS"] = str(threads)
+    return env
+
+
+def run_json(rs: Resecta, args: list[str], threads: int | None = None) -> dict:
+    r = subprocess.run([rs.bin, *args], capture_output=True, text=True, env=with_threads(threads))
+    if r.returncode != 0:
+        raise RuntimeError(f"resecta {' '.join(args[:2])} failed: {r.stderr.strip()[-500:]}")
+    return json.loads(r.stdout)
+
+
+def server_reconstructions(rs: Resecta, path: Path, repeats: int) -> dict:
+    """``ReconstructDone.elapsed_s`` of `resecta serve` (sessions in memory) through the Python
+    client, per mode: what a client waits for (models built, encoded and stored)."""
+    import nibabel as nib  # noqa: PLC0415
+
+    sys.path.insert(0, str(REPO / "clients" / "python" / "src"))
+    from resecta_client import Client  # noqa: PLC0415
+
+    proc = subprocess.Popen(
+        [rs.bin, "serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+    )
+    try:
+        bound = json.loads(proc.stdout.readline())
+        img = nib.load(path)
+        with Client(bound["grpc"]) as client:
+            session = client.create_session("bench")
+            session.upload_label_map(
+                np.asarray(img.dataobj).transpose(2, 1, 0), img.affine, json.loads(PATIENT_ROLES)
+            )
+            time.sleep(3)  # the planner's set-up after an upload is done
+            out = {}
+            for mode, options in (
+                ("per_segment", {}),
+                ("per_component", {"split_components": True, "min_component_mm3": 0}),
+            ):
+                runs = [session.reconstruct("psr", **options) for _ in range(repeats)]
+                out[mode] = {
+                    "elapsed_s": min(r.elapsed_s for r in runs),
+                    "runs_s": [r.elapsed_s for r in runs],
+                    "models": len(runs[-1]),
+                }
+                log(f"  server {mode}: {len(runs[-1])} models, {out[mode]['elapsed_s']:.3f} s")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+    return out
+
+
+def bench_patient(rs: Resecta, path: Path, args, work: Path) -> dict:
+    arr, _ = anchors.read_label_numpy(path)
+    res: dict = {"input": str(path), "dims": list(arr.shape), "roles": PATIENT_ROLES}
+    log(f"== patient map {path}, dims {res['dims']}")
+    models = {}
+    for mode, extra in (
+        ("per_segment", []),
+        ("per_component", ["--split-components", "--min-component-mm3", "0"]),
+    ):
+        runs = [
+            run_json(
+                rs,
+                ["models", str(path), "--roles", PATIENT_ROLES, "--out-dir",
+                 str(work / "patient" / mode), *extra, "--json"],
+            )
+            for _ in range(args.repeats)
+        ]
+        last = runs[-1]
+        counts: dict[str, int] = {}
+        for m in last["models"]:
+            counts[m["role"]] = counts.get(m["role"], 0) + 1
+        models[mode] = {
+            "reconstruct_s": min(r["reconstruct_ms"] for r in runs) / 1000.0,
+            "runs_s": [r["reconstruct_ms"] / 1000.0 for r in runs],
+            "models": len(last["models"]),
+            "per_role": counts,
+            "dropped": last["dropped"],
+            "min_component_mm3": last["min_component_mm3"],
+        }
+        log(f"  models {mode}: {len(last['models'])} models {counts}, "
+            f"{models[mode]['reconstruct_s']:.3f} s, dropped {last['dropped']}")
+    res["models"] = models
+    res["server"] = server_reconstructions(rs, path, args.repeats)
+    segments = []
+    for label, name in SEGMENTS.items():
+        ours = {}
+        for key, threads in (("ours_s", None), ("ours_1_thread_s", 1)):
+            runs = [
+                run_json(
+                    rs,
+                    ["reconstruct", str(path), "--labels", str(label), "--method", "mcsd",
+                     "--out", str(work / "patient" / f"mcsd-{label}.vtp"), "--json"],
+                    threads,
+                )
+                for _ in range(args.repeats)
+            ]
+            ours[key] = min(r.get("select_ms", 0) + r["reconstruct_ms"] for r in runs) / 1000.0
+            ours["polys"] = runs[-1]["polys"]
+        slicer = [
+            anchors.slicer_closed_surface(path, label, 0.5, 0.0)[1]["convert"]
+            for _ in range(args.repeats)
+        ]
+        poly, _ = anchors.slicer_closed_surface(path, label, 0.5, 0.0)
+        seg = {
+            "label": label,
+            "segment": name,
+            **ours,
+            "slicer_s": min(slicer),
+            "slicer_runs_s": slicer,
+            "slicer_polys": poly.GetNumberOfPolys(),
+        }
+        seg["ratio"] = seg["ours_s"] / seg["slicer_s"]
+        seg["ratio_1_thread"] = seg["ours_1_thread_s"] / seg["slicer_s"]
+        segments.append(seg)
+        log(f"  segment {label} {name}: ours {seg['ours_s']:.3f} s "
+            f"(1 thread {seg['ours_1_thread_s']:.3f}) vs Slicer {seg['slicer_s']:.3f} s: "
+            f"{seg['ratio']:.2f} ({seg['ratio_1_thread']:.2f}); polygons {seg['polys']} vs "
+            f"{seg['slicer_polys']}")
+    res["segments"] = segments
+    total = {k: sum(s[k] for s in segments) for k in ("ours_s", "ours_1_thread_s", "slicer_s")}
+    total["ratio"] = total["ours_s"] / total["slicer_s"]
+    total["ratio_1_thread"] = total["ours_1_thread_s"] / total["slicer_s"]
+    res["total"] = total
+    return res
+
+
+def write_patient_markdown(path: Path, report: dict) -> None:
+    mc = report["machine"]
+    lines = [
+        "# One model per segment: reconstruction time and MCSD vs 3D Slicer (issue #16)",
+        "",
+        f"Run {report['date']} at commit `{report['commit']}`, `{report['resecta_version']}` "
+        f"(release build), best of {report['repeats']} (wall clock). Machine: {mc['cpu']}, "
+        f"{mc['usable_cpus']} usable of {mc['logical_cpus']} logical CPUs (virtualised), "
+        f"{mc['memory']} RAM, load average at start "
+        f"{', '.join(f'{x:.2f}' for x in mc['load_average_at_start'])} (shared machine); VTK SMP "
+        f"backend {mc['vtk_smp_backend']} (Slicer on one core); "
+        + ", ".join(f"{k} {v}" for k, v in mc["versions"].items())
+        + ".",
+        "",
+        "Label map: MSD Task08 case with the automatic liver mask as parenchyma (1) and the "
+        "case's tumour (2) and vessel (3) labels inside that mask only; roles "
+        f"`{PATIENT_ROLES}`. Reproduce: `python docs/bench/recon/bench_recon.py --patient "
+        "[--case 002] [--z-repeat 1|2]`.",
+        "",
+    ]
+    for r in report["patients"]:
+        m = r["models"]
+        lines += [
+            f"## {Path(r['input']).name}, dims {r['dims']}",
+            "",
+            "`resecta models` (parenchyma by PSR d = 7, the server's default; label map in memory "
+            "→ every mesh in memory):",
+            "",
+            "| models | count | per role | dropped specks | time (s) |",
+            "|---|---|---|---|---|",
+        ]
+        for mode, title in (("per_segment", "one per segment (default)"),
+                            ("per_component", "one per component (`--split-components`, "
+                             "`--min-component-mm3 0`)")):
+            e = m[mode]
+            dropped = ", ".join(
+                f"{d['role']}: {d['components']} ({d['volume_ml'] * 1000:.1f} mm³)"
+                for d in e["dropped"]) or "none"
+            roles = ", ".join(f"{k} {v}" for k, v in e["per_role"].items())
+            lines.append(f"| {title} | {e['models']} | {roles} | {dropped} | "
+                         f"{e['reconstruct_s']:.3f} |")
+        srv = r["server"]
+        lines += [
+            "",
+            "Through the server (`resecta serve`, sessions in memory, the Python client): "
+            "`ReconstructDone.elapsed_s`, models built, encoded and stored — "
+            f"{srv['per_segment']['models']} models in {srv['per_segment']['elapsed_s']:.3f} s "
+            f"per segment, {srv['per_component']['models']} in "
+            f"{srv['per_component']['elapsed_s']:.3f} s per component.",
+            "",
+            "MCSD per segment (Slicer's defaults: smoothing 0.5, no decimation): ours = "
+            "`select_ms + reconstruct_ms` of `resecta reconstruct --method mcsd` (label map in "
+            "memory → mesh, both cores; one core in brackets), Slicer = "
+            "`vtkBinaryLabelmapToClosedSurfaceConversionRule.Convert` of the same label value:",
+            "",
+            "| segment | label | ours (s) | Slicer (s) | ours / Slicer | polygons ours / Slicer |",
+            "|---|---|---|---|---|---|",
+        ]
+        for sgm in r["segments"]:
+            lines.append(
+                f"| {sgm['segment']} | {sgm['label']} | {sgm['ours_s']:.3f} "
+                f"({sgm['ours_1_thread_s']:.3f}) | {sgm['slicer_s']:.3f} | {sgm['ratio']:.2f} "
+                f"({sgm['ratio_1_thread']:.2f}) | {sgm['polys']} / {sgm['slicer_polys']} |")
+        t = r["total"]
+        lines += [
+            f"| **all three** | | {t['ours_s']:.3f} ({t['ours_1_thread_s']:.3f}) | "
+            f"{t['slicer_s']:.3f} | **{t['ratio']:.2f}** ({t['ratio_1_thread']:.2f}) | |",
+            "",
+        ]
+    path.write_text("\n".join(lines))
+
+
 # ---------------------------------------------------------------- main
 
 
@@ -513,7 +753,12 @@ def main() -> int:
     ap.add_argument("--depth", type=int, default=7)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--work", default="/tmp/resecta-bench-recon", help="meshes and points")
-    ap.add_argument("--out", default=str(HERE), help="folder for results.{json,md,png,svg}")
+    ap.add_argument("--out", default=None, help="folder for the results (default: here; "
+                    "with --patient: docs/recon/patient-models)")
+    ap.add_argument("--patient", action="store_true", help="the patient-map benchmark (#16)")
+    ap.add_argument("--case", action="append", help="MSD case(s) for --patient (default 002)")
+    ap.add_argument("--z-repeat", type=int, action="append",
+                    help="slice repeats for --patient (default: 1 and 2)")
     args = ap.parse_args()
 
     rs = Resecta(args.resecta)
@@ -523,6 +768,8 @@ def main() -> int:
     )
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
+    if args.patient:
+        return main_patient(rs, args, work)
     inputs = DEFAULT_INPUTS
     if args.input:
         inputs = []
@@ -555,12 +802,37 @@ def main() -> int:
             continue
         report["inputs"].append(bench_input(name, path, labels, rs, args, work))
 
-    out = Path(args.out)
+    out = Path(args.out or HERE)
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(report, indent=1) + "\n")
     write_markdown(out / "results.md", report)
     plot(report, out / "results")
     log(f"wrote {out / 'results.json'}, results.md, results.png, results.svg")
+    return 0
+
+
+def main_patient(rs: Resecta, args, work: Path) -> int:
+    if not (SHARED / "msd-task08-hepaticvessel").is_dir():
+        log(f"SKIP: MSD cases not found under {SHARED}")
+        return 0
+    report = {
+        "date": dt.datetime.now().isoformat(timespec="seconds"),
+        "commit": git_commit(),
+        "resecta": rs.bin,
+        "resecta_version": rs.version(),
+        "repeats": args.repeats,
+        "machine": machine(),
+        "patients": [
+            bench_patient(rs, patient_map(case, z, work), args, work)
+            for case in (args.case or ["002"])
+            for z in (args.z_repeat or [1, 2])
+        ],
+    }
+    out = Path(args.out or REPO / "docs" / "recon" / "patient-models")
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(report, indent=1) + "\n")
+    write_patient_markdown(out / "results.md", report)
+    log(f"wrote {out / 'results.json'}, results.md")
     return 0
 
 
