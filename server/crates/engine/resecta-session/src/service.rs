@@ -742,25 +742,23 @@ impl Service {
                 "decimation {decimation} is outside [0, 1)"
             )));
         }
-        let min_component_mm3 = options.min_component_mm3.unwrap_or(SPECK_MM3);
-        if !(min_component_mm3 >= 0.0 && min_component_mm3.is_finite()) {
-            return Err(SessionError::Invalid(format!(
-                "min_component_mm3 {min_component_mm3} is not a finite volume ≥ 0"
-            )));
-        }
         let parenchyma = match options.method {
             ReconMethod::Psr => ParenchymaMethod::Psr { depth },
             ReconMethod::Mcsd => ParenchymaMethod::Mcsd,
         };
-        Ok(ModelOptions {
+        let model_options = ModelOptions {
             parenchyma,
             mcsd: McsdParams {
                 smoothing,
                 decimation,
             },
             split_components: options.split_components,
-            min_component_mm3,
-        })
+            min_component_mm3: options.min_component_mm3.unwrap_or(SPECK_MM3),
+        };
+        model_options
+            .check()
+            .map_err(|e| SessionError::Invalid(e.to_string()))?;
+        Ok(model_options)
     }
 
     /// Builds the surface models (parenchyma by screened Poisson or, on request, MCSD; one MCSD

@@ -56,7 +56,8 @@ impl Default for ModelOptions {
 }
 
 impl ModelOptions {
-    fn check(&self) -> Result<(), ReconError> {
+    /// [`ReconError::InvalidParameter`] for a negative or non-finite speck volume.
+    pub fn check(&self) -> Result<(), ReconError> {
         if !(self.min_component_mm3 >= 0.0 && self.min_component_mm3.is_finite()) {
             return Err(ReconError::InvalidParameter {
                 name: "min_component_mm3",
@@ -116,8 +117,8 @@ pub struct LabelParts {
     pub parts: Components,
 }
 
-/// The labels of `role` present in `labels` (role-map order), each with its components of at
-/// least `min_mm3`.
+/// The labels of `role` present in `labels` (role-map order: ascending), each with its
+/// components of at least `min_mm3`.
 pub fn label_parts(
     labels: &LabelMap,
     roles: &RoleMap,
