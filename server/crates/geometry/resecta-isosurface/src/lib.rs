@@ -10,8 +10,14 @@
 //! The work is split into z-layers processed in parallel (rayon); vertex and triangle order
 //! depend only on the input, never on the thread count. Output is in lattice (index)
 //! coordinates; map it to RAS with [`TriMesh::transformed`].
+//!
+//! [`voxel_boundary`] gives the other surface of a mask: the exact boundary of its voxels taken
+//! as cubes, in RAS, the one safety margins are measured to.
 
 mod table;
+mod voxels;
+
+pub use voxels::voxel_boundary;
 
 use rayon::prelude::*;
 use resecta_geom::{GeomError, TriMesh, Vec3, Volume};
