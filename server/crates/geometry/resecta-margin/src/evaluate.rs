@@ -88,6 +88,12 @@ pub struct Verdict {
     pub warning_area_mm2: f64,
     /// Area inside the liver.
     pub inside_area_mm2: f64,
+    /// For tumours measured as voxel boundaries ([`MarginField::with_voxel_cell`]): half the
+    /// voxel's extent along the direction of the minimum. `min_margin_mm` is the exact distance
+    /// to the segmented voxels taken as cubes; the nearest tumour voxel centre lies at most this
+    /// much farther (to first order in the cut's curvature). `None` otherwise.
+    #[serde(default)]
+    pub margin_uncertainty_mm: Option<f64>,
 }
 
 /// Per-vertex distances from [`evaluate`] inside the liver and possibly within margin + band
@@ -378,6 +384,10 @@ fn evaluate_with(
     };
     let areas = grid.areas(settings);
     let minimum = grid.minimum(field, oracle);
+    let margin_uncertainty_mm = minimum.and_then(|m| {
+        let towards = (m.point - field.nearest(&m.point).point).try_normalize(1e-12);
+        field.half_voxel_extent(towards.as_ref())
+    });
     Ok(Verdict {
         min_margin_mm: minimum.map(|m| m.distance),
         point: minimum.map(|m| m.point),
@@ -386,6 +396,7 @@ fn evaluate_with(
         violating_area_mm2: areas.violating,
         warning_area_mm2: areas.warning,
         inside_area_mm2: areas.inside,
+        margin_uncertainty_mm,
     })
 }
 

@@ -4,7 +4,7 @@
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
-use resecta_geom::{MeshBvh, Real, TriMesh, Vec3};
+use resecta_geom::{Mat3, MeshBvh, Real, TriMesh, Vec3};
 
 use crate::error::MarginError;
 use crate::tree::{Best, GROUP, MAX_TRIANGLES, ObbTree};
@@ -74,6 +74,9 @@ pub struct MarginField {
     hints: Vec<u32>,
     /// Unique per field built (clones share it): what distances remembered from it belong to.
     id: u64,
+    /// Edge vectors (columns, mm) of the voxels the tumour surface bounds, when it is a voxel
+    /// boundary ([`MarginField::with_voxel_cell`]).
+    cell: Option<Mat3>,
 }
 
 impl MarginField {
@@ -146,6 +149,7 @@ impl MarginField {
                 static NEXT: AtomicU64 = AtomicU64::new(1);
                 NEXT.fetch_add(1, Ordering::Relaxed)
             },
+            cell: None,
         };
         field.hints = field.build_hints();
         Ok(field)
@@ -196,6 +200,25 @@ impl MarginField {
     }
 
     /// Unique to this field (and its clones) in the process.
+    /// The tumour surface is the boundary of voxel cubes with these edge vectors (columns, RAS
+    /// mm; a grid's linear map): verdicts then state how far a voxel centre may lie beyond the
+    /// surface ([`crate::Verdict::margin_uncertainty_mm`]).
+    pub fn with_voxel_cell(mut self, cell: Mat3) -> Self {
+        self.cell = Some(cell);
+        self
+    }
+
+    /// Half a voxel's extent along the unit direction `n` (its largest over all directions for
+    /// `None`), when the field knows its voxels: how much farther than the surface the centre of
+    /// the voxel at the nearest point lies, seen along `n`.
+    pub fn half_voxel_extent(&self, n: Option<&Vec3>) -> Option<Real> {
+        let cell = self.cell?;
+        Some(match n {
+            Some(n) => 0.5 * (0..3).map(|i| n.dot(&cell.column(i)).abs()).sum::<Real>(),
+            None => 0.5 * (0..3).map(|i| cell.column(i).norm()).sum::<Real>(),
+        })
+    }
+
     pub fn id(&self) -> u64 {
         self.id
     }
