@@ -1,10 +1,11 @@
 //! The patient as the planner needs it, built once from a label map: the liver envelope (for
 //! "inside the liver" tests), the functional liver (for volumetry), the parenchyma surface (for
-//! the initial contour) and the tumour components with their surface models: the components of
-//! at least [`resecta_recon::SPECK_MM3`], the same list as the reconstruction's tumour models.
+//! the initial contour) and the tumour components with their margin surfaces (the boundary of
+//! their voxels): the components of at least [`resecta_recon::SPECK_MM3`], the same list as the
+//! reconstruction's tumour models.
 
 use rayon::prelude::*;
-use resecta_geom::{LabelMap, Real, Role, RoleMap, TriMesh, Vec3, Volume};
+use resecta_geom::{Grid, LabelMap, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_recon::models::{self, LabelParts};
 use resecta_recon::{McsdParams, mask, mcsd};
 
@@ -12,34 +13,12 @@ use crate::error::PlanError;
 use crate::inside::InsideField;
 use crate::resection::Target;
 
-/// Tumour models for margins: MCSD with 3D Slicer's smoothing; models of more than this many
-/// triangles are decimated down towards it (at most 80 %, Paper I's Pareto front), because an
-/// exact margin query costs in proportion to the triangles near the answer. A decimated model is
-/// kept only if it stays watertight and within 1 % of the undecimated model's volume (QEM can
-/// collapse small coarse meshes).
-pub const TUMOUR_MODEL_TRIANGLES: usize = 4000;
-
-/// The tumour's surface model (see [`TUMOUR_MODEL_TRIANGLES`]).
+/// The surface a tumour's margins are measured to: the boundary of its voxels taken as cubes
+/// ([`resecta_isosurface::voxel_boundary`]), not its smoothed display model. A distance to it is
+/// the exact distance to the segmented tumour: never more than the distance to any tumour voxel
+/// centre, and at most half a voxel (along the direction measured) less.
 pub fn tumour_model(mask: &Volume<bool>) -> Result<TriMesh, PlanError> {
-    let full = mcsd::reconstruct(mask, &McsdParams::default())?;
-    let n = full.triangles().len();
-    if n <= TUMOUR_MODEL_TRIANGLES {
-        return Ok(full);
-    }
-    let decimation = (1.0 - TUMOUR_MODEL_TRIANGLES as Real / n as Real).min(0.8);
-    let reduced = mcsd::reconstruct(
-        mask,
-        &McsdParams {
-            smoothing: 0.5,
-            decimation,
-        },
-    )?;
-    let (v0, v1) = (full.enclosed_volume(), reduced.enclosed_volume());
-    if reduced.report().watertight && (v1 - v0).abs() <= 0.01 * v0.abs() {
-        Ok(reduced)
-    } else {
-        Ok(full)
-    }
+    Ok(resecta_isosurface::voxel_boundary(mask).map_err(resecta_recon::ReconError::from)?)
 }
 
 /// A target point picks the tumour component containing it or the nearest within this (mm).
@@ -53,8 +32,12 @@ pub struct Tumour {
     pub centroid: Vec3,
     pub voxels: usize,
     pub volume_mm3: Real,
-    /// Surface model ([`tumour_model`]), RAS.
+    /// Margin surface ([`tumour_model`]: its voxels' boundary, with the specks attached to it),
+    /// RAS.
     pub mesh: TriMesh,
+    /// Voxels of speck components (below the speck volume) whose margins count with this
+    /// tumour's (the nearest target of the label).
+    pub speck_voxels: usize,
     /// Voxel centres (RAS), for target-point picking.
     centres: Vec<Vec3>,
 }
@@ -106,8 +89,13 @@ impl Anatomy {
         let parenchyma = mcsd::reconstruct(&envelope, &McsdParams::default())?;
         let mut tumours = Vec::new();
         for LabelParts { label, parts } in models::tumours(labels, roles)? {
+            let mut kept = vec![false; labels.grid().len()];
+            let first = tumours.len();
             for k in 0..parts.len() {
-                tumours.push(tumour(labels, &lut, label, &parts.crop(k)?)?);
+                tumours.push(tumour(labels, &lut, label, &parts.crop(k)?, &mut kept)?);
+            }
+            if parts.dropped > 0 {
+                attach_specks(labels, label, &kept, &mut tumours[first..])?;
             }
         }
         Ok(Self {
@@ -225,11 +213,65 @@ impl Anatomy {
     }
 }
 
+/// Tumour voxels in components below the speck volume get no model and are no target, but a
+/// margin must not ignore them: each joins the margin surface of the target of its label whose
+/// centroid is nearest. `kept` marks (by grid offset) the voxels of `targets`.
+fn attach_specks(
+    labels: &LabelMap,
+    label: u16,
+    kept: &[bool],
+    targets: &mut [Tumour],
+) -> Result<(), PlanError> {
+    let g = labels.grid();
+    let mut owned: Vec<Vec<usize>> = vec![Vec::new(); targets.len()];
+    for (o, _) in labels
+        .data()
+        .iter()
+        .zip(kept)
+        .enumerate()
+        .filter(|(_, (l, k))| **l == label && !**k)
+    {
+        let p = g.voxel_center(g.ijk(o));
+        let nearest = (0..targets.len())
+            .min_by(|&a, &b| {
+                let da = (targets[a].centroid - p).norm_squared();
+                da.total_cmp(&(targets[b].centroid - p).norm_squared())
+            })
+            .ok_or(PlanError::NoTumour)?;
+        owned[nearest].push(o);
+    }
+    for (t, offsets) in targets.iter_mut().zip(owned) {
+        if offsets.is_empty() {
+            continue;
+        }
+        let specks = tumour_model(&voxel_mask(g, &offsets)?)?;
+        t.mesh = TriMesh::concat(&[t.mesh.clone(), specks])?;
+        t.speck_voxels = offsets.len();
+    }
+    Ok(())
+}
+
+/// The voxels at `offsets` of grid `g` as a mask on their bounding box.
+fn voxel_mask(g: &Grid, offsets: &[usize]) -> Result<Volume<bool>, PlanError> {
+    let ijk: Vec<[usize; 3]> = offsets.iter().map(|&o| g.ijk(o)).collect();
+    let lo = [0, 1, 2].map(|a| ijk.iter().map(|v| v[a]).min().unwrap_or(0));
+    let hi = [0, 1, 2].map(|a| ijk.iter().map(|v| v[a] + 1).max().unwrap_or(1));
+    let dims = [0, 1, 2].map(|a| hi[a] - lo[a]);
+    let origin = g.index_to_world(Vec3::new(lo[0] as Real, lo[1] as Real, lo[2] as Real));
+    let sub = Grid::new(dims, g.spacing(), origin, g.direction())?;
+    let mut data = vec![false; dims.iter().product()];
+    for v in ijk {
+        data[((v[2] - lo[2]) * dims[1] + v[1] - lo[1]) * dims[0] + v[0] - lo[0]] = true;
+    }
+    Ok(Volume::from_vec(sub, data)?)
+}
+
 fn tumour(
     labels: &LabelMap,
     lut: &[Option<Role>],
     label: u16,
     comp: &Volume<bool>,
+    kept: &mut [bool],
 ) -> Result<Tumour, PlanError> {
     let full = labels.grid();
     let sub = comp.grid();
@@ -243,6 +285,7 @@ fn tumour(
         let local = [v % sx, (v / sx) % sy, v / (sx * sy)];
         centres.push(sub.voxel_center(local));
         let g = [0, 1, 2].map(|a| local[a] as i64 + offset[a]);
+        kept[full.offset(g.map(|c| c as usize))] = true;
         for a in 0..3 {
             for d in [-1i64, 1] {
                 let mut n = g;
@@ -269,6 +312,7 @@ fn tumour(
         voxels,
         volume_mm3: voxels as Real * full.voxel_volume_mm3(),
         mesh,
+        speck_voxels: 0,
         centres,
     })
 }

@@ -322,7 +322,8 @@ impl Planner {
         let (lo, hi) = (lo - pad, hi + pad);
         let extent = hi - lo;
         let spacing = HINT_SPACING_MM.max((extent.x * extent.y * extent.z / HINT_NODES).cbrt());
-        let field = MarginField::new(&mesh, lo, hi, spacing)?;
+        let field = MarginField::new(&mesh, lo, hi, spacing)?
+            .with_voxel_cell(self.anatomy.envelope().grid().linear());
         let centroids = tumours
             .iter()
             .map(|&k| self.anatomy.tumours()[k].centroid)

@@ -50,6 +50,18 @@ fn anatomy() -> Arc<Anatomy> {
     .clone()
 }
 
+/// The test phantom's tumour voxel centres (RAS) and its voxel edge vectors (columns).
+fn tumour_voxels() -> (Vec<Vec3>, resecta_geom::Mat3) {
+    let p = generate(&spec()).unwrap();
+    let g = p.labels.grid();
+    let tumour = spec().roles.labels(Role::Tumor).to_vec();
+    let centres = (0..g.len())
+        .filter(|&k| tumour.contains(&p.labels.data()[k]))
+        .map(|k| g.voxel_center(g.ijk(k)))
+        .collect();
+    (centres, g.linear())
+}
+
 /// A planar 4×4 resection on x = `x0`, spanning `half` mm either side in y and z.
 fn plane_x(name: &str, x0: Real, half: Real) -> Resection {
     let pts = (0..16)
@@ -110,23 +122,43 @@ fn margin_to_the_spherical_tumour_and_its_location() {
     r.resolution = [120, 120];
     let p = planner_with(r);
     let v = &p.state("r1").unwrap().verdict;
+    // Margins are measured to the tumour's voxels as cubes: the smallest plane-to-cube distance,
+    // never more than the nearest voxel centre's, within half a voxel of the analytic 13 mm.
     let min = v.min_margin_mm.unwrap();
-    assert!((min - 13.0).abs() < 0.4, "min margin {min}");
-    // The decimated tumour model has ~2 mm facets: a facet parallel to the plane makes the
-    // distance flat over it, so the location is known to the facet's size.
+    let (centres, cell) = tumour_voxels();
+    let h = 0.5 * (0..3).map(|i| cell.column(i).x.abs()).sum::<Real>();
+    let to_centre = centres
+        .iter()
+        .map(|c| c.x - 2.0)
+        .fold(Real::INFINITY, Real::min);
+    assert!(
+        min <= to_centre,
+        "min margin {min} > nearest voxel centre {to_centre}"
+    );
+    assert!(
+        (min - (to_centre - h)).abs() < 0.01,
+        "{min} vs {}",
+        to_centre - h
+    );
+    assert!((min - 13.0).abs() <= h, "min margin {min}, half voxel {h}");
+    let uncertainty = v.margin_uncertainty_mm.unwrap();
+    assert!((uncertainty - h).abs() < 1e-3, "{uncertainty} vs {h}");
     let at = v.point.unwrap();
     assert!((at - Vec3::new(2.0, 0.0, 0.0)).norm() < 3.5, "{at:?}");
     let [u, w] = v.uv.unwrap();
     assert!((u - 0.5).abs() < 0.03 && (w - 0.5).abs() < 0.03, "{u} {w}");
     assert!(v.violation);
-    let area = PI * (25.0f64.powi(2) - 23.0f64.powi(2));
+    // The voxelised tumour is a ball of radius about 23 − min (its cubes reach beyond the
+    // sphere): the violating disc has radius √((15 + r)² − 23²), the warning ring reaches
+    // √((18 + r)² − 23²).
+    let r = 23.0 - min;
+    let area = PI * ((15.0 + r).powi(2) - 23.0f64.powi(2));
     assert!(
         (v.violating_area_mm2 - area).abs() < 0.2 * area,
         "{} vs {area}",
         v.violating_area_mm2
     );
-    // Warning band: distances in [15, 18) → disc radius √(28² − 23²) minus the violating disc.
-    let warn = PI * (28.0f64.powi(2) - 23.0f64.powi(2)) - area;
+    let warn = PI * ((18.0 + r).powi(2) - 23.0f64.powi(2)) - area;
     assert!(
         (v.warning_area_mm2 - warn).abs() < 0.1 * warn,
         "{}",
@@ -357,24 +389,20 @@ fn bad_anatomy_and_targets_are_refused() {
 }
 
 #[test]
-fn tumour_models_keep_their_volume_also_when_small_and_coarse() {
-    // The small phantom: an 8 mm tumour on 2×2×3 mm voxels (QEM at 80 % would collapse it).
+fn margin_surfaces_are_the_tumour_voxels() {
+    // The small phantom (an 8 mm tumour on 2×2×3 mm voxels) and the large tumour of the test
+    // phantom: the margin surface encloses exactly the tumour's voxels.
     let s = PhantomSpec::small();
     let p = generate(&s).unwrap();
-    let a = Anatomy::new(&p.labels, &s.roles).unwrap();
-    let t = &a.tumours()[0];
-    let v = t.mesh.enclosed_volume();
-    assert!(t.mesh.report().watertight);
-    assert!(
-        (v - t.volume_mm3).abs() < 0.25 * t.volume_mm3,
-        "{v} vs {}",
-        t.volume_mm3
-    );
-    // The large tumour of the test phantom: ≤ the model budget or decimated without losing volume.
-    let whole = anatomy();
-    let big = &whole.tumours()[0];
-    let ball = 4.0 / 3.0 * PI * TUMOUR_R.powi(3);
-    assert!((big.mesh.enclosed_volume() - ball).abs() < 0.05 * ball);
+    let small = Anatomy::new(&p.labels, &s.roles).unwrap();
+    for t in [&small.tumours()[0], &anatomy().tumours()[0]] {
+        let v = t.mesh.enclosed_volume();
+        assert!(
+            (v - t.volume_mm3).abs() < 1e-9 * t.volume_mm3,
+            "{v} vs {}",
+            t.volume_mm3
+        );
+    }
 }
 
 #[test]
