@@ -381,7 +381,9 @@ class Verdict:
     """The global margin verdict of one resection: the smallest distance of its surface inside
     the liver to a target tumour (None when no part is inside), where (`point`, surface
     parameters `uv`), whether it violates the margin, and the violating / warning / inside
-    areas."""
+    areas. `min_margin_mm` is the exact distance to the tumours' segmented voxels taken as cubes
+    (never more than to any tumour voxel centre); `margin_uncertainty_mm` is how much farther the
+    nearest tumour voxel centre may lie (half a voxel along the minimum's direction)."""
 
     min_margin_mm: float | None
     point: tuple[float, float, float] | None
@@ -390,6 +392,7 @@ class Verdict:
     violating_area_mm2: float
     warning_area_mm2: float
     inside_area_mm2: float
+    margin_uncertainty_mm: float | None = None
 
     @classmethod
     def from_pb(cls, m: resection_pb2.Verdict) -> Verdict:
@@ -402,6 +405,9 @@ class Verdict:
             violating_area_mm2=m.violating_area_mm2,
             warning_area_mm2=m.warning_area_mm2,
             inside_area_mm2=m.inside_area_mm2,
+            margin_uncertainty_mm=(
+                m.margin_uncertainty_mm if m.HasField("margin_uncertainty_mm") else None
+            ),
         )
 
 

@@ -51,7 +51,7 @@ class Resection(_message.Message):
     def __init__(self, name: _Optional[str] = ..., grid_m: _Optional[int] = ..., grid_n: _Optional[int] = ..., control_points: _Optional[_Iterable[_Union[_common_pb2.Vec3, _Mapping]]] = ..., margin_mm: _Optional[float] = ..., band_mm: _Optional[float] = ..., target: _Optional[_Union[Target, _Mapping]] = ..., ru: _Optional[int] = ..., rv: _Optional[int] = ...) -> None: ...
 
 class Verdict(_message.Message):
-    __slots__ = ("min_margin_mm", "point", "u", "v", "violation", "violating_area_mm2", "warning_area_mm2", "inside_area_mm2")
+    __slots__ = ("min_margin_mm", "point", "u", "v", "violation", "violating_area_mm2", "warning_area_mm2", "inside_area_mm2", "margin_uncertainty_mm")
     MIN_MARGIN_MM_FIELD_NUMBER: _ClassVar[int]
     POINT_FIELD_NUMBER: _ClassVar[int]
     U_FIELD_NUMBER: _ClassVar[int]
@@ -60,6 +60,7 @@ class Verdict(_message.Message):
     VIOLATING_AREA_MM2_FIELD_NUMBER: _ClassVar[int]
     WARNING_AREA_MM2_FIELD_NUMBER: _ClassVar[int]
     INSIDE_AREA_MM2_FIELD_NUMBER: _ClassVar[int]
+    MARGIN_UNCERTAINTY_MM_FIELD_NUMBER: _ClassVar[int]
     min_margin_mm: float
     point: _common_pb2.Vec3
     u: float
@@ -68,7 +69,8 @@ class Verdict(_message.Message):
     violating_area_mm2: float
     warning_area_mm2: float
     inside_area_mm2: float
-    def __init__(self, min_margin_mm: _Optional[float] = ..., point: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., u: _Optional[float] = ..., v: _Optional[float] = ..., violation: _Optional[bool] = ..., violating_area_mm2: _Optional[float] = ..., warning_area_mm2: _Optional[float] = ..., inside_area_mm2: _Optional[float] = ...) -> None: ...
+    margin_uncertainty_mm: float
+    def __init__(self, min_margin_mm: _Optional[float] = ..., point: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., u: _Optional[float] = ..., v: _Optional[float] = ..., violation: _Optional[bool] = ..., violating_area_mm2: _Optional[float] = ..., warning_area_mm2: _Optional[float] = ..., inside_area_mm2: _Optional[float] = ..., margin_uncertainty_mm: _Optional[float] = ...) -> None: ...
 
 class ResectionStatus(_message.Message):
     __slots__ = ("resection", "verdict")

@@ -140,6 +140,9 @@ struct ResectionReport {
     margin_mm: Real,
     band_mm: Real,
     min_margin_mm: Option<Real>,
+    /// Half a tumour voxel along the minimum's direction: the nearest voxel centre lies at most
+    /// this much farther than `min_margin_mm` (the distance to the voxels as cubes).
+    min_margin_uncertainty_mm: Option<Real>,
     min_margin_point: Option<[Real; 3]>,
     min_margin_uv: Option<[Real; 2]>,
     violation: bool,
@@ -226,6 +229,7 @@ fn report(
             margin_mm: r.margin_mm,
             band_mm: r.band_mm,
             min_margin_mm: verdict.min_margin_mm,
+            min_margin_uncertainty_mm: verdict.margin_uncertainty_mm,
             min_margin_point: verdict.point.map(|p| resecta_plan::engine::point(&p)),
             min_margin_uv: verdict.uv,
             violation: verdict.violation,

@@ -488,6 +488,7 @@ pub fn verdict(v: &Verdict) -> pb::Verdict {
         violating_area_mm2: v.violating_area_mm2,
         warning_area_mm2: v.warning_area_mm2,
         inside_area_mm2: v.inside_area_mm2,
+        margin_uncertainty_mm: v.margin_uncertainty_mm,
     }
 }
 
