@@ -262,8 +262,9 @@ def test_thread_dispatcher_delivers_on_the_polling_thread():
 
 
 class V:
-    def __init__(self, d, violation=None, point=(1, 2, 3)):
+    def __init__(self, d, violation=None, point=(1, 2, 3), uncertainty=None):
         self.min_margin_mm, self.point = d, None if d is None else np.array(point, float)
+        self.margin_uncertainty_mm = uncertainty
         self.violation = violation if violation is not None else (d is not None and d < 10)
 
 
@@ -276,6 +277,9 @@ def test_margin_indicator():
     bad = margin.indicator({"r1": (10.0, V(12.3)), "r2": (10.0, V(9.5, point=(4, 5, 6)))})
     assert bad.state == "violation" and bad.color == margin.RED and bad.resection == "r2"
     assert bad.point == (4.0, 5.0, 6.0) and "9.5 mm < 10 mm" in bad.text
+    # The distance to the voxels as cubes, and how much farther the nearest voxel centre may be.
+    sure = margin.indicator({"r1": (10.0, V(11.04, uncertainty=0.58))})
+    assert sure.text == "r1: min. margin 11.0 (+0.6) mm ≥ 10 mm" and sure.uncertainty_mm == 0.58
 
 
 class RV:
