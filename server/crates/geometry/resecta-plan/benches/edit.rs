@@ -1,5 +1,6 @@
 //! One control-point edit → new surface, per-vertex margins, inside flags and the global verdict
-//! (the live path), at 40×40 and 200×200; and volumetry per edit on a 512×512×300 label map.
+//! (the live path), at 40×40 and 200×200, also with a large tumour (~177 k voxels); and
+//! volumetry per edit on a 512×512×300 label map.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::sync::Arc;
@@ -10,6 +11,11 @@ use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereS
 use resecta_plan::{Anatomy, Plan, PlanEvent, Planner, Resection};
 
 fn spec(dims: [usize; 3], spacing: [Real; 3]) -> PhantomSpec {
+    spec_with_tumour(dims, spacing, 15.0)
+}
+
+/// The liver of [`spec`] with a tumour of radius `r` at (35, 10, 5).
+fn spec_with_tumour(dims: [usize; 3], spacing: [Real; 3], r: Real) -> PhantomSpec {
     PhantomSpec {
         grid: GridSpec::centred(dims, spacing, [0.0; 3], Orientation::default()),
         liver: vec![
@@ -26,7 +32,7 @@ fn spec(dims: [usize; 3], spacing: [Real; 3]) -> PhantomSpec {
         ],
         tumors: vec![SphereSpec {
             center: [35.0, 10.0, 5.0],
-            radius: 15.0,
+            radius: r,
         }],
         vessels: vec![],
         roles: RoleMap::default(),
@@ -100,5 +106,34 @@ fn volumetry(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, live_edit, volumetry);
+/// The live path with a large tumour: radius 28 mm on a CT grid of 0.57×0.57×1.6 mm (~177 k
+/// voxels), 2 mm from the cut; margins measured to its voxel boundary.
+fn live_edit_large_tumour(c: &mut Criterion) {
+    let s = spec_with_tumour([512, 512, 130], [0.57, 0.57, 1.6], 28.0);
+    let p = generate(&s).unwrap();
+    let anatomy = Arc::new(Anatomy::new(&p.labels, &s.roles).unwrap());
+    let t = &anatomy.tumours()[0];
+    eprintln!(
+        "large tumour: {} voxels, margin surface {} triangles",
+        t.voxels,
+        t.mesh.triangles().len()
+    );
+    for res in [40usize, 200] {
+        let mut plan = Plan::new(s.roles.clone());
+        plan.apply(&PlanEvent::AddResection {
+            resection: planar(res),
+        })
+        .unwrap();
+        let mut p = Planner::new(Arc::clone(&anatomy), plan).unwrap();
+        let mut k = 0u64;
+        c.bench_function(&format!("edit_{res}x{res}_large_tumour"), |b| {
+            b.iter(|| {
+                k += 1;
+                p.edit(edit(k)).unwrap();
+            })
+        });
+    }
+}
+
+criterion_group!(benches, live_edit, live_edit_large_tumour, volumetry);
 criterion_main!(benches);
