@@ -135,6 +135,9 @@ fn with_tumour(inside: impl Fn(Vec3) -> bool) -> LabelMap {
     labels
 }
 
+/// The support function of an analytic tumour: the largest n·x over it.
+type Support = Box<dyn Fn(&Vec3) -> Real>;
+
 #[test]
 fn analytic_tumours_cut_3_mm_away() {
     // Spheres of several sizes and a rotated ellipsoid on 0.9×0.9×2.5 mm voxels turned 20°
@@ -142,19 +145,18 @@ fn analytic_tumours_cut_3_mm_away() {
     let centre = Vec3::new(10.0, 5.0, 0.0);
     let axes = Mat3::from_diagonal(&Vec3::new(16.0, 9.0, 6.0));
     let turn = Mat3::new(0.8, -0.6, 0.0, 0.6, 0.8, 0.0, 0.0, 0.0, 1.0);
-    let shapes: Vec<(String, LabelMap, Box<dyn Fn(&Vec3) -> Real>)> = [6.0, 12.0, 20.0]
+    let shapes: Vec<(String, LabelMap, Support)> = [6.0, 12.0, 20.0]
         .into_iter()
         .map(|r: Real| {
             let labels = with_tumour(|p| (p - centre).norm() <= r);
-            let support: Box<dyn Fn(&Vec3) -> Real> = Box::new(move |n| n.dot(&centre) + r);
+            let support: Support = Box::new(move |n| n.dot(&centre) + r);
             (format!("sphere r {r}"), labels, support)
         })
         .chain(std::iter::once({
             let m = turn * axes; // columns: the semi-axes
             let inv = m.try_inverse().unwrap();
             let labels = with_tumour(|p| (inv * (p - centre)).norm() <= 1.0);
-            let support: Box<dyn Fn(&Vec3) -> Real> =
-                Box::new(move |n| n.dot(&centre) + (m.transpose() * n).norm());
+            let support: Support = Box::new(move |n| n.dot(&centre) + (m.transpose() * n).norm());
             ("ellipsoid 16×9×6".to_owned(), labels, support)
         }))
         .collect();
