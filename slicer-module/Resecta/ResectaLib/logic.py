@@ -471,9 +471,13 @@ class PlanningLogic:
 
     def load_plan(self, path, on_done: Callable | None = None) -> None:
         text = planfile.load(path)
-        self.edits.import_plan(text, lambda v: (
-            self._status(f"Plan loaded from {path} (version {v})"),
-            on_done(v) if on_done else None))
+
+        def loaded(version):
+            self._status(f"Plan loaded from {path} (version {version})")
+            if on_done is not None:
+                on_done(version)
+
+        self.edits.import_plan(text, loaded)
 
     def export_resections(self, folder, fmt: str = "vtp", on_done: Callable | None = None) -> None:
         """Writes every resection's mesh as `<folder>/<name>.<fmt>` (RAS; VTP with margins)."""
