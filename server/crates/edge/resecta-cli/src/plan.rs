@@ -107,7 +107,26 @@ fn plan_err(e: PlanError) -> CliError {
         | PlanError::Geometry(_)
         | PlanError::Margin(_)
         | PlanError::Volumetry(_) => CliError::Failed(e.to_string()),
-        _ => CliError::BadInput(e.to_string()),
+        PlanError::Format(_)
+        | PlanError::Json(_)
+        | PlanError::InvalidResection { .. }
+        | PlanError::UnknownResection(_)
+        | PlanError::DuplicateName(_)
+        | PlanError::TooManyResections(_)
+        | PlanError::NonFinite { .. }
+        | PlanError::InvalidArgument(_)
+        | PlanError::NothingToUndo
+        | PlanError::NothingToRedo
+        | PlanError::HistoryFull(_)
+        | PlanError::LabelAbsent(_)
+        | PlanError::NotATumourLabel(_)
+        | PlanError::NoTumour
+        | PlanError::TumourOutsideLiver(_)
+        | PlanError::NoTumourAtPoint(_)
+        | PlanError::EndPointAtCentroid
+        | PlanError::PlaneMissesLiver
+        | PlanError::EmptyLiver
+        | PlanError::Bezier(_) => CliError::BadInput(e.to_string()),
     }
 }
 

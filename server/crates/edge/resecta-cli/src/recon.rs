@@ -111,7 +111,9 @@ fn recon_err(e: resecta_recon::ReconError) -> CliError {
         | E::EmptyMask
         | E::InvalidParameter { .. }
         | E::Poisson(_) => CliError::BadInput(e.to_string()),
-        _ => CliError::Failed(e.to_string()),
+        E::Cancelled | E::Filter(_) | E::Isosurface(_) | E::Metrics(_) | E::Geometry(_) => {
+            CliError::Failed(e.to_string())
+        }
     }
 }
 

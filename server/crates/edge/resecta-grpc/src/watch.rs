@@ -194,7 +194,7 @@ impl State {
             WatchBody::Snapshot { .. } => Some(convert::session(
                 &self.service.get_session(&self.id).await.or_status()?,
             )),
-            _ => None,
+            WatchBody::Delta { .. } | WatchBody::Models { .. } | WatchBody::Volumes { .. } => None,
         };
         match responses(&event, session)? {
             Some(messages) => self.pending.extend(messages),

@@ -90,7 +90,9 @@ impl SessionError {
                 StoreError::Conflict { .. } => ErrorKind::Conflict,
                 StoreError::TooLarge { .. } => ErrorKind::ResourceExhausted,
                 StoreError::Invalid { .. } => ErrorKind::InvalidArgument,
-                _ => ErrorKind::Internal,
+                StoreError::Corrupt { .. }
+                | StoreError::SchemaTooNew { .. }
+                | StoreError::Backend(_) => ErrorKind::Internal,
             },
             Self::Internal(_) => ErrorKind::Internal,
         }
@@ -119,14 +121,31 @@ impl SessionError {
                 PlanError::NothingToRedo => "NOTHING_TO_REDO",
                 PlanError::Json(_) | PlanError::Format(_) => "BAD_PLAN",
                 PlanError::HistoryFull(_) | PlanError::TooManyResections(_) => "PLAN_QUOTA",
-                e if plan_kind(e) == ErrorKind::Internal => "INTERNAL",
-                _ => "INVALID_ARGUMENT",
+                PlanError::Volumetry(_) | PlanError::Margin(_) | PlanError::Recon(_) => "INTERNAL",
+                PlanError::InvalidResection { .. }
+                | PlanError::DuplicateName(_)
+                | PlanError::NonFinite { .. }
+                | PlanError::InvalidArgument(_)
+                | PlanError::LabelAbsent(_)
+                | PlanError::NotATumourLabel(_)
+                | PlanError::NoTumour
+                | PlanError::TumourOutsideLiver(_)
+                | PlanError::NoTumourAtPoint(_)
+                | PlanError::EndPointAtCentroid
+                | PlanError::PlaneMissesLiver
+                | PlanError::EmptyLiver
+                | PlanError::Bezier(_)
+                | PlanError::Geometry(_) => "INVALID_ARGUMENT",
             },
             Self::Store(e) => match e {
                 StoreError::NotFound { .. } => "SESSION_NOT_FOUND",
                 StoreError::Conflict { .. } => "STALE_VERSION",
                 StoreError::TooLarge { .. } => "UPLOAD_TOO_LARGE",
-                _ => "STORAGE",
+                StoreError::AlreadyExists { .. }
+                | StoreError::Invalid { .. }
+                | StoreError::Corrupt { .. }
+                | StoreError::SchemaTooNew { .. }
+                | StoreError::Backend(_) => "STORAGE",
             },
             Self::Internal(_) => "INTERNAL",
         }
@@ -149,7 +168,22 @@ fn plan_kind(e: &PlanError) -> ErrorKind {
         PlanError::NothingToUndo | PlanError::NothingToRedo => ErrorKind::FailedPrecondition,
         PlanError::HistoryFull(_) | PlanError::TooManyResections(_) => ErrorKind::ResourceExhausted,
         PlanError::Volumetry(_) | PlanError::Margin(_) | PlanError::Recon(_) => ErrorKind::Internal,
-        _ => ErrorKind::InvalidArgument,
+        PlanError::Format(_)
+        | PlanError::Json(_)
+        | PlanError::InvalidResection { .. }
+        | PlanError::DuplicateName(_)
+        | PlanError::NonFinite { .. }
+        | PlanError::InvalidArgument(_)
+        | PlanError::LabelAbsent(_)
+        | PlanError::NotATumourLabel(_)
+        | PlanError::NoTumour
+        | PlanError::TumourOutsideLiver(_)
+        | PlanError::NoTumourAtPoint(_)
+        | PlanError::EndPointAtCentroid
+        | PlanError::PlaneMissesLiver
+        | PlanError::EmptyLiver
+        | PlanError::Bezier(_)
+        | PlanError::Geometry(_) => ErrorKind::InvalidArgument,
     }
 }
 

@@ -41,12 +41,39 @@ fn grid(
         Mat3::from_row_slice(&direction),
         limit,
     )
-    .map_err(|e| match e {
-        resecta_geom::GeomError::TooManyVoxels { .. } => {
+    .map_err(|e| {
+        if is_voxel_quota(&e) {
             SessionError::Quota(Quota::Voxels, e.to_string())
+        } else {
+            invalid(format!("label-map geometry: {e}"))
         }
-        _ => invalid(format!("label-map geometry: {e}")),
     })
+}
+
+/// Whether a geometry error of an upload is the voxel quota (too large) rather than bad input.
+fn is_voxel_quota(e: &resecta_geom::GeomError) -> bool {
+    use resecta_geom::GeomError as G;
+    match e {
+        G::TooManyVoxels { .. } => true,
+        G::EmptyDims(_)
+        | G::BadSpacing(_)
+        | G::BadOrigin(_)
+        | G::SingularDirection
+        | G::DataLength { .. }
+        | G::VertexIndexOutOfRange { .. }
+        | G::TooManyVertices
+        | G::NonFiniteVertex(_)
+        | G::AttributeLength { .. }
+        | G::LabelInTwoRoles { .. }
+        | G::BackgroundLabel
+        | G::EmptyRole(_)
+        | G::NonOrthogonalGrid
+        | G::TooFewPoints { .. }
+        | G::InvalidParameter { .. }
+        | G::TooManyTriangles { .. }
+        | G::NotClosed { .. }
+        | G::EmptyMesh => false,
+    }
 }
 
 fn from_raw(raw: &RawLabelMap, limit: VoxelLimit) -> Result<LabelMap> {
@@ -123,13 +150,29 @@ fn sniff(bytes: &[u8]) -> Result<FileFormat> {
 fn from_file(format: FileFormat, bytes: &[u8], limit: VoxelLimit) -> Result<LabelMap> {
     let format = match format {
         FileFormat::Auto => sniff(bytes)?,
-        f => f,
+        f
+        @ (FileFormat::Nifti | FileFormat::Nrrd | FileFormat::SegNrrd | FileFormat::MetaImage) => f,
     };
-    let io = |e: resecta_io::IoError| match &e.kind {
-        resecta_io::ErrorKind::Geometry(resecta_geom::GeomError::TooManyVoxels { .. }) => {
-            SessionError::Quota(Quota::Voxels, e.to_string())
+    let io = |e: resecta_io::IoError| {
+        use resecta_io::ErrorKind as K;
+        match &e.kind {
+            K::Geometry(g) if is_voxel_quota(g) => {
+                SessionError::Quota(Quota::Voxels, e.to_string())
+            }
+            K::Io(_)
+            | K::UnknownFormat(..)
+            | K::BadMagic(_)
+            | K::Decompress(_)
+            | K::Header(_)
+            | K::DataSize { .. }
+            | K::Unsupported { .. }
+            | K::MissingField(_)
+            | K::UnsafePath(_)
+            | K::NotLabels(_)
+            | K::Segmentation(_)
+            | K::Mesh(_)
+            | K::Geometry(_) => invalid(e.to_string()),
         }
-        _ => invalid(e.to_string()),
     };
     let image = match format {
         FileFormat::Nifti => nifti::read_nifti_bytes(bytes, UPLOAD, limit).map_err(io)?,

@@ -798,7 +798,15 @@ impl Service {
                 patient_models(&labels, &roles, &model_options, &mut progress).map_err(
                     |e| match e {
                         ReconError::Cancelled => SessionError::Cancelled,
-                        e => SessionError::Precondition(
+                        e @ (ReconError::NoLabels
+                        | ReconError::LabelsAbsent { .. }
+                        | ReconError::EmptyMask
+                        | ReconError::InvalidParameter { .. }
+                        | ReconError::Poisson(_)
+                        | ReconError::Filter(_)
+                        | ReconError::Isosurface(_)
+                        | ReconError::Metrics(_)
+                        | ReconError::Geometry(_)) => SessionError::Precondition(
                             Missing::Other,
                             format!("reconstruction: {e}"),
                         ),

@@ -99,7 +99,6 @@ impl Default for StoreOptions {
 
 /// Errors of a [`SessionStore`].
 #[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
 pub enum StoreError {
     #[error("session {id} not found")]
     NotFound { id: String },

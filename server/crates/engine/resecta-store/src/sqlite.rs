@@ -173,7 +173,12 @@ impl SqliteStore {
             StoreError::Backend(msg) => {
                 StoreError::Backend(format!("opening {}: {msg}", dir.join(DB_FILE).display()))
             }
-            e => e,
+            e @ (StoreError::NotFound { .. }
+            | StoreError::AlreadyExists { .. }
+            | StoreError::Conflict { .. }
+            | StoreError::TooLarge { .. }
+            | StoreError::Invalid { .. }
+            | StoreError::SchemaTooNew { .. }) => e,
         })
     }
 

@@ -298,7 +298,7 @@ fn evaluate_with(
         .iter()
         .map(|r| match r {
             Recall::Keep(delta) => Some(*delta),
-            _ => None,
+            Recall::Far | Recall::Unknown => None,
         })
         .collect();
     if let Some(mm) = valid {

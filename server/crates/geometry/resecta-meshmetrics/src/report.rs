@@ -58,7 +58,7 @@ impl Study {
             .iter()
             .filter_map(|m| match m.record.method {
                 ModelMethod::Psr { depth } => Some((depth, m)),
-                _ => None,
+                ModelMethod::Mcsd { .. } | ModelMethod::External { .. } => None,
             })
             .collect();
         psr.sort_by_key(|(d, _)| *d);
@@ -76,7 +76,7 @@ impl Study {
         let p_best = self.model(self.p_best);
         let depth = |m: &ModelScore| match m.record.method {
             ModelMethod::Psr { depth } => format!("d = {depth}"),
-            _ => m.record.label.clone(),
+            ModelMethod::Mcsd { .. } | ModelMethod::External { .. } => m.record.label.clone(),
         };
         let mut s = String::new();
 

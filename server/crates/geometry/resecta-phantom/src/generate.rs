@@ -206,7 +206,7 @@ fn closed_forms(scene: &Scene) -> [Option<Real>; REGIONS] {
         .iter()
         .filter_map(|p| match p.solid {
             Solid::Ball { center, radius } => Some((center, radius)),
-            _ => None,
+            Solid::Ellipsoid { .. } | Solid::Capsule { .. } => None,
         })
         .collect();
     let mut out = [None; REGIONS];
@@ -227,7 +227,7 @@ fn closed_forms(scene: &Scene) -> [Option<Real>; REGIONS] {
         match role {
             Role::Tumor => out[1 + i] = tumor,
             Role::Parenchyma => {}
-            _ => {
+            Role::Portal | Role::Hepatic | Role::Vessel => {
                 let parts = of(role);
                 let v = match parts.as_slice() {
                     [] => Some(0.0),
@@ -242,7 +242,7 @@ fn closed_forms(scene: &Scene) -> [Option<Real>; REGIONS] {
                             capsules.push((a, b, radius));
                             free.then(|| p.solid.volume())
                         }
-                        _ => None,
+                        Solid::Ellipsoid { .. } | Solid::Ball { .. } => None,
                     },
                     _ => None,
                 };

@@ -90,7 +90,7 @@ impl Solid {
                 let rmin = radii.iter().copied().fold(Real::INFINITY, Real::min);
                 rmin * (rho - 1.0)
             }
-            _ => self.signed_distance(p),
+            Solid::Ball { .. } | Solid::Capsule { .. } => self.signed_distance(p),
         }
     }
 

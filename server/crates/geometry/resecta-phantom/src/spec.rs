@@ -189,7 +189,24 @@ impl PhantomSpec {
                     GeomError::TooManyVoxels { dims, limit } => {
                         PhantomError::VoxelLimit { dims, limit }
                     }
-                    e => PhantomError::Geom(e),
+                    e @ (GeomError::EmptyDims(_)
+                    | GeomError::BadSpacing(_)
+                    | GeomError::BadOrigin(_)
+                    | GeomError::SingularDirection
+                    | GeomError::DataLength { .. }
+                    | GeomError::VertexIndexOutOfRange { .. }
+                    | GeomError::TooManyVertices
+                    | GeomError::NonFiniteVertex(_)
+                    | GeomError::AttributeLength { .. }
+                    | GeomError::LabelInTwoRoles { .. }
+                    | GeomError::BackgroundLabel
+                    | GeomError::EmptyRole(_)
+                    | GeomError::NonOrthogonalGrid
+                    | GeomError::TooFewPoints { .. }
+                    | GeomError::InvalidParameter { .. }
+                    | GeomError::TooManyTriangles { .. }
+                    | GeomError::NotClosed { .. }
+                    | GeomError::EmptyMesh) => PhantomError::Geom(e),
                 }
             })?;
         positive("truth_tolerance_mm", self.truth_tolerance_mm)?;

@@ -205,7 +205,7 @@ impl Ctx<'_> {
                 add_bits(acc, any & !all, 0.0, vol);
                 acc.leaves += 1;
             }
-            _ => {
+            Decision::Single { .. } | Decision::Multi { .. } => {
                 for k in 0..8 {
                     let child = corner(c, half / 2.0, k);
                     self.cell(child, half / 2.0, depth + 1, &open, state, acc);

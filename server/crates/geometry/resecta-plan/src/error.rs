@@ -4,7 +4,6 @@ use resecta_geom::GeomError;
 use thiserror::Error;
 
 #[derive(Debug, Error)]
-#[non_exhaustive]
 pub enum PlanError {
     #[error("plan format {0:?} is not supported (expected \"resecta-plan/1\")")]
     Format(String),

@@ -377,12 +377,14 @@ fn scale(data: VoxelData, slope: f32, inter: f32) -> VoxelData {
         ScalarType::I32 | ScalarType::U32 | ScalarType::F64 => {
             VoxelData::F64(data.to_f64().into_iter().map(|v| v * s + i).collect())
         }
-        _ => VoxelData::F32(
-            data.to_f64()
-                .into_iter()
-                .map(|v| (v * s + i) as f32)
-                .collect(),
-        ),
+        ScalarType::U8 | ScalarType::I8 | ScalarType::U16 | ScalarType::I16 | ScalarType::F32 => {
+            VoxelData::F32(
+                data.to_f64()
+                    .into_iter()
+                    .map(|v| (v * s + i) as f32)
+                    .collect(),
+            )
+        }
     }
 }
 

@@ -300,7 +300,13 @@ pub fn seg_nrrd_bytes(seg: &Segmentation) -> Result<Vec<u8>, ErrorKind> {
     }
     let data = match ty {
         ScalarType::U8 => VoxelData::U8(values.iter().map(|&v| v as u8).collect()),
-        _ => VoxelData::U16(values),
+        ScalarType::I8
+        | ScalarType::U16
+        | ScalarType::I16
+        | ScalarType::U32
+        | ScalarType::I32
+        | ScalarType::F32
+        | ScalarType::F64 => VoxelData::U16(values),
     };
     let mut out = header.into_bytes();
     out.extend_from_slice(&gzip(&data.to_bytes(false))?);

@@ -196,7 +196,7 @@ fn files_on_disk_by_extension_and_empty_mesh() {
         assert!(back.report().watertight, "{f:?}");
         let expected = match f {
             MeshFormat::Stl | MeshFormat::Ply => m32.signed_volume(),
-            _ => m.signed_volume(),
+            MeshFormat::Vtk | MeshFormat::Vtp | MeshFormat::Obj => m.signed_volume(),
         };
         assert!(
             (back.signed_volume() - expected).abs() <= 1e-12 * expected,

@@ -330,8 +330,10 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
         let f = to_f32(v)?;
         match encoding {
             Encoding::Ascii => write!(out, "{f} ")?,
-            _ if big => out.extend_from_slice(&f.to_be_bytes()),
-            _ => out.extend_from_slice(&f.to_le_bytes()),
+            Encoding::Binary | Encoding::BinaryBigEndian if big => {
+                out.extend_from_slice(&f.to_be_bytes());
+            }
+            Encoding::Binary | Encoding::BinaryBigEndian => out.extend_from_slice(&f.to_le_bytes()),
         }
         Ok(())
     };
@@ -348,8 +350,12 @@ pub(crate) fn write(mesh: &TriMesh, encoding: Encoding) -> Result<Vec<u8>, Error
         for s in &scalars {
             match encoding {
                 Encoding::Ascii => write!(out, "{} ", fmt_f64(s[i]))?,
-                _ if big => out.extend_from_slice(&s[i].to_be_bytes()),
-                _ => out.extend_from_slice(&s[i].to_le_bytes()),
+                Encoding::Binary | Encoding::BinaryBigEndian if big => {
+                    out.extend_from_slice(&s[i].to_be_bytes());
+                }
+                Encoding::Binary | Encoding::BinaryBigEndian => {
+                    out.extend_from_slice(&s[i].to_le_bytes());
+                }
             }
         }
         if encoding == Encoding::Ascii {

@@ -187,7 +187,11 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                 }
                 continue;
             }
-            _ => continue,
+            Event::Comment(_)
+            | Event::Decl(_)
+            | Event::PI(_)
+            | Event::DocType(_)
+            | Event::GeneralRef(_) => continue,
         };
         let name = e.name().as_ref().to_owned();
         if !seen_root {
