@@ -74,7 +74,7 @@ def assert_close(
 ) -> None:
     """Within half a quantisation step (+ an f32 ulp) and the octahedral bound of the encoded
     frame where quantised, else bitwise equal, on `rows`."""
-    f = case["header"]["flags"]
+    f = case["value_flags"]  # the encodings the values went through (a delta's or its base's)
     pos = np.array(src["positions"], np.uint32).reshape(-1, 3).view(np.float32)[rows]
     g = got["positions"][rows]
     if f & mw.POSITIONS_U16:
@@ -185,7 +185,8 @@ def test_truncated_and_corrupted_messages_raise_value_error(golden: Any) -> None
         for bad in [
             buf + b"\0",
             b"RSXX" + buf[4:],
-            patched(buf, 4, "<H", 2),  # version
+            patched(buf, 4, "<H", mw.VERSION - 1),  # version
+            patched(buf, 4, "<H", mw.VERSION + 1),
             patched(buf, 6, "<H", case["header"]["flags"] | 0x100),  # reserved flag bit
             patched(buf, 16, "<I", case["header"]["payload_bytes"] + 4),
             patched(buf, 8, "<I", case["header"]["vertex_count"] + 1),
@@ -208,7 +209,14 @@ def test_truncated_and_corrupted_messages_raise_value_error(golden: Any) -> None
         z[20] ^= 0xFF  # the frame's magic number
         mw.decode_mesh(bytes(z))
 
+    bare_msg = read(g, "mesh_bare_quant.rsms")  # positions only, quantised
+    with pytest.raises(ValueError, match="NORMALS_OCT16 without a normals section"):
+        flags = struct.unpack_from("<H", bare_msg, 6)[0]
+        mw.decode_mesh(patched(bare_msg, 6, "<H", flags | mw.NORMALS_OCT16))
+
     few = read(g, "delta_few_exact.rsdl")  # index list [0, 17, 143]
+    with pytest.raises(ValueError, match="POSITIONS_U16 without a positions section"):
+        mw.decode_delta(patched(few, 6, "<H", mw.POSITIONS_U16 | mw.MARGINS | mw.CLASSES | mw.INDEX_LIST))
     with pytest.raises(ValueError, match="ascending"):
         mw.decode_delta(patched(few, 24, "<I", 0))
     with pytest.raises(ValueError, match="ascending"):
@@ -227,6 +235,41 @@ def test_truncated_and_corrupted_messages_raise_value_error(golden: Any) -> None
         mw.apply_delta(bare, read(g, "delta_all_quant_zstd.rsdl"))
     with pytest.raises(ValueError):
         mw.apply_delta(quant, mesh)
+
+
+def test_zstd_frames_carry_a_checksum_that_is_verified(golden: Any) -> None:
+    compressed = [c for c in golden[1]["cases"] if c["header"]["flags"] & mw.ZSTD]
+    assert len(compressed) >= 3
+    for case in compressed:
+        buf = read(golden, case["file"])
+        frame = buf[20:]
+        assert zstandard.get_frame_parameters(frame).has_checksum, case["file"]
+        decode: Callable[[bytes], object] = mw.decode_mesh
+        if case["kind"] == "delta":
+            decode = partial(mw.apply_delta, mw.decode_mesh(read(golden, case["base"])))
+        bad = bytearray(buf)
+        bad[-1] ^= 0x5A  # the checksum itself
+        with pytest.raises(ValueError, match="checksum does not match"):
+            decode(bytes(bad))
+        payload = zstandard.ZstdDecompressor().decompress(frame)
+        plain = zstandard.ZstdCompressor(level=3, write_checksum=False).compress(payload)
+        with pytest.raises(ValueError, match="no content checksum"):
+            decode(buf[:20] + plain)
+        with pytest.raises(ValueError):
+            decode(buf + frame)  # two frames
+        # Any single flipped bit in the frame: a ValueError, or exactly what the intact message
+        # decodes to (never other data of the right length).
+        want = decode(buf)
+        for at in range(20, len(buf)):
+            for bit in (0x01, 0x80):
+                b = bytearray(buf)
+                b[at] ^= bit
+                try:
+                    got = decode(bytes(b))
+                except ValueError:
+                    continue
+                for key, _ in ATTRS:
+                    assert bits(got[key]) == bits(want[key]), (case["file"], at, bit)  # type: ignore[index]
 
 
 def test_random_corruption_never_raises_anything_but_value_error(golden: Any) -> None:

@@ -131,7 +131,7 @@ def rsms(positions: np.ndarray, triangles: np.ndarray) -> bytes:
     """A minimal uncompressed snapshot (positions only) in the wire format."""
     payload = triangles.astype("<u4").tobytes() + positions.astype("<f4").tobytes()
     return (
-        struct.pack("<4sHHIII", b"RSMS", 1, wire.POSITIONS, len(positions), len(triangles), len(payload))
+        struct.pack("<4sHHIII", b"RSMS", wire.VERSION, wire.POSITIONS, len(positions), len(triangles), len(payload))
         + payload
     )
 
@@ -139,7 +139,7 @@ def rsms(positions: np.ndarray, triangles: np.ndarray) -> bytes:
 def rsdl(n: int, changed: list[int], rows: np.ndarray) -> bytes:
     payload = np.asarray(changed, "<u4").tobytes() + rows.astype("<f4").tobytes()
     flags = wire.POSITIONS | wire.INDEX_LIST
-    return struct.pack("<4sHHIII", b"RSDL", 1, flags, n, len(changed), len(payload)) + payload
+    return struct.pack("<4sHHIII", b"RSDL", wire.VERSION, flags, n, len(changed), len(payload)) + payload
 
 
 def test_scene_snapshot_parts_and_bad_deltas() -> None:

@@ -26,7 +26,7 @@ ZSTD_AVAILABLE = zstandard is not None
 
 MESH_MAGIC = b"RSMS"
 DELTA_MAGIC = b"RSDL"
-VERSION = 1
+VERSION = 2
 HEADER_BYTES = 20
 
 # Header flag bits.
@@ -34,9 +34,9 @@ POSITIONS = 1 << 0
 NORMALS = 1 << 1
 MARGINS = 1 << 2
 CLASSES = 1 << 3
-POSITIONS_U16 = 1 << 4
-NORMALS_OCT16 = 1 << 5
-ZSTD = 1 << 6
+POSITIONS_U16 = 1 << 4  # only together with POSITIONS
+NORMALS_OCT16 = 1 << 5  # only together with NORMALS
+ZSTD = 1 << 6  # one zstd frame with a content checksum
 INDEX_LIST = 1 << 7
 ALL_FLAGS = (1 << 8) - 1
 
@@ -99,7 +99,8 @@ class Delta(TypedDict):
 
 
 def read_header(buf: bytes | bytearray | memoryview) -> Header:
-    """The fixed header, with magic, version and reserved flag bits checked."""
+    """The fixed header, with magic, version, reserved flag bits and encoding flags (only with
+    their section) checked."""
     b = bytes(buf[:HEADER_BYTES])
     if len(b) < HEADER_BYTES:
         raise WireError(f"truncated: header needs {HEADER_BYTES} bytes, {len(b)} available")
@@ -111,6 +112,10 @@ def read_header(buf: bytes | bytearray | memoryview) -> Header:
         raise WireError(f"unsupported format version {version} (this decoder reads {VERSION})")
     if flags & ~ALL_FLAGS:
         raise WireError(f"bad flags {flags:#06x}: reserved bits set")
+    if flags & POSITIONS_U16 and not flags & POSITIONS:
+        raise WireError(f"bad flags {flags:#06x}: POSITIONS_U16 without a positions section")
+    if flags & NORMALS_OCT16 and not flags & NORMALS:
+        raise WireError(f"bad flags {flags:#06x}: NORMALS_OCT16 without a normals section")
     return Header(kinds[magic], version, flags, n, count2, payload)
 
 
@@ -147,13 +152,22 @@ def _payload(buf: bytes, h: Header, expected: int) -> bytes:
     if zstandard is None:
         raise RuntimeError("a zstd-compressed message needs the 'zstandard' package")
     try:
-        size = zstandard.get_frame_parameters(body).content_size
+        params = zstandard.get_frame_parameters(body)
+        if not params.has_checksum:
+            raise WireError("the zstd frame has no content checksum (the format requires one)")
+        size = params.content_size
         if size not in (zstandard.CONTENTSIZE_UNKNOWN, expected):
             raise WireError(f"zstd frame holds {size} bytes, the payload is {expected}")
+        # Verifies the frame's content checksum.
         out: bytes = zstandard.ZstdDecompressor().decompress(
             body, max_output_size=expected, allow_extra_data=False
         )
     except zstandard.ZstdError as e:
+        if "checksum" in str(e):
+            raise WireError(
+                "the zstd frame's content checksum does not match the decompressed payload: "
+                "the message is corrupt"
+            ) from e
         raise WireError(f"zstd: {e}") from e
     if len(out) != expected:
         raise WireError(f"zstd frame holds {len(out)} bytes, the payload is {expected}")

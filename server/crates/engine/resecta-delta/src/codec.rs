@@ -124,9 +124,9 @@ fn finish(
         limit: u64::from(u32::MAX),
     })?;
     let compressed = match opts.zstd_level {
-        Some(level) => Some(
-            zstd::bulk::compress(&payload, level).map_err(|e| DeltaError::Zstd(e.to_string()))?,
-        ),
+        Some(level) => {
+            Some(compress(&payload, level).map_err(|e| DeltaError::Zstd(e.to_string()))?)
+        }
         None => None,
     };
     let body = match compressed {
@@ -140,6 +140,49 @@ fn finish(
     header.write(&mut out);
     out.extend_from_slice(&body);
     Ok(out)
+}
+
+/// One zstd frame of `payload` with its content size and content checksum in the frame.
+fn compress(payload: &[u8], level: i32) -> std::io::Result<Vec<u8>> {
+    let mut c = zstd::bulk::Compressor::new(level)?;
+    c.set_parameter(zstd::zstd_safe::CParameter::ChecksumFlag(true))?;
+    c.set_parameter(zstd::zstd_safe::CParameter::ContentSizeFlag(true))?;
+    c.compress(payload)
+}
+
+/// libzstd's name of the error of a frame whose content checksum does not match.
+const ZSTD_CHECKSUM_WRONG: &str = "Restored data doesn't match checksum";
+/// The zstd frame magic number, little-endian.
+const ZSTD_MAGIC: [u8; 4] = [0x28, 0xB5, 0x2F, 0xFD];
+/// `Content_Checksum_flag` of the frame header descriptor (the byte after the magic).
+const ZSTD_CHECKSUM_FLAG: u8 = 0x04;
+
+/// Decompresses `body`, which must be exactly one zstd frame with a content checksum, into at
+/// most `capacity` bytes; libzstd verifies the checksum.
+fn decompress(body: &[u8], capacity: usize) -> Result<Vec<u8>, DeltaError> {
+    let frame = zstd::zstd_safe::find_frame_compressed_size(body)
+        .map_err(|code| DeltaError::Zstd(zstd::zstd_safe::get_error_name(code).to_owned()))?;
+    if frame < body.len() {
+        return Err(DeltaError::TrailingBytes {
+            count: (body.len() - frame) as u64,
+        });
+    }
+    match body.get(..5) {
+        Some([m0, m1, m2, m3, fhd]) if [*m0, *m1, *m2, *m3] == ZSTD_MAGIC => {
+            if fhd & ZSTD_CHECKSUM_FLAG == 0 {
+                return Err(DeltaError::ZstdNoChecksum);
+            }
+        }
+        _ => return Err(DeltaError::Zstd("not a zstd data frame".to_owned())),
+    }
+    zstd::bulk::decompress(body, capacity).map_err(|e| {
+        let msg = e.to_string();
+        if msg == ZSTD_CHECKSUM_WRONG {
+            DeltaError::ChecksumMismatch
+        } else {
+            DeltaError::Zstd(msg)
+        }
+    })
 }
 
 /// The payload of a checked header: the bytes after it, or their zstd decompression; its
@@ -157,8 +200,7 @@ fn payload<'a>(
     }
     let body = &bytes[HEADER_BYTES..];
     if h.has(flags::ZSTD) {
-        let out = zstd::bulk::decompress(body, h.payload_bytes as usize)
-            .map_err(|e| DeltaError::Zstd(e.to_string()))?;
+        let out = decompress(body, h.payload_bytes as usize)?;
         if out.len() as u64 != expected {
             return Err(DeltaError::PayloadSize {
                 declared: out.len() as u64,
@@ -182,6 +224,20 @@ fn payload<'a>(
         }
         Ok(std::borrow::Cow::Borrowed(body))
     }
+}
+
+/// The section flags `f` with the encoding flags of the options for the sections present (an
+/// absent section has no flag of its own encoding).
+fn with_encodings(f: u16, opts: &EncodeOptions) -> u16 {
+    let q = opts.quant_flags();
+    let mut out = f;
+    if f & flags::POSITIONS != 0 {
+        out |= q & flags::POSITIONS_U16;
+    }
+    if f & flags::NORMALS != 0 {
+        out |= q & flags::NORMALS_OCT16;
+    }
+    out
 }
 
 fn check_limit(what: &'static str, count: u32, limit: u32) -> Result<(), DeltaError> {
@@ -217,7 +273,7 @@ pub fn encode_mesh(
             });
         }
     }
-    let f = frame.attribute_flags() | opts.quant_flags();
+    let f = with_encodings(frame.attribute_flags(), opts);
     let size = 12 * u64::from(t) + attribute_bytes(f, n as u64);
     let mut payload = Vec::with_capacity(usize::try_from(size).unwrap_or(0));
     for tri in &topology.triangles {
@@ -371,7 +427,7 @@ pub fn encode_delta(
         }
     }
     let m = changed.len() as u64;
-    f |= opts.quant_flags();
+    f = with_encodings(f, opts);
     let use_list = m < bitmap_words(n as u64);
     if use_list {
         f |= flags::INDEX_LIST;

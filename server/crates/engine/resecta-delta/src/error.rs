@@ -34,6 +34,12 @@ pub enum DeltaError {
     TrailingBytes { count: u64 },
     #[error("zstd: {0}")]
     Zstd(String),
+    #[error("the zstd frame has no content checksum (the format requires one)")]
+    ZstdNoChecksum,
+    #[error(
+        "the zstd frame's content checksum does not match the decompressed payload: the message is corrupt"
+    )]
+    ChecksumMismatch,
     #[error("triangle {triangle} refers to vertex {index}, but there are {vertices} vertices")]
     TriangleIndex {
         triangle: u64,

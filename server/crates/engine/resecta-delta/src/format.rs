@@ -9,8 +9,9 @@ use crate::error::DeltaError;
 pub const MESH_MAGIC: [u8; 4] = *b"RSMS";
 /// Delta magic.
 pub const DELTA_MAGIC: [u8; 4] = *b"RSDL";
-/// The format version this build writes and reads.
-pub const VERSION: u16 = 1;
+/// The format version this build writes and reads. Version 2 (over 1): a zstd payload carries
+/// the frame's content checksum, and the encoding flags are set only with their section.
+pub const VERSION: u16 = 2;
 /// Bytes of the fixed header before the payload.
 pub const HEADER_BYTES: usize = 20;
 
@@ -24,11 +25,11 @@ pub mod flags {
     pub const MARGINS: u16 = 1 << 2;
     /// Classes section present.
     pub const CLASSES: u16 = 1 << 3;
-    /// Positions as u16 over a box (else f32).
+    /// Positions as u16 over a box (else f32); only together with `POSITIONS`.
     pub const POSITIONS_U16: u16 = 1 << 4;
-    /// Normals octahedral 2×i16 (else 3×f32).
+    /// Normals octahedral 2×i16 (else 3×f32); only together with `NORMALS`.
     pub const NORMALS_OCT16: u16 = 1 << 5;
-    /// The payload is one zstd frame.
+    /// The payload is one zstd frame with a content checksum.
     pub const ZSTD: u16 = 1 << 6;
     /// Delta only: the changed set is an index list (else a bitmap).
     pub const INDEX_LIST: u16 = 1 << 7;
@@ -83,8 +84,8 @@ impl Header {
     }
 }
 
-/// Reads and checks the fixed header of either message (magic, version, reserved flag bits);
-/// counts are checked by the decoders against their limits.
+/// Reads and checks the fixed header of either message (magic, version, reserved flag bits, no
+/// encoding flag without its section); counts are checked by the decoders against their limits.
 pub fn inspect(bytes: &[u8]) -> Result<Header, DeltaError> {
     let head = bytes.get(..HEADER_BYTES).ok_or(DeltaError::Truncated {
         what: "header",
@@ -111,6 +112,22 @@ pub fn inspect(bytes: &[u8]) -> Result<Header, DeltaError> {
             flags,
             reason: "reserved bits set",
         });
+    }
+    for (encoding, section, reason) in [
+        (
+            flags::POSITIONS_U16,
+            flags::POSITIONS,
+            "POSITIONS_U16 without a positions section",
+        ),
+        (
+            flags::NORMALS_OCT16,
+            flags::NORMALS,
+            "NORMALS_OCT16 without a normals section",
+        ),
+    ] {
+        if flags & encoding != 0 && flags & section == 0 {
+            return Err(DeltaError::BadFlags { flags, reason });
+        }
     }
     Ok(Header {
         kind,

@@ -4,8 +4,8 @@
 use proptest::prelude::*;
 use resecta_delta::{
     DecodeLimits, DeltaError, DeltaStats, EncodeOptions, HEADER_BYTES, Kind, Quantise, ReplayRing,
-    Since, SurfaceFrame, Topology, apply_delta, decode_mesh, encode_delta, encode_mesh, flags,
-    inspect, oct_decode, oct_encode,
+    Since, SurfaceFrame, Topology, VERSION, apply_delta, decode_mesh, encode_delta, encode_mesh,
+    flags, inspect, oct_decode, oct_encode,
 };
 
 /// A curved r×r grid surface around (140, −20, 205) RAS mm with analytic unit normals, margins
@@ -392,15 +392,15 @@ fn header_errors_name_the_problem() {
         decode_mesh(&b, &limits()),
         Err(DeltaError::BadMagic { .. })
     ));
-    let mut b = good.clone();
-    b[4] = 2;
-    assert!(matches!(
-        decode_mesh(&b, &limits()),
-        Err(DeltaError::UnsupportedVersion {
-            found: 2,
-            supported: 1
-        })
-    ));
+    for old_or_new in [1u8, 3] {
+        let mut b = good.clone();
+        b[4] = old_or_new;
+        assert!(matches!(
+            decode_mesh(&b, &limits()),
+            Err(DeltaError::UnsupportedVersion { found, supported: VERSION })
+                if found == u16::from(old_or_new)
+        ));
+    }
     let mut b = good.clone();
     b[7] |= 0x80;
     assert!(matches!(
@@ -438,6 +438,129 @@ fn header_errors_name_the_problem() {
         .to_string()
         .contains("vertex count 9 exceeds the limit 8")
     );
+}
+
+/// The zstd frame of a compressed message (the bytes after the header).
+fn zstd_frame(msg: &[u8]) -> &[u8] {
+    assert!(matches!(inspect(msg), Ok(h) if h.has(flags::ZSTD)));
+    &msg[HEADER_BYTES..]
+}
+
+/// The message with its payload replaced by `body` (the header kept).
+fn with_body(msg: &[u8], body: &[u8]) -> Vec<u8> {
+    [&msg[..HEADER_BYTES], body].concat()
+}
+
+#[test]
+fn zstd_frames_carry_a_checksum_that_every_decode_verifies() {
+    let (topo, prev) = grid_frame(40, 0.0);
+    let (_, next) = grid_frame(40, 0.2);
+    let opts = EncodeOptions::quantised().with_zstd(3);
+    let mesh = encode_mesh(&topo, &prev, &opts).unwrap();
+    let delta = encode_delta(&prev, &next, &opts).unwrap();
+    for msg in [&mesh, &delta] {
+        let frame = zstd_frame(msg);
+        // Frame header descriptor: Content_Checksum_flag (bit 2) and a content size.
+        assert_eq!(frame[..4], [0x28, 0xB5, 0x2F, 0xFD]);
+        assert_ne!(frame[4] & 0x04, 0, "no checksum flag");
+        let payload = zstd::bulk::decompress(frame, 1 << 24).unwrap();
+        assert_eq!(payload.len(), inspect(msg).unwrap().payload_bytes as usize);
+        assert_eq!(
+            zstd::zstd_safe::get_frame_content_size(frame).unwrap(),
+            Some(payload.len() as u64)
+        );
+    }
+    let decode = |msg: &[u8]| -> Result<(), DeltaError> {
+        if inspect(msg)?.kind == Kind::Mesh {
+            decode_mesh(msg, &limits()).map(|_| ())
+        } else {
+            let mut f = decode_mesh(&mesh, &limits()).unwrap().1;
+            let held = bits(&f);
+            let r = apply_delta(&mut f, msg, &limits());
+            assert!(
+                r.is_ok() || bits(&f) == held,
+                "a failed delta changed the frame"
+            );
+            r
+        }
+    };
+    for msg in [&mesh, &delta] {
+        decode(msg).unwrap();
+        // The checksum (last 4 bytes) itself corrupted.
+        let mut bad = msg.clone();
+        *bad.last_mut().unwrap() ^= 0x5A;
+        assert!(matches!(decode(&bad), Err(DeltaError::ChecksumMismatch)));
+        // The same payload in a frame without a checksum: refused before decompressing.
+        let payload = zstd::bulk::decompress(zstd_frame(msg), 1 << 24).unwrap();
+        let plain = zstd::bulk::compress(&payload, 3).unwrap();
+        assert_eq!(plain[4] & 0x04, 0);
+        assert!(matches!(
+            decode(&with_body(msg, &plain)),
+            Err(DeltaError::ZstdNoChecksum)
+        ));
+        // Two frames, or an empty body: not one frame.
+        let twice = [zstd_frame(msg), zstd_frame(msg)].concat();
+        assert!(matches!(
+            decode(&with_body(msg, &twice)),
+            Err(DeltaError::TrailingBytes { count }) if count as usize == zstd_frame(msg).len()
+        ));
+        assert!(matches!(
+            decode(&with_body(msg, &[])),
+            Err(DeltaError::Zstd(_))
+        ));
+    }
+    // Wherever a byte of the frame is flipped, the decode fails with a typed error or yields
+    // exactly the original frame (never different data of the right length).
+    let (_, want) = decode_mesh(&mesh, &limits()).unwrap();
+    for at in HEADER_BYTES..mesh.len() {
+        let mut bad = mesh.clone();
+        bad[at] ^= 0x01;
+        if let Ok((_, got)) = decode_mesh(&bad, &limits()) {
+            assert_eq!(bits(&got), bits(&want), "byte {at} flipped went unnoticed");
+        }
+    }
+}
+
+#[test]
+fn encoding_flags_only_with_their_section() {
+    let (topo, mut frame) = grid_frame(5, 0.0);
+    let mut bare = frame.clone();
+    bare.normals.clear();
+    let quant = EncodeOptions::quantised();
+    let f = inspect(&encode_mesh(&topo, &bare, &quant).unwrap())
+        .unwrap()
+        .flags;
+    assert_eq!(
+        f,
+        flags::POSITIONS | flags::POSITIONS_U16 | flags::MARGINS | flags::CLASSES
+    );
+    // A quantised delta that changes only margins has no encoding flag at all (25 vertices:
+    // one bitmap word, so the bitmap).
+    let prev = frame.clone();
+    frame.margins[3] += 1.0;
+    let d = encode_delta(&prev, &frame, &quant).unwrap();
+    assert_eq!(inspect(&d).unwrap().flags, flags::MARGINS);
+    assert_eq!(
+        inspect(&encode_delta(&prev, &prev, &quant).unwrap())
+            .unwrap()
+            .flags,
+        flags::INDEX_LIST
+    );
+    // Decoders refuse an encoding flag without its section.
+    let mesh = encode_mesh(&topo, &bare, &quant).unwrap();
+    let mut b = mesh.clone();
+    b[6] |= flags::NORMALS_OCT16 as u8;
+    assert!(matches!(
+        decode_mesh(&b, &limits()),
+        Err(DeltaError::BadFlags { reason, .. }) if reason.contains("NORMALS_OCT16")
+    ));
+    let mut b = d.clone();
+    b[6] |= flags::POSITIONS_U16 as u8;
+    let mut held = prev.clone();
+    assert!(matches!(
+        apply_delta(&mut held, &b, &limits()),
+        Err(DeltaError::BadFlags { reason, .. }) if reason.contains("POSITIONS_U16")
+    ));
 }
 
 // ---------------------------------------------------------------- deltas

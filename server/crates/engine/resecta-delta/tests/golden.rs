@@ -180,7 +180,7 @@ fn golden_messages() {
         cases.push(json!({
             "file": name, "kind": "mesh", "header": header_json(&inspect(&msg).unwrap()),
             "triangles": t.triangles, "decoded": frame_json(&got), "source": frame_json(frame),
-            "position_step": step,
+            "position_step": step, "value_flags": f,
         }));
     }
     let empty = encode_mesh(&Topology::default(), &SurfaceFrame::default(), &quant).unwrap();
@@ -189,6 +189,7 @@ fn golden_messages() {
         "file": "mesh_empty.rsms", "kind": "mesh", "header": header_json(&inspect(&empty).unwrap()),
         "triangles": [], "decoded": frame_json(&SurfaceFrame::default()),
         "source": frame_json(&SurfaceFrame::default()), "position_step": [0.0, 0.0, 0.0],
+        "value_flags": inspect(&empty).unwrap().flags,
     }));
 
     // Deltas against `prev`, applied to the client's copy decoded from `base` (name, next,
@@ -248,7 +249,16 @@ fn golden_messages() {
             .filter(|&i| frame_json(&single(&prev, i)) != frame_json(&single(next, i)))
             .collect();
         assert_eq!(changed.len(), h.count2 as usize);
-        let step = check_rows(&got, next, &changed, h.flags);
+        // The rows' values went through the delta's encodings, and for the attributes it does
+        // not carry (their values come from the base snapshot) through the base's.
+        let base_flags = inspect(&encode_mesh(&topo, &prev, &base_opts).unwrap())
+            .unwrap()
+            .flags;
+        let mut value_flags = h.flags;
+        if !h.has(flags::NORMALS) {
+            value_flags |= base_flags & flags::NORMALS_OCT16;
+        }
+        let step = check_rows(&got, next, &changed, value_flags);
         let unchanged: Vec<usize> = (0..prev.positions.len())
             .filter(|i| !changed.contains(i))
             .collect();
@@ -257,7 +267,7 @@ fn golden_messages() {
         cases.push(json!({
             "file": name, "kind": "delta", "base": base_name, "header": header_json(&inspect(&msg).unwrap()),
             "changed": changed, "decoded": frame_json(&got), "source": frame_json(next),
-            "position_step": step,
+            "position_step": step, "value_flags": value_flags,
         }));
     }
 
