@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use crate::anatomy::Anatomy;
 use crate::error::PlanError;
-use crate::history::History;
+use crate::history::{Change, History, Staged};
 use crate::init::{Initialisation, initialise, slicing_plane};
 use crate::plan::{Plan, PlanEvent};
 use crate::resection::{Resection, Target, arr};
@@ -214,58 +214,38 @@ impl Planner {
         Ok((r, init))
     }
 
-    /// Applies an edit and updates the affected resection. On error nothing changes.
-    pub fn edit(&mut self, event: PlanEvent) -> Result<&Plan, PlanError> {
-        let mut next = self.plan().clone();
-        next.apply(&event)?;
-        let names = [event.resection_name().to_owned()];
-        self.commit(&next, &names, |h| h.edit(event).map(|_| ()))
+    /// Applies an edit and updates the affected resection; returns what changed and the log
+    /// entry. On error nothing changes.
+    pub fn edit(&mut self, event: PlanEvent) -> Result<Change, PlanError> {
+        let step = self.history.stage_edit(event)?;
+        self.commit(step)
     }
 
     /// Takes back the last edit.
-    pub fn undo(&mut self) -> Result<&Plan, PlanError> {
-        let next = self.history.undo_preview()?;
-        let names = self.changed_names(&next);
-        self.commit(&next, &names, |h| h.undo().map(|_| ()))
+    pub fn undo(&mut self) -> Result<Change, PlanError> {
+        let step = self.history.stage_undo()?;
+        self.commit(step)
     }
 
     /// Restores the last undone edit.
-    pub fn redo(&mut self) -> Result<&Plan, PlanError> {
-        let next = self.history.redo_preview()?;
-        let names = self.changed_names(&next);
-        self.commit(&next, &names, |h| h.redo().map(|_| ()))
+    pub fn redo(&mut self) -> Result<Change, PlanError> {
+        let step = self.history.stage_redo()?;
+        self.commit(step)
     }
 
-    fn changed_names(&self, next: &Plan) -> Vec<String> {
-        let now = self.history.plan();
-        let mut names: Vec<String> = next
-            .resections
-            .iter()
-            .filter(|r| now.resection(&r.name).ok() != Some(r))
-            .map(|r| r.name.clone())
-            .collect();
-        names.extend(
-            now.resections
-                .iter()
-                .filter(|r| next.resection(&r.name).is_err())
-                .map(|r| r.name.clone()),
-        );
-        names
-    }
-
-    /// Recomputes the named resections for `next`, then records the step in the history; on
-    /// any failure the plan is unchanged (the states are rebuilt for it).
-    fn commit(
-        &mut self,
-        next: &Plan,
-        names: &[String],
-        record: impl FnOnce(&mut History) -> Result<(), PlanError>,
-    ) -> Result<&Plan, PlanError> {
-        let mut fresh = Vec::new();
+    /// Recomputes the resections a staged step changes, then records the step in the history
+    /// (nothing applied again); on any failure the plan is unchanged (the states are rebuilt
+    /// for it).
+    fn commit(&mut self, step: Staged) -> Result<Change, PlanError> {
+        let mut fresh = Vec::with_capacity(step.changed().len());
         let mut outcome = Ok(());
-        for name in names {
-            let Ok(r) = next.resection(name) else {
-                continue;
+        for name in step.changed() {
+            let r = match step.plan().resection(name) {
+                Ok(r) => r,
+                Err(e) => {
+                    outcome = Err(e);
+                    break;
+                }
             };
             let prev = self.states.remove(name);
             match self.compute(r, prev) {
@@ -276,18 +256,19 @@ impl Planner {
                 }
             }
         }
-        if outcome.is_ok() {
-            outcome = record(&mut self.history);
-        }
-        if let Err(e) = outcome {
-            self.refresh_all()?;
-            return Err(e);
-        }
-        for name in names {
+        let recorded = outcome.and_then(|()| self.history.record(step));
+        let change = match recorded {
+            Ok(change) => change,
+            Err(e) => {
+                self.refresh_all()?;
+                return Err(e);
+            }
+        };
+        for name in &change.removed {
             self.states.remove(name);
         }
         self.states.extend(fresh);
-        Ok(self.history.plan())
+        Ok(change)
     }
 
     fn refresh_all(&mut self) -> Result<(), PlanError> {

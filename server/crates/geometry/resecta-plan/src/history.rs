@@ -20,6 +20,46 @@ pub enum LogEntry {
     Redo,
 }
 
+/// What a recorded step changed: the resections whose state must be recomputed or dropped, and
+/// the entry it added to the log.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Change {
+    /// Resections the step added or changed.
+    pub changed: Vec<String>,
+    /// Resections the step deleted.
+    pub removed: Vec<String>,
+    /// The entry logged (what a store appends).
+    pub entry: LogEntry,
+}
+
+/// A step (edit, undo or redo) computed against a history but not yet recorded: the plan it
+/// leads to and what it changes. [`History::record`] takes it as it is, without applying
+/// anything again.
+#[derive(Debug)]
+pub struct Staged {
+    next: Plan,
+    entry: LogEntry,
+    changed: Vec<String>,
+    removed: Vec<String>,
+    /// The history's log length when staged.
+    at: usize,
+}
+
+impl Staged {
+    /// The plan after the step.
+    pub fn plan(&self) -> &Plan {
+        &self.next
+    }
+    /// Resections the step adds or changes.
+    pub fn changed(&self) -> &[String] {
+        &self.changed
+    }
+    /// Resections the step deletes.
+    pub fn removed(&self) -> &[String] {
+        &self.removed
+    }
+}
+
 /// The plan, its undoable edits and the log.
 #[derive(Debug, Clone)]
 pub struct History {
@@ -81,75 +121,125 @@ impl History {
         self.events.len() - self.applied
     }
 
-    fn push_log(&mut self, entry: LogEntry) -> Result<(), PlanError> {
+    fn check_room(&self) -> Result<(), PlanError> {
         if self.log.len() >= MAX_LOG {
             return Err(PlanError::HistoryFull(self.log.len() + 1));
         }
-        self.log.push(entry);
         Ok(())
     }
 
-    /// Applies an edit; drops the redo branch. On error nothing changes.
-    pub fn edit(&mut self, event: PlanEvent) -> Result<&Plan, PlanError> {
-        if self.log.len() >= MAX_LOG {
-            return Err(PlanError::HistoryFull(self.log.len() + 1));
-        }
+    /// Computes an edit (its event applied once, to a copy of the plan) without recording it;
+    /// [`Self::record`] records it. On error nothing changes.
+    pub fn stage_edit(&self, event: PlanEvent) -> Result<Staged, PlanError> {
+        self.check_room()?;
         let mut next = self.current.clone();
         next.apply(&event)?;
-        self.events.truncate(self.applied);
-        self.checkpoints
-            .truncate(self.applied / CHECKPOINT_EVERY + 1);
-        self.events.push(event.clone());
-        self.applied += 1;
-        if self.applied.is_multiple_of(CHECKPOINT_EVERY) {
-            self.checkpoints.push(next.clone());
-        }
-        self.current = next;
-        self.push_log(LogEntry::Edit { event })?;
-        Ok(&self.current)
+        let (changed, removed) = difference(&self.current, &next, event.resection_name());
+        Ok(self.staged(next, changed, removed, LogEntry::Edit { event }))
     }
 
-    /// The plan an [`Self::undo`] would give, without changing anything.
-    pub fn undo_preview(&self) -> Result<Plan, PlanError> {
-        if self.applied == 0 {
+    /// Computes an undo without recording it (the plan one edit back, from the nearest
+    /// checkpoint).
+    pub fn stage_undo(&self) -> Result<Staged, PlanError> {
+        let Some(last) = self.applied.checked_sub(1) else {
             return Err(PlanError::NothingToUndo);
-        }
-        self.state(self.applied - 1)
+        };
+        self.check_room()?;
+        let next = self.state(last)?;
+        let (changed, removed) =
+            difference(&self.current, &next, self.events[last].resection_name());
+        Ok(self.staged(next, changed, removed, LogEntry::Undo))
     }
 
-    /// The plan a [`Self::redo`] would give, without changing anything.
-    pub fn redo_preview(&self) -> Result<Plan, PlanError> {
+    /// Computes a redo without recording it.
+    pub fn stage_redo(&self) -> Result<Staged, PlanError> {
         let event = self
             .events
             .get(self.applied)
             .ok_or(PlanError::NothingToRedo)?;
+        self.check_room()?;
         let mut next = self.current.clone();
         next.apply(event)?;
-        Ok(next)
+        let (changed, removed) = difference(&self.current, &next, event.resection_name());
+        Ok(self.staged(next, changed, removed, LogEntry::Redo))
+    }
+
+    fn staged(
+        &self,
+        next: Plan,
+        changed: Vec<String>,
+        removed: Vec<String>,
+        entry: LogEntry,
+    ) -> Staged {
+        Staged {
+            next,
+            entry,
+            changed,
+            removed,
+            at: self.log.len(),
+        }
+    }
+
+    /// Records a step staged on this history as it still is: the plan it computed becomes the
+    /// current one, and its entry is logged. A step staged before another was recorded is
+    /// refused (nothing changes).
+    pub fn record(&mut self, step: Staged) -> Result<Change, PlanError> {
+        if step.at != self.log.len() {
+            return Err(PlanError::InvalidArgument(format!(
+                "a step staged at log entry {} cannot be recorded at entry {}",
+                step.at,
+                self.log.len()
+            )));
+        }
+        self.check_room()?;
+        let Staged {
+            next,
+            entry,
+            changed,
+            removed,
+            ..
+        } = step;
+        match &entry {
+            LogEntry::Edit { event } => {
+                self.events.truncate(self.applied);
+                self.checkpoints
+                    .truncate(self.applied / CHECKPOINT_EVERY + 1);
+                self.events.push(event.clone());
+                self.applied += 1;
+                if self.applied.is_multiple_of(CHECKPOINT_EVERY) {
+                    self.checkpoints.push(next.clone());
+                }
+            }
+            LogEntry::Undo => self.applied -= 1,
+            LogEntry::Redo => self.applied += 1,
+        }
+        self.current = next;
+        self.log.push(entry.clone());
+        Ok(Change {
+            changed,
+            removed,
+            entry,
+        })
+    }
+
+    /// Applies an edit (stage and record); drops the redo branch. On error nothing changes.
+    pub fn edit(&mut self, event: PlanEvent) -> Result<&Plan, PlanError> {
+        let step = self.stage_edit(event)?;
+        self.record(step)?;
+        Ok(&self.current)
     }
 
     /// Takes back the last edit in effect.
     pub fn undo(&mut self) -> Result<&Plan, PlanError> {
-        if self.applied == 0 {
-            return Err(PlanError::NothingToUndo);
-        }
-        let plan = self.state(self.applied - 1)?;
-        self.push_log(LogEntry::Undo)?;
-        self.applied -= 1;
-        self.current = plan;
+        let step = self.stage_undo()?;
+        self.record(step)?;
         Ok(&self.current)
     }
 
     /// Restores the last undone edit.
     pub fn redo(&mut self) -> Result<&Plan, PlanError> {
-        let Some(event) = self.events.get(self.applied) else {
-            return Err(PlanError::NothingToRedo);
-        };
-        let mut next = self.current.clone();
-        next.apply(event)?;
-        self.push_log(LogEntry::Redo)?;
-        self.applied += 1;
-        self.current = next;
+        let step = self.stage_redo()?;
+        self.record(step)?;
         Ok(&self.current)
     }
 
@@ -162,4 +252,20 @@ impl History {
         }
         Ok(plan)
     }
+}
+
+/// The resections changed and removed from `before` to `after`, where the step between them is
+/// an event about resection `name`, its undo or its redo: every event changes that resection
+/// only, so only it is compared.
+fn difference(before: &Plan, after: &Plan, name: &str) -> (Vec<String>, Vec<String>) {
+    let (mut changed, mut removed) = (Vec::new(), Vec::new());
+    let was = before.resection(name).ok();
+    if let Ok(now) = after.resection(name) {
+        if was != Some(now) {
+            changed.push(name.to_owned());
+        }
+    } else if was.is_some() {
+        removed.push(name.to_owned());
+    }
+    (changed, removed)
 }

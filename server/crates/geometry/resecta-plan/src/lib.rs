@@ -3,6 +3,8 @@
 //! projections and volumetry, and the `resecta-plan/1` file format.
 
 pub mod anatomy;
+#[cfg(test)]
+mod apply_once;
 pub mod engine;
 pub mod error;
 pub mod history;
@@ -18,7 +20,7 @@ pub use engine::{
     VolumeReport,
 };
 pub use error::PlanError;
-pub use history::{History, LogEntry};
+pub use history::{Change, History, LogEntry, Staged};
 pub use init::{Initialisation, initialise, plane_from, slicing_plane};
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
 pub use resecta_margin::{MarginClass, Verdict};

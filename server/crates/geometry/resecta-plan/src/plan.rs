@@ -115,6 +115,12 @@ impl PlanEvent {
     }
 }
 
+#[cfg(test)]
+thread_local! {
+    /// Events applied on this thread (the tests that an edit applies its event once count them).
+    pub(crate) static APPLIED: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+}
+
 /// Most resections in one plan.
 pub const MAX_RESECTIONS: usize = 32;
 
@@ -170,6 +176,8 @@ impl Plan {
 
     /// Applies one event. On error the plan is unchanged.
     pub fn apply(&mut self, event: &PlanEvent) -> Result<(), PlanError> {
+        #[cfg(test)]
+        APPLIED.with(|n| n.set(n.get() + 1));
         if let PlanEvent::AddResection { resection } = event {
             resection.validate()?;
             self.check_target(&resection.name, &resection.target)?;

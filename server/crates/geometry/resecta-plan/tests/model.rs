@@ -327,6 +327,98 @@ proptest! {
     }
 }
 
+/// Resections that differ between two plans: (added or changed, removed), in plan order.
+fn plan_difference(before: &Plan, after: &Plan) -> (Vec<String>, Vec<String>) {
+    let changed = after
+        .resections
+        .iter()
+        .filter(|r| before.resection(&r.name).ok() != Some(*r))
+        .map(|r| r.name.clone())
+        .collect();
+    let removed = before
+        .resections
+        .iter()
+        .filter(|r| after.resection(&r.name).is_err())
+        .map(|r| r.name.clone())
+        .collect();
+    (changed, removed)
+}
+
+/// Edits of two resections that come and go; margins from two values (so some edits change
+/// nothing).
+fn arb_step_on_two() -> impl Strategy<Value = Step> {
+    let name = || prop_oneof![Just("r1".to_owned()), Just("r2".to_owned())];
+    let event = prop_oneof![
+        (
+            name(),
+            0..5usize,
+            0..4usize,
+            prop::array::uniform3(-20.0..20.0f64)
+        )
+            .prop_map(|(name, i, j, point)| PlanEvent::SetControlPoint {
+                name,
+                i,
+                j,
+                point
+            }),
+        (name(), prop_oneof![Just(5.0), Just(10.0)])
+            .prop_map(|(name, margin_mm)| PlanEvent::SetMargin { name, margin_mm }),
+        name().prop_map(|n| PlanEvent::AddResection {
+            resection: planar(&n)
+        }),
+        name().prop_map(|name| PlanEvent::DeleteResection { name }),
+    ];
+    prop_oneof![
+        3 => event.prop_map(Step::Edit),
+        1 => Just(Step::Undo),
+        1 => Just(Step::Redo),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(64))]
+    /// A staged step's plan is the one recorded, and what it says changed is what differs
+    /// between the plans before and after (the whole plans compared); a failing step changes
+    /// nothing.
+    #[test]
+    fn a_recorded_step_reports_exactly_what_changed(
+        steps in prop::collection::vec(arb_step_on_two(), 1..150),
+    ) {
+        let base = plan_with(planar("r1"));
+        let mut h = History::new(base.clone());
+        for s in &steps {
+            let before = h.plan().clone();
+            let log_len = h.log().len();
+            let staged = match s {
+                Step::Edit(e) => h.stage_edit(e.clone()),
+                Step::Undo => h.stage_undo(),
+                Step::Redo => h.stage_redo(),
+            };
+            let Ok(staged) = staged else {
+                prop_assert_eq!(h.plan(), &before);
+                prop_assert_eq!(h.log().len(), log_len);
+                continue;
+            };
+            let next = staged.plan().clone();
+            let change = h.record(staged).unwrap();
+            prop_assert_eq!(h.plan(), &next);
+            prop_assert_eq!(h.log().last(), Some(&change.entry));
+            let expected = match s {
+                Step::Edit(e) => LogEntry::Edit { event: e.clone() },
+                Step::Undo => LogEntry::Undo,
+                Step::Redo => LogEntry::Redo,
+            };
+            prop_assert_eq!(&change.entry, &expected);
+            prop_assert_eq!(
+                (change.changed, change.removed),
+                plan_difference(&before, h.plan())
+            );
+        }
+        let replayed = History::replay(base, h.log()).unwrap();
+        prop_assert_eq!(replayed.plan(), h.plan());
+    }
+}
+
 #[test]
 fn undo_beyond_a_checkpoint_then_edit_drops_the_redo_branch() {
     let mut h = History::new(plan_with(planar("r1")));
