@@ -20,7 +20,7 @@ use resecta_delta::{
 use resecta_geom::{LabelMap, Plane, Real, Role, RoleMap, TriMesh, Vec3};
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
 use resecta_plan::{
-    Anatomy, History, LogEntry, Plan, PlanEvent, Planner, SlicePositions, SliceProjections,
+    Anatomy, Change, History, LogEntry, Plan, PlanEvent, Planner, SlicePositions, SliceProjections,
     VolumeReport, slice_projections,
 };
 use resecta_recon::{
@@ -103,16 +103,16 @@ const LABELMAP_BLOB: &str = "labelmap";
 const SUMMARY_BLOB: &str = "summary";
 const MODELS_BLOB: &str = "models";
 
-/// A record of a session's plan log.
+/// A record of a session's plan log (`E`: the entry, borrowed when written).
 #[derive(Debug, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
-enum Record {
+enum Record<E = LogEntry> {
     /// A new base plan (label-map load or import): what follows edits it.
     Reset {
         plan: String,
     },
     Entry {
-        entry: LogEntry,
+        entry: E,
     },
 }
 
@@ -271,24 +271,6 @@ fn surface_kind(role: Role) -> SurfaceKind {
         Role::Hepatic => SurfaceKind::Hepatic,
         Role::Vessel => SurfaceKind::Vessel,
     }
-}
-
-/// Names of resections that differ between two plans (changed, added or removed).
-fn changed_names(before: &Plan, after: &Plan) -> Vec<String> {
-    let mut names: Vec<String> = after
-        .resections
-        .iter()
-        .filter(|r| before.resection(&r.name).ok() != Some(*r))
-        .map(|r| r.name.clone())
-        .collect();
-    names.extend(
-        before
-            .resections
-            .iter()
-            .filter(|r| after.resection(&r.name).is_err())
-            .map(|r| r.name.clone()),
-    );
-    names
 }
 
 impl Service {
@@ -693,7 +675,7 @@ impl Service {
             store.put_blob(&key, LABELMAP_BLOB, &labelmap::to_blob(&labels, &roles)?)?;
             store.put_blob(&key, SUMMARY_BLOB, &summary_blob)?;
             store.delete_blob(&key, MODELS_BLOB)?;
-            let record = serde_json::to_string(&Record::Reset {
+            let record = serde_json::to_string(&Record::<LogEntry>::Reset {
                 plan: plan.to_json()?,
             })
             .map_err(internal)?;
@@ -953,9 +935,9 @@ impl Service {
             Priority::Interactive
         };
         let (mut planner, result) = pools::run(priority, move || {
-            let r = apply_edit(&mut planner, op).and_then(|(changed, record)| {
-                match hub.publish_edit(version + 1, planner.plan(), planner.states(), &changed) {
-                    Ok(()) => Ok((changed, record)),
+            let r = apply_edit(&mut planner, op).and_then(|(change, record)| {
+                match hub.publish_edit(version + 1, planner.plan(), planner.states(), &change) {
+                    Ok(()) => Ok((change, record)),
                     Err(e) => {
                         roll_back(&mut planner, &id);
                         Err(e)
@@ -965,7 +947,7 @@ impl Service {
             (planner, r)
         })
         .await?;
-        let (changed, record) = match result {
+        let (change, record) = match result {
             Ok(r) => r,
             Err(e) => {
                 loaded.planner = Some(planner);
@@ -991,20 +973,20 @@ impl Service {
             }
         };
         debug_assert_eq!(new_version, version + 1, "one record appended");
-        let mut outcome = EditOutcome {
+        let resections = change
+            .changed
+            .iter()
+            .filter_map(|name| {
+                let resection = planner.plan().resection(name).ok()?.clone();
+                let verdict = planner.state(name).ok().map(|s| s.verdict.clone());
+                Some(ResectionStatus { resection, verdict })
+            })
+            .collect();
+        let outcome = EditOutcome {
             plan_version: new_version,
-            resections: Vec::new(),
-            removed: Vec::new(),
+            resections,
+            removed: change.removed,
         };
-        for name in changed {
-            match planner.plan().resection(&name) {
-                Ok(r) => outcome.resections.push(ResectionStatus {
-                    resection: r.clone(),
-                    verdict: planner.state(&name).ok().map(|s| s.verdict.clone()),
-                }),
-                Err(_) => outcome.removed.push(name),
-            }
-        }
         loaded.planner = Some(planner);
         st.version = new_version;
         drop(st);
@@ -1139,7 +1121,7 @@ impl Service {
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let (planner, new_version) = blocking(move || {
-            let record = serde_json::to_string(&Record::Reset {
+            let record = serde_json::to_string(&Record::<LogEntry>::Reset {
                 plan: plan.to_json()?,
             })
             .map_err(internal)?;
@@ -1224,14 +1206,10 @@ fn is_quick(planner: &Planner, op: &EditOp) -> bool {
             .all(|r| r.resolution[0] * r.resolution[1] <= QUICK_SAMPLES)
 }
 
-/// Applies `op`. Returns the names of the changed resections and the log record to store.
-fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Vec<String>, String)> {
-    let before = planner.plan().clone();
-    let entry = match op {
-        EditOp::Event { event } => {
-            planner.edit(event.clone())?;
-            LogEntry::Edit { event }
-        }
+/// Applies `op` (its event once). Returns what changed and the log record to store.
+fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Change, String)> {
+    let change = match op {
+        EditOp::Event { event } => planner.edit(event)?,
         EditOp::InitFromEndPoint {
             name,
             target,
@@ -1239,9 +1217,7 @@ fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Vec<String>, String)
             grid,
         } => {
             let (r, _) = planner.initial_resection(&name, &target, Vec3::from(end_point), grid)?;
-            let event = PlanEvent::AddResection { resection: r };
-            planner.edit(event.clone())?;
-            LogEntry::Edit { event }
+            planner.edit(PlanEvent::AddResection { resection: r })?
         }
         EditOp::InitFromPlane {
             name,
@@ -1253,22 +1229,16 @@ fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Vec<String>, String)
             let plane = Plane::new(Vec3::from(point), Vec3::from(normal))
                 .map_err(|e| SessionError::Invalid(format!("plane: {e}")))?;
             let (r, _) = planner.initial_on_plane(&name, &target, &plane, grid)?;
-            let event = PlanEvent::AddResection { resection: r };
-            planner.edit(event.clone())?;
-            LogEntry::Edit { event }
+            planner.edit(PlanEvent::AddResection { resection: r })?
         }
-        EditOp::Undo => {
-            planner.undo()?;
-            LogEntry::Undo
-        }
-        EditOp::Redo => {
-            planner.redo()?;
-            LogEntry::Redo
-        }
+        EditOp::Undo => planner.undo()?,
+        EditOp::Redo => planner.redo()?,
     };
-    let changed = changed_names(&before, planner.plan());
-    let record = serde_json::to_string(&Record::Entry { entry }).map_err(internal)?;
-    Ok((changed, record))
+    let record = serde_json::to_string(&Record::Entry {
+        entry: &change.entry,
+    })
+    .map_err(internal)?;
+    Ok((change, record))
 }
 
 /// Rebuilds the planner without its last log entry (whose record could not be stored).

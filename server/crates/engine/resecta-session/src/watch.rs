@@ -11,7 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use resecta_delta::{
     EncodeOptions, ReplayRing, Since, SurfaceFrame, Topology, encode_delta, encode_mesh,
 };
-use resecta_plan::{Plan, Resection, ResectionState, Verdict, VolumeReport};
+use resecta_plan::{Change, Plan, Resection, ResectionState, Verdict, VolumeReport};
 use tokio::sync::watch;
 
 use crate::api::{Surface, SurfaceKind, SurfaceUpdate, WatchBody, WatchEvent};
@@ -122,14 +122,14 @@ impl Hub {
         Ok(())
     }
 
-    /// Publishes the resections named in `changed` (deltas where the topology is unchanged,
-    /// whole meshes otherwise; removed when absent from `states`).
+    /// Publishes the resections a step changed (deltas where the topology is unchanged, whole
+    /// meshes otherwise) and removed.
     pub fn publish_edit(
         &self,
         plan_version: u64,
         plan: &Plan,
         states: &BTreeMap<String, ResectionState>,
-        changed: &[String],
+        change: &Change,
     ) -> Result<()> {
         let mut st = self.lock()?;
         st.plan_version = plan_version;
@@ -137,7 +137,7 @@ impl Hub {
         let mut removed = Vec::new();
         let mut verdicts = BTreeMap::new();
         let mut params = BTreeMap::new();
-        for name in changed {
+        for name in change.changed.iter().chain(&change.removed) {
             let (Some(state), Ok(r)) = (states.get(name), plan.resection(name)) else {
                 if st.shown.remove(name).is_some() {
                     st.verdicts.remove(name);
