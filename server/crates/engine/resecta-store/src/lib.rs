@@ -18,7 +18,7 @@ mod memory;
 mod sqlite;
 
 pub use memory::MemoryStore;
-pub use sqlite::{DB_FILE, SCHEMA_VERSION, SqliteStore};
+pub use sqlite::{DB_FILE, GroupCommitStats, SCHEMA_VERSION, SqliteStore};
 
 /// One session's metadata. `id` is opaque and server-made; `display_name` is the client's label
 /// (possibly a patient identifier: it never appears in errors, and `Debug` shows only its length).
@@ -98,7 +98,7 @@ impl Default for StoreOptions {
 }
 
 /// Errors of a [`SessionStore`].
-#[derive(Debug, thiserror::Error)]
+#[derive(Debug, Clone, thiserror::Error)]
 pub enum StoreError {
     #[error("session {id} not found")]
     NotFound { id: String },

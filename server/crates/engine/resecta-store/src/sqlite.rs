@@ -1,11 +1,23 @@
 //! Embedded SQLite backend: one database file in the data directory, WAL journal, every commit
 //! fsynced (`synchronous=FULL`).
+//!
+//! **Group commit.** Log appends from concurrent callers (several sessions editing at once) share
+//! one transaction and so one fsync: an append queues itself; if no commit is in progress it
+//! leads one, taking every append queued so far, otherwise it waits, and the appends that queued
+//! meanwhile are the next leader's batch. Each append of a batch runs in its own savepoint, so a
+//! conflict or a missing session fails that append alone; the batch commits once, and every
+//! caller returns only after that commit (fsync included) returned: an append is still
+//! acknowledged only once its records are durable.
 
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Condvar, Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
 
-use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior, params};
+use rusqlite::{
+    Connection, ErrorCode, OpenFlags, OptionalExtension, Transaction, TransactionBehavior, params,
+};
 
 use crate::codec::{pack, unpack};
 use crate::{
@@ -48,13 +60,50 @@ CREATE TABLE log (
 ) WITHOUT ROWID;
 ";
 
+/// Most appends one group commit takes.
+const MAX_BATCH: usize = 256;
+
 /// Sessions in `DIR/resecta.sqlite3`. Writes go through one connection, reads through another
-/// (WAL lets them run side by side); blobs are (de)compressed outside both locks.
+/// (WAL lets them run side by side); blobs are (de)compressed outside both locks; log appends
+/// are group-committed (module docs).
 pub struct SqliteStore {
     path: PathBuf,
     opts: StoreOptions,
     writer: Mutex<Connection>,
     reader: Mutex<Connection>,
+    group_commit: bool,
+    queue: Mutex<CommitQueue>,
+    /// Signalled when a batch is done (results published, the leader's place free).
+    queue_done: Condvar,
+    commits: AtomicU64,
+    appends: AtomicU64,
+}
+
+/// One append waiting for a group commit.
+struct PendingAppend {
+    ticket: u64,
+    id: String,
+    expected_len: u64,
+    records: Vec<String>,
+}
+
+#[derive(Default)]
+struct CommitQueue {
+    next_ticket: u64,
+    pending: Vec<PendingAppend>,
+    /// A caller is committing a batch.
+    leading: bool,
+    /// Results of committed batches not yet collected by their callers, by ticket.
+    done: HashMap<u64, Result<u64, StoreError>>,
+}
+
+/// Log commits and the appends they carried, since the store was opened.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct GroupCommitStats {
+    /// Committed log transactions (one fsync each).
+    pub commits: u64,
+    /// Appends acknowledged by them (successful or not).
+    pub appends: u64,
 }
 
 impl std::fmt::Debug for SqliteStore {
@@ -218,9 +267,126 @@ impl SqliteStore {
             opts,
             writer: Mutex::new(writer),
             reader: Mutex::new(reader),
+            group_commit: true,
+            queue: Mutex::new(CommitQueue::default()),
+            queue_done: Condvar::new(),
+            commits: AtomicU64::new(0),
+            appends: AtomicU64::new(0),
         })
     }
 
+    /// The store with one transaction and one fsync per append, as before group commit: only
+    /// to measure what group commit gains (`examples/append_latency.rs`).
+    #[doc(hidden)]
+    pub fn without_group_commit(mut self) -> Self {
+        self.group_commit = false;
+        self
+    }
+
+    /// Log commits and the appends they carried so far.
+    pub fn group_commit_stats(&self) -> GroupCommitStats {
+        GroupCommitStats {
+            commits: self.commits.load(Ordering::Relaxed),
+            appends: self.appends.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Queues an append and returns its result once the batch holding it is committed, leading
+    /// that commit when no other caller is.
+    fn append_grouped(&self, append: PendingAppend) -> Result<u64, StoreError> {
+        let mut q = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+        q.next_ticket += 1;
+        let ticket = q.next_ticket;
+        q.pending.push(PendingAppend { ticket, ..append });
+        loop {
+            if let Some(result) = q.done.remove(&ticket) {
+                return result;
+            }
+            if q.leading {
+                q = self
+                    .queue_done
+                    .wait(q)
+                    .unwrap_or_else(PoisonError::into_inner);
+                continue;
+            }
+            q.leading = true;
+            let take = q.pending.len().min(MAX_BATCH);
+            let batch: Vec<PendingAppend> = q.pending.drain(..take).collect();
+            drop(q);
+            let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                self.commit_batch(&batch)
+            }));
+            q = self.queue.lock().unwrap_or_else(PoisonError::into_inner);
+            q.leading = false;
+            let results = match &outcome {
+                Ok(results) => results.clone(),
+                Err(_) => vec![Err(StoreError::Backend("log append panicked".into())); batch.len()],
+            };
+            q.done.extend(batch.iter().map(|a| a.ticket).zip(results));
+            self.queue_done.notify_all();
+            if let Err(panic) = outcome {
+                drop(q);
+                std::panic::resume_unwind(panic);
+            }
+        }
+    }
+
+    /// Appends a batch in one transaction, each append in its own savepoint, and commits it
+    /// once. One result per append, in order; a failed commit fails every append.
+    fn commit_batch(&self, batch: &[PendingAppend]) -> Vec<Result<u64, StoreError>> {
+        let mut conn = lock(&self.writer);
+        let mut tx = match conn.transaction_with_behavior(TransactionBehavior::Immediate) {
+            Ok(tx) => tx,
+            Err(e) => return vec![Err(db(e)); batch.len()],
+        };
+        let mut results: Vec<Result<u64, StoreError>> = batch
+            .iter()
+            .map(|a| append_in_savepoint(&mut tx, a))
+            .collect();
+        // synchronous=FULL: the WAL is fsynced before commit returns.
+        if results.iter().any(Result::is_ok) {
+            if let Err(e) = tx.commit() {
+                let e = db(e);
+                for r in &mut results {
+                    *r = Err(e.clone());
+                }
+            }
+            self.commits.fetch_add(1, Ordering::Relaxed);
+        }
+        self.appends
+            .fetch_add(batch.len() as u64, Ordering::Relaxed);
+        results
+    }
+}
+
+/// One append inside `tx`, rolled back alone if it fails.
+fn append_in_savepoint(tx: &mut Transaction<'_>, a: &PendingAppend) -> Result<u64, StoreError> {
+    let sp = tx.savepoint().map_err(db)?;
+    if !session_exists(&sp, &a.id)? {
+        return Err(not_found(&a.id));
+    }
+    let actual = log_len(&sp, &a.id)?;
+    if actual != a.expected_len {
+        return Err(StoreError::Conflict {
+            expected: a.expected_len,
+            actual,
+        });
+    }
+    let new_len = actual + a.records.len() as u64;
+    to_i64("log length", new_len)?;
+    {
+        let mut st = sp
+            .prepare_cached("INSERT INTO log (session_id, seq, json) VALUES (?1, ?2, ?3)")
+            .map_err(db)?;
+        for (json, seq) in a.records.iter().zip(a.expected_len + 1..) {
+            st.execute(params![a.id, seq as i64, json]).map_err(db)?;
+        }
+    }
+    sp.commit().map_err(db)?;
+    Ok(new_len)
+}
+
+impl SqliteStore {
     /// The database file.
     pub fn path(&self) -> &Path {
         &self.path
@@ -380,33 +546,19 @@ impl SessionStore for SqliteStore {
 
     fn append(&self, id: &str, expected_len: u64, records: &[String]) -> Result<u64, StoreError> {
         check_records(&self.opts, records)?;
-        let mut conn = lock(&self.writer);
-        let tx = conn
-            .transaction_with_behavior(TransactionBehavior::Immediate)
-            .map_err(db)?;
-        if !session_exists(&tx, id)? {
-            return Err(not_found(id));
+        let append = PendingAppend {
+            ticket: 0,
+            id: id.to_owned(),
+            expected_len,
+            records: records.to_vec(),
+        };
+        if !self.group_commit {
+            let mut results = self.commit_batch(std::slice::from_ref(&append));
+            return results
+                .pop()
+                .unwrap_or_else(|| Err(StoreError::Backend("no result of a log append".into())));
         }
-        let actual = log_len(&tx, id)?;
-        if actual != expected_len {
-            return Err(StoreError::Conflict {
-                expected: expected_len,
-                actual,
-            });
-        }
-        let new_len = actual + records.len() as u64;
-        to_i64("log length", new_len)?;
-        {
-            let mut st = tx
-                .prepare_cached("INSERT INTO log (session_id, seq, json) VALUES (?1, ?2, ?3)")
-                .map_err(db)?;
-            for (json, seq) in records.iter().zip(expected_len + 1..) {
-                st.execute(params![id, seq as i64, json]).map_err(db)?;
-            }
-        }
-        // synchronous=FULL: the WAL is fsynced before commit returns.
-        tx.commit().map_err(db)?;
-        Ok(new_len)
+        self.append_grouped(append)
     }
 
     fn log(&self, id: &str, after: u64) -> Result<Vec<LogRecord>, StoreError> {
