@@ -280,6 +280,81 @@ async fn workflow_on_sqlite() {
     .await;
 }
 
+/// The next delta of `w` (volumes may come in between).
+async fn next_delta(w: &mut WatchStream) -> Arc<WatchEvent> {
+    loop {
+        let e = next(w).await;
+        if !matches!(e.body, WatchBody::Volumes { .. }) {
+            return e;
+        }
+    }
+}
+
+/// Names updated (full mesh or not) and removed in a delta.
+fn delta_names(e: &WatchEvent) -> (Vec<(String, bool)>, Vec<String>) {
+    let WatchBody::Delta {
+        updates, removed, ..
+    } = &e.body
+    else {
+        panic!("expected a delta, got {:?}", e.body);
+    };
+    let updated = updates.iter().map(|u| (u.name.clone(), u.full)).collect();
+    (updated, removed.clone())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_caller_and_watchers_learn_what_an_edit_changed() {
+    let service = Arc::new(Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    ));
+    let id = loaded_session(&service, "changes").await;
+    let mut w = service.watch(&id, None).await.unwrap();
+    next(&mut w).await; // snapshot
+    service.edit(&id, 0, init_op()).await.unwrap();
+    next_delta(&mut w).await;
+    let moved = service.edit(&id, 0, drag([-6.0, 4.0, 3.0])).await.unwrap();
+    assert_eq!(moved.resections.len(), 1);
+    let e = next_delta(&mut w).await;
+    assert_eq!(delta_names(&e), (vec![("r1".to_owned(), false)], vec![]));
+
+    // The same drag again changes nothing: an empty outcome and delta, a version all the same.
+    let same = service.edit(&id, 0, drag([-6.0, 4.0, 3.0])).await.unwrap();
+    assert_eq!(same.plan_version, moved.plan_version + 1);
+    assert!(same.resections.is_empty() && same.removed.is_empty());
+    let e = next_delta(&mut w).await;
+    assert_eq!(e.plan_version, same.plan_version);
+    assert_eq!(delta_names(&e), (vec![], vec![]));
+
+    // A deletion is a removal; its undo brings the resection back as a whole mesh.
+    let delete = EditOp::Event {
+        event: PlanEvent::DeleteResection { name: "r1".into() },
+    };
+    let gone = service.edit(&id, 0, delete).await.unwrap();
+    assert!(gone.resections.is_empty());
+    assert_eq!(gone.removed, ["r1"]);
+    assert_eq!(
+        delta_names(&*next_delta(&mut w).await),
+        (vec![], vec!["r1".to_owned()])
+    );
+    let back = service.edit(&id, 0, EditOp::Undo).await.unwrap();
+    assert!(back.removed.is_empty());
+    let [status] = &back.resections[..] else {
+        panic!("one resection back: {:?}", back.resections)
+    };
+    assert_eq!(status.resection, moved.resections[0].resection);
+    let (now, was) = (
+        status.verdict.as_ref(),
+        moved.resections[0].verdict.as_ref(),
+    );
+    let min = |v: Option<&resecta_plan::Verdict>| v.and_then(|v| v.min_margin_mm).unwrap();
+    assert!((min(now) - min(was)).abs() < 1e-9);
+    assert_eq!(
+        delta_names(&*next_delta(&mut w).await),
+        (vec![("r1".to_owned(), true)], vec![])
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restart_restores_sessions_plans_and_surfaces() {
     let dir = tempfile::tempdir().unwrap();
