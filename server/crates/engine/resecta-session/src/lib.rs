@@ -5,12 +5,21 @@
 //! [`SessionError::kind`] to their status codes; no algorithm lives here.
 
 pub mod api;
+mod config;
+mod edits;
 mod error;
 mod labelmap;
+mod log;
 mod pools;
+mod recon;
+mod registry;
 mod service;
+mod state;
+mod support;
+mod volumes;
 mod watch;
 
+pub use config::ServiceConfig;
 pub use error::{ErrorKind, Missing, Quota, Result, SessionError};
-pub use service::{Service, ServiceConfig};
+pub use service::Service;
 pub use watch::{RingBounds, WatchStream};

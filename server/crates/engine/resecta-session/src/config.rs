@@ -1,0 +1,60 @@
+//! Limits and tuning of the operation layer.
+
+use std::time::Duration;
+
+use resecta_delta::EncodeOptions;
+
+use crate::watch::RingBounds;
+
+/// Limits and tuning of a [`Service`](crate::Service).
+#[derive(Debug, Clone)]
+pub struct ServiceConfig {
+    pub max_sessions: usize,
+    /// Voxels per label map.
+    pub max_voxels: u64,
+    /// Bytes of one upload (raw data or file).
+    pub max_upload_bytes: u64,
+    /// Estimated memory of all loaded sessions together.
+    pub max_memory_bytes: u64,
+    /// Sessions untouched for this long are deleted by
+    /// [`Service::expire_idle`](crate::Service::expire_idle).
+    pub idle_expiry: Option<Duration>,
+    pub ring: RingBounds,
+    pub encode: EncodeOptions,
+    /// Volumes are recomputed once edits pause this long ...
+    pub volumes_delay: Duration,
+    /// ... or, during a continuous burst of edits (a drag), this long after its first edit ...
+    pub volumes_max_interval: Duration,
+    /// ... and such mid-drag recomputations, all sessions together, at most this many per
+    /// second: with n sessions dragging at once each refreshes every max(volumes_max_interval,
+    /// n / this) while dragging (a pause always refreshes), so many users' drags are not slowed
+    /// by each other's volumetry.
+    pub volumes_during_drags_per_s: f64,
+    /// Depth of the parenchyma's screened Poisson reconstruction when a call names none.
+    pub psr_depth: u32,
+    /// Capabilities reported by [`Service::info`](crate::Service::info) (the edges add theirs,
+    /// e.g. "tls").
+    pub capabilities: Vec<String>,
+}
+
+impl Default for ServiceConfig {
+    fn default() -> Self {
+        Self {
+            max_sessions: 64,
+            max_voxels: 1 << 28,
+            max_upload_bytes: 1 << 30,
+            max_memory_bytes: 16 << 30,
+            idle_expiry: Some(Duration::from_secs(7 * 24 * 3600)),
+            ring: RingBounds {
+                items: 1024,
+                bytes: 64 << 20,
+            },
+            encode: EncodeOptions::exact(),
+            volumes_delay: Duration::from_millis(150),
+            volumes_max_interval: Duration::from_secs(1),
+            volumes_during_drags_per_s: 4.0,
+            psr_depth: 7,
+            capabilities: Vec::new(),
+        }
+    }
+}

@@ -1,0 +1,217 @@
+//! Plan edits: one change (an event, an initial resection, undo, redo) or a whole imported
+//! plan against a plan version, computed off the runtime, shown to watchers at once and
+//! acknowledged once its log record is durable (rolled back when it cannot be stored).
+
+use std::sync::Arc;
+
+use resecta_geom::{Plane, Vec3};
+use resecta_plan::{Change, Plan, PlanEvent, Planner};
+
+use crate::api::{EditOp, EditOutcome, ResectionStatus};
+use crate::error::{Result, SessionError};
+use crate::log;
+use crate::pools::{self, Priority};
+use crate::service::Service;
+use crate::state::{loaded_mut, no_label_map};
+use crate::support::{InFlight, blocking, internal};
+
+/// Edits of surfaces of at most this many samples run on one thread (`pools`: no fork-join).
+const QUICK_SAMPLES: usize = 10_000;
+
+impl Service {
+    /// Applies one plan change made against `base_version` (0: unchecked). Conflicting edits
+    /// (an older base) are rejected with [`SessionError::StaleVersion`], never rebased. An edit
+    /// once started completes even if the caller goes away (the planner is never left taken).
+    pub async fn edit(
+        self: &Arc<Self>,
+        id: &str,
+        base_version: u64,
+        op: EditOp,
+    ) -> Result<EditOutcome> {
+        let service = Arc::clone(self);
+        let id = id.to_owned();
+        tokio::spawn(async move { service.edit_to_end(&id, base_version, op).await })
+            .await
+            .map_err(internal)?
+    }
+
+    async fn edit_to_end(
+        self: &Arc<Self>,
+        id: &str,
+        base_version: u64,
+        op: EditOp,
+    ) -> Result<EditOutcome> {
+        let started = std::time::Instant::now();
+        let _queued = InFlight::new("resecta_edits_in_flight");
+        let (s, mut st) = self.open(id).await?;
+        if base_version != 0 && base_version != st.version {
+            metrics::counter!("resecta_edits_rejected_total", "reason" => "stale_version")
+                .increment(1);
+            return Err(SessionError::StaleVersion {
+                base: base_version,
+                current: st.version,
+            });
+        }
+        let version = st.version;
+        let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
+        let mut planner = loaded.take_planner().await?;
+        // Compute on a quick pool (a drag) or rayon's pool and show the result to watchers right
+        // there; store on the blocking pool (a worker never waits for the disk while other sessions' edits queue
+        // for it). Only the acknowledgement waits for the record to be durable: a record that
+        // cannot be stored rolls the edit back and watchers get a snapshot of the plan as it was.
+        let hub = Arc::clone(&s.hub);
+        let id = s.id.clone();
+        let priority = if is_quick(&planner, &op) {
+            Priority::Quick
+        } else {
+            Priority::Interactive
+        };
+        let (mut planner, result) = pools::run(priority, move || {
+            let r = apply_edit(&mut planner, op).and_then(|(change, record)| {
+                match hub.publish_edit(version + 1, planner.plan(), planner.states(), &change) {
+                    Ok(()) => Ok((change, record)),
+                    Err(e) => {
+                        log::roll_back(&mut planner, &id);
+                        Err(e)
+                    }
+                }
+            });
+            (planner, r)
+        })
+        .await?;
+        let (change, record) = match result {
+            Ok(r) => r,
+            Err(e) => {
+                loaded.planner = Some(planner);
+                return Err(e);
+            }
+        };
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        let stored = blocking(move || Ok(store.append(&key, version, &[record])?)).await;
+        let new_version = match stored {
+            Ok(v) => v,
+            Err(e) => {
+                let id = s.id.clone();
+                planner = pools::run(Priority::Interactive, move || {
+                    log::roll_back(&mut planner, &id);
+                    planner
+                })
+                .await?;
+                let shown = s.hub.reset(version, planner.plan(), planner.states());
+                loaded.planner = Some(planner);
+                shown?;
+                return Err(e);
+            }
+        };
+        debug_assert_eq!(new_version, version + 1, "one record appended");
+        let resections = change
+            .changed
+            .iter()
+            .filter_map(|name| {
+                let resection = planner.plan().resection(name).ok()?.clone();
+                let verdict = planner.state(name).ok().map(|s| s.verdict.clone());
+                Some(ResectionStatus { resection, verdict })
+            })
+            .collect();
+        let outcome = EditOutcome {
+            plan_version: new_version,
+            resections,
+            removed: change.removed,
+        };
+        loaded.planner = Some(planner);
+        st.version = new_version;
+        drop(st);
+        self.schedule_volumes(&s);
+        metrics::histogram!("resecta_edit_seconds").record(started.elapsed().as_secs_f64());
+        Ok(outcome)
+    }
+
+    /// Replaces the plan by a `resecta-plan/1` document (its roles must be the label map's).
+    pub async fn import_plan(&self, id: &str, json: &str, base_version: u64) -> Result<u64> {
+        let plan = Plan::from_json(json)?;
+        let (s, mut st) = self.open(id).await?;
+        if base_version != 0 && base_version != st.version {
+            return Err(SessionError::StaleVersion {
+                base: base_version,
+                current: st.version,
+            });
+        }
+        let version = st.version;
+        let loaded = loaded_mut(&mut st)?;
+        if plan.roles != loaded.summary.roles {
+            return Err(SessionError::Invalid(
+                "the plan's role map differs from the loaded label map's".into(),
+            ));
+        }
+        let anatomy = {
+            let planner = loaded.ready().await?;
+            planner.anatomy_shared()
+        };
+        let store = Arc::clone(&self.store);
+        let key = s.id.clone();
+        let (planner, new_version) = blocking(move || {
+            let record = log::reset_record(&plan)?;
+            let planner = Planner::new(anatomy, plan)?;
+            let v = store.append(&key, version, &[record])?;
+            Ok((planner, v))
+        })
+        .await?;
+        s.hub.reset(new_version, planner.plan(), planner.states())?;
+        loaded.planner = Some(planner);
+        st.version = new_version;
+        Ok(new_version)
+    }
+}
+
+/// Whether `op` is a small edit for a quick pool: a change to existing resections (no new
+/// resection, resolution or target) while every surface has at most [`QUICK_SAMPLES`] samples.
+fn is_quick(planner: &Planner, op: &EditOp) -> bool {
+    let EditOp::Event { event } = op else {
+        return false;
+    };
+    let reshapes = matches!(
+        event,
+        PlanEvent::AddResection { .. }
+            | PlanEvent::SetResolution { .. }
+            | PlanEvent::SetTarget { .. }
+    );
+    !reshapes
+        && planner
+            .plan()
+            .resections
+            .iter()
+            .all(|r| r.resolution[0] * r.resolution[1] <= QUICK_SAMPLES)
+}
+
+/// Applies `op` (its event once). Returns what changed and the log record to store.
+fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Change, String)> {
+    let change = match op {
+        EditOp::Event { event } => planner.edit(event)?,
+        EditOp::InitFromEndPoint {
+            name,
+            target,
+            end_point,
+            grid,
+        } => {
+            let (r, _) = planner.initial_resection(&name, &target, Vec3::from(end_point), grid)?;
+            planner.edit(PlanEvent::AddResection { resection: r })?
+        }
+        EditOp::InitFromPlane {
+            name,
+            target,
+            point,
+            normal,
+            grid,
+        } => {
+            let plane = Plane::new(Vec3::from(point), Vec3::from(normal))
+                .map_err(|e| SessionError::Invalid(format!("plane: {e}")))?;
+            let (r, _) = planner.initial_on_plane(&name, &target, &plane, grid)?;
+            planner.edit(PlanEvent::AddResection { resection: r })?
+        }
+        EditOp::Undo => planner.undo()?,
+        EditOp::Redo => planner.redo()?,
+    };
+    let record = log::entry_record(&change.entry)?;
+    Ok((change, record))
+}

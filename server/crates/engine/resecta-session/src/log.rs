@@ -1,0 +1,269 @@
+//! The session log: how a session is kept in the store (log records, blobs) and how it comes
+//! back from there (replay), and the rollback of an edit whose record could not be stored. The
+//! only code that knows the storage format.
+
+use std::sync::Arc;
+
+use resecta_delta::{DecodeLimits, SurfaceFrame, Topology, decode_mesh};
+use resecta_geom::{LabelMap, Real, RoleMap, TriMesh, Vec3};
+use resecta_plan::{Anatomy, History, LogEntry, Plan, Planner};
+use resecta_store::{Blob, LogRecord, SessionRecord, SessionStore};
+use serde::{Deserialize, Serialize};
+
+use crate::api::{LabelMapSummary, ModelInfo, Surface};
+use crate::error::{Result, SessionError};
+use crate::labelmap;
+use crate::state::Model;
+use crate::support::internal;
+
+pub(crate) const LABELMAP_BLOB: &str = "labelmap";
+pub(crate) const SUMMARY_BLOB: &str = "summary";
+pub(crate) const MODELS_BLOB: &str = "models";
+
+/// A record of a session's plan log (`E`: the entry, borrowed when written).
+#[derive(Debug, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+enum Record<E = LogEntry> {
+    /// A new base plan (label-map load or import): what follows edits it.
+    Reset {
+        plan: String,
+    },
+    Entry {
+        entry: E,
+    },
+}
+
+/// The log record that starts a new base plan.
+pub(crate) fn reset_record(plan: &Plan) -> Result<String> {
+    serde_json::to_string(&Record::<LogEntry>::Reset {
+        plan: plan.to_json()?,
+    })
+    .map_err(internal)
+}
+
+/// The log record of one edit.
+pub(crate) fn entry_record(entry: &LogEntry) -> Result<String> {
+    serde_json::to_string(&Record::Entry { entry }).map_err(internal)
+}
+
+/// The base plan and the edits that follow it in `records` (a reset drops what came before);
+/// `roles` gives the base while no reset is stored.
+pub(crate) fn base_and_entries<'a>(
+    records: impl IntoIterator<Item = &'a str>,
+    roles: &RoleMap,
+) -> Result<(Plan, Vec<LogEntry>)> {
+    let mut base = Plan::new(roles.clone());
+    let mut entries = Vec::new();
+    for r in records {
+        match serde_json::from_str::<Record>(r).map_err(internal)? {
+            Record::Reset { plan } => {
+                base = Plan::from_json(&plan)?;
+                entries.clear();
+            }
+            Record::Entry { entry } => entries.push(entry),
+        }
+    }
+    Ok((base, entries))
+}
+
+/// A session as stored, read but not yet decoded.
+pub(crate) struct Stored {
+    rec: SessionRecord,
+    version: u64,
+    labels: Option<(Blob, Vec<LogRecord>)>,
+    models: Option<Blob>,
+}
+
+/// Reads the session `id` (store I/O: run it on the blocking pool).
+pub(crate) fn load(store: &dyn SessionStore, id: &str) -> Result<Stored> {
+    let Some(rec) = store.session(id)? else {
+        return Err(SessionError::UnknownSession(id.to_owned()));
+    };
+    let version = store.log_len(id)?;
+    let labels = match store.blob(id, LABELMAP_BLOB)? {
+        None => None,
+        Some(blob) => Some((blob, store.log(id, 0)?)),
+    };
+    let models = store.blob(id, MODELS_BLOB)?;
+    Ok(Stored {
+        rec,
+        version,
+        labels,
+        models,
+    })
+}
+
+/// A session decoded and replayed.
+pub(crate) struct Restored {
+    pub(crate) rec: SessionRecord,
+    pub(crate) version: u64,
+    pub(crate) loaded: Option<(Arc<LabelMap>, LabelMapSummary, Planner)>,
+    pub(crate) models: Option<Vec<Model>>,
+}
+
+/// Decodes a stored session and replays its log to its plan (CPU work: the background pool).
+pub(crate) fn rebuild(stored: Stored, max_voxels: u64) -> Result<Restored> {
+    let Stored {
+        rec,
+        version,
+        labels,
+        models,
+    } = stored;
+    let loaded = match labels {
+        None => None,
+        Some((blob, records)) => {
+            let (labels, roles) = labelmap::from_blob(&blob, max_voxels)?;
+            let (base, entries) =
+                base_and_entries(records.iter().map(|r| r.json.as_str()), &roles)?;
+            let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
+            let planner = Planner::resume(anatomy, History::replay(base, &entries)?)?;
+            let summary = labelmap::summary(&labels, &roles);
+            Some((Arc::new(labels), summary, planner))
+        }
+    };
+    let models = models.map(|b| decode_models(&b)).transpose()?;
+    Ok(Restored {
+        rec,
+        version,
+        loaded,
+        models,
+    })
+}
+
+/// Stores a new label map with its summary, drops the models and appends the reset to an empty
+/// plan on `roles` after `version` records; returns that plan and the new version (store I/O).
+pub(crate) fn store_label_map(
+    store: &dyn SessionStore,
+    key: &str,
+    version: u64,
+    labels: &LabelMap,
+    roles: &RoleMap,
+    summary: &LabelMapSummary,
+) -> Result<(Plan, u64)> {
+    let plan = Plan::new(roles.clone());
+    let summary_blob = Blob {
+        meta_json: serde_json::to_string(summary).map_err(internal)?,
+        data: Vec::new(),
+    };
+    store.put_blob(key, LABELMAP_BLOB, &labelmap::to_blob(labels, roles)?)?;
+    store.put_blob(key, SUMMARY_BLOB, &summary_blob)?;
+    store.delete_blob(key, MODELS_BLOB)?;
+    let record = reset_record(&plan)?;
+    let version = store.append(key, version, &[record])?;
+    Ok((plan, version))
+}
+
+/// What describes a session not loaded in memory: its plan version, label-map summary and
+/// whether it has models (store I/O).
+pub(crate) fn stored_summary(
+    store: &dyn SessionStore,
+    key: &str,
+) -> Result<(u64, Option<LabelMapSummary>, bool)> {
+    let version = store.log_len(key)?;
+    let summary = store.blob(key, SUMMARY_BLOB)?;
+    let models = store.blob(key, MODELS_BLOB)?.is_some();
+    let summary: Option<LabelMapSummary> = summary
+        .map(|b| serde_json::from_str(&b.meta_json))
+        .transpose()
+        .map_err(internal)?;
+    Ok((version, summary, models))
+}
+
+/// Stores the models (store I/O).
+pub(crate) fn store_models(store: &dyn SessionStore, key: &str, blob: &Blob) -> Result<()> {
+    Ok(store.put_blob(key, MODELS_BLOB, blob)?)
+}
+
+/// Rebuilds the planner without its last log entry (whose record could not be stored).
+pub(crate) fn roll_back(planner: &mut Planner, id: &str) {
+    let h = planner.history();
+    let log = h.log();
+    let restored = History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)])
+        .and_then(|h| Planner::resume(planner.anatomy_shared(), h));
+    match restored {
+        Ok(p) => *planner = p,
+        Err(r) => {
+            tracing::error!(session = %id, error = %r, "rollback after a storage failure failed")
+        }
+    }
+}
+
+/// Models as a blob: JSON infos with byte lengths, then the `RSMS` encodings back to back.
+pub(crate) fn encode_models(models: &[Model]) -> Result<Blob> {
+    let meta: Vec<(&ModelInfo, usize)> = models
+        .iter()
+        .map(|m| (&m.info, m.surface.mesh.len()))
+        .collect();
+    Ok(Blob {
+        meta_json: serde_json::to_string(&meta).map_err(internal)?,
+        data: models
+            .iter()
+            .flat_map(|m| m.surface.mesh.iter().copied())
+            .collect(),
+    })
+}
+
+pub(crate) fn decode_models(blob: &Blob) -> Result<Vec<Model>> {
+    let meta: Vec<(ModelInfo, usize)> = serde_json::from_str(&blob.meta_json).map_err(internal)?;
+    let mut at = 0usize;
+    let mut out = Vec::with_capacity(meta.len());
+    for (info, len) in meta {
+        let bytes = at
+            .checked_add(len)
+            .and_then(|end| blob.data.get(at..end))
+            .ok_or_else(|| internal("stored models are truncated"))?;
+        at += len;
+        let (topology, frame): (Topology, SurfaceFrame) =
+            decode_mesh(bytes, &DecodeLimits::default()).map_err(internal)?;
+        let vertices = frame
+            .positions
+            .iter()
+            .map(|p| Vec3::new(Real::from(p[0]), Real::from(p[1]), Real::from(p[2])))
+            .collect();
+        let mesh = TriMesh::new(vertices, topology.triangles).map_err(internal)?;
+        out.push(Model {
+            surface: Surface::labelled(info.name.clone(), info.kind, info.label, bytes.to_vec()),
+            info,
+            mesh,
+        });
+    }
+    Ok(out)
+}
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_reset_drops_what_came_before() {
+        let roles = RoleMap::default();
+        let plan = Plan::new(roles.clone());
+        let reset = reset_record(&plan).unwrap();
+        let (base, entries) = base_and_entries([reset.as_str(), reset.as_str()], &roles).unwrap();
+        assert_eq!(base.to_json().unwrap(), plan.to_json().unwrap());
+        assert!(entries.is_empty());
+    }
+
+    #[test]
+    fn an_unknown_record_is_an_error() {
+        let roles = RoleMap::default();
+        let r = base_and_entries([r#"{"type":"nonsense"}"#], &roles);
+        assert!(matches!(r, Err(SessionError::Internal(_))));
+    }
+
+    #[test]
+    fn models_round_trip_and_truncation_is_detected() {
+        assert!(
+            decode_models(&encode_models(&[]).unwrap())
+                .unwrap()
+                .is_empty()
+        );
+        let truncated = Blob {
+            meta_json: r#"[[{"name":"liver","kind":"parenchyma","label":1,"method":"psr","triangles":1,"vertices":3,"volume_ml":0.0},10]]"#.into(),
+            data: vec![0; 4],
+        };
+        assert!(matches!(
+            decode_models(&truncated),
+            Err(SessionError::Internal(m)) if m.contains("truncated")
+        ));
+    }
+}
