@@ -83,17 +83,8 @@ impl SessionError {
             Self::Precondition(..) => ErrorKind::FailedPrecondition,
             Self::Quota(..) => ErrorKind::ResourceExhausted,
             Self::Cancelled => ErrorKind::Cancelled,
-            Self::Plan(e) => plan_kind(e),
-            Self::Store(e) => match e {
-                StoreError::NotFound { .. } => ErrorKind::NotFound,
-                StoreError::AlreadyExists { .. } => ErrorKind::AlreadyExists,
-                StoreError::Conflict { .. } => ErrorKind::Conflict,
-                StoreError::TooLarge { .. } => ErrorKind::ResourceExhausted,
-                StoreError::Invalid { .. } => ErrorKind::InvalidArgument,
-                StoreError::Corrupt { .. }
-                | StoreError::SchemaTooNew { .. }
-                | StoreError::Backend(_) => ErrorKind::Internal,
-            },
+            Self::Plan(e) => plan_class(e).0,
+            Self::Store(e) => store_class(e).0,
             Self::Internal(_) => ErrorKind::Internal,
         }
     }
@@ -115,38 +106,8 @@ impl SessionError {
             Self::Quota(Quota::UploadBytes, _) => "UPLOAD_TOO_LARGE",
             Self::Quota(Quota::Memory, _) => "MEMORY_QUOTA",
             Self::Cancelled => "CANCELLED",
-            Self::Plan(e) => match e {
-                PlanError::UnknownResection(_) => "RESECTION_NOT_FOUND",
-                PlanError::NothingToUndo => "NOTHING_TO_UNDO",
-                PlanError::NothingToRedo => "NOTHING_TO_REDO",
-                PlanError::Json(_) | PlanError::Format(_) => "BAD_PLAN",
-                PlanError::HistoryFull(_) | PlanError::TooManyResections(_) => "PLAN_QUOTA",
-                PlanError::Volumetry(_) | PlanError::Margin(_) | PlanError::Recon(_) => "INTERNAL",
-                PlanError::InvalidResection { .. }
-                | PlanError::DuplicateName(_)
-                | PlanError::NonFinite { .. }
-                | PlanError::InvalidArgument(_)
-                | PlanError::LabelAbsent(_)
-                | PlanError::NotATumourLabel(_)
-                | PlanError::NoTumour
-                | PlanError::TumourOutsideLiver(_)
-                | PlanError::NoTumourAtPoint(_)
-                | PlanError::EndPointAtCentroid
-                | PlanError::PlaneMissesLiver
-                | PlanError::EmptyLiver
-                | PlanError::Bezier(_)
-                | PlanError::Geometry(_) => "INVALID_ARGUMENT",
-            },
-            Self::Store(e) => match e {
-                StoreError::NotFound { .. } => "SESSION_NOT_FOUND",
-                StoreError::Conflict { .. } => "STALE_VERSION",
-                StoreError::TooLarge { .. } => "UPLOAD_TOO_LARGE",
-                StoreError::AlreadyExists { .. }
-                | StoreError::Invalid { .. }
-                | StoreError::Corrupt { .. }
-                | StoreError::SchemaTooNew { .. }
-                | StoreError::Backend(_) => "STORAGE",
-            },
+            Self::Plan(e) => plan_class(e).1,
+            Self::Store(e) => store_class(e).1,
             Self::Internal(_) => "INTERNAL",
         }
     }
@@ -162,15 +123,20 @@ impl SessionError {
     }
 }
 
-fn plan_kind(e: &PlanError) -> ErrorKind {
+/// Status kind and code of an engine error, in one exhaustive match so a new variant needs both.
+fn plan_class(e: &PlanError) -> (ErrorKind, &'static str) {
     match e {
-        PlanError::UnknownResection(_) => ErrorKind::NotFound,
-        PlanError::NothingToUndo | PlanError::NothingToRedo => ErrorKind::FailedPrecondition,
-        PlanError::HistoryFull(_) | PlanError::TooManyResections(_) => ErrorKind::ResourceExhausted,
-        PlanError::Volumetry(_) | PlanError::Margin(_) | PlanError::Recon(_) => ErrorKind::Internal,
-        PlanError::Format(_)
-        | PlanError::Json(_)
-        | PlanError::InvalidResection { .. }
+        PlanError::UnknownResection(_) => (ErrorKind::NotFound, "RESECTION_NOT_FOUND"),
+        PlanError::NothingToUndo => (ErrorKind::FailedPrecondition, "NOTHING_TO_UNDO"),
+        PlanError::NothingToRedo => (ErrorKind::FailedPrecondition, "NOTHING_TO_REDO"),
+        PlanError::HistoryFull(_) | PlanError::TooManyResections(_) => {
+            (ErrorKind::ResourceExhausted, "PLAN_QUOTA")
+        }
+        PlanError::Volumetry(_) | PlanError::Margin(_) | PlanError::Recon(_) => {
+            (ErrorKind::Internal, "INTERNAL")
+        }
+        PlanError::Format(_) | PlanError::Json(_) => (ErrorKind::InvalidArgument, "BAD_PLAN"),
+        PlanError::InvalidResection { .. }
         | PlanError::DuplicateName(_)
         | PlanError::NonFinite { .. }
         | PlanError::InvalidArgument(_)
@@ -183,7 +149,21 @@ fn plan_kind(e: &PlanError) -> ErrorKind {
         | PlanError::PlaneMissesLiver
         | PlanError::EmptyLiver
         | PlanError::Bezier(_)
-        | PlanError::Geometry(_) => ErrorKind::InvalidArgument,
+        | PlanError::Geometry(_) => (ErrorKind::InvalidArgument, "INVALID_ARGUMENT"),
+    }
+}
+
+/// Status kind and code of a storage error (one exhaustive match).
+fn store_class(e: &StoreError) -> (ErrorKind, &'static str) {
+    match e {
+        StoreError::NotFound { .. } => (ErrorKind::NotFound, "SESSION_NOT_FOUND"),
+        StoreError::AlreadyExists { .. } => (ErrorKind::AlreadyExists, "STORAGE"),
+        StoreError::Conflict { .. } => (ErrorKind::Conflict, "STALE_VERSION"),
+        StoreError::TooLarge { .. } => (ErrorKind::ResourceExhausted, "UPLOAD_TOO_LARGE"),
+        StoreError::Invalid { .. } => (ErrorKind::InvalidArgument, "STORAGE"),
+        StoreError::Corrupt { .. } | StoreError::SchemaTooNew { .. } | StoreError::Backend(_) => {
+            (ErrorKind::Internal, "STORAGE")
+        }
     }
 }
 
