@@ -132,6 +132,18 @@ def phantom(tmp_path_factory):
     return out / "phantom.nii.gz"
 
 
+@pytest.fixture(scope="module")
+def planning_client():
+    """A `resecta_client.Client` on an in-memory server shared by a test module."""
+    sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
+    from resecta_client import Client
+
+    server = Server()
+    with Client(server.grpc_addr) as c:
+        yield c
+    server.stop()
+
+
 @pytest.fixture
 def server(tmp_path):
     """A durable server for one test."""

@@ -9,22 +9,14 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from server_harness import Server
+from server_harness import planning_client as client  # noqa: F401  (fixture)
 
 sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
-from resecta_client import Client, Target  # noqa: E402
+from resecta_client import Target  # noqa: E402
 
 MSD = ("liver", "msd-task08-hepaticvessel")
 ROLES = {"parenchyma": [1], "tumor": [2]}
 BELOW_CUBES_MM = 0.05
-
-
-@pytest.fixture(scope="module")
-def client():
-    server = Server()
-    with Client(server.grpc_addr) as c:
-        yield c
-    server.stop()
 
 
 @pytest.mark.parametrize("case", ["002", "008", "010"])

@@ -9,21 +9,13 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from server_harness import Server
+from server_harness import planning_client as client  # noqa: F401  (fixture)
 
 sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
-from resecta_client import Client, InvalidArgument, SurfaceKind  # noqa: E402
+from resecta_client import InvalidArgument, SurfaceKind  # noqa: E402
 
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
 MSD = ("liver", "msd-task08-hepaticvessel")
-
-
-@pytest.fixture(scope="module")
-def client():
-    server = Server()
-    with Client(server.grpc_addr) as c:
-        yield c
-    server.stop()
 
 
 def fragmented_map() -> np.ndarray:
