@@ -12,6 +12,7 @@ mod labelmap;
 mod log;
 mod pools;
 mod recon;
+mod record;
 mod registry;
 mod service;
 mod state;

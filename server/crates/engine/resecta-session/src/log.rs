@@ -8,11 +8,11 @@ use resecta_delta::{DecodeLimits, SurfaceFrame, Topology, decode_mesh};
 use resecta_geom::{LabelMap, Real, RoleMap, TriMesh, Vec3};
 use resecta_plan::{Anatomy, History, LogEntry, Plan, Planner};
 use resecta_store::{Blob, LogRecord, SessionRecord, SessionStore};
-use serde::{Deserialize, Serialize};
 
 use crate::api::{LabelMapSummary, ModelInfo, Surface};
 use crate::error::{Result, SessionError};
 use crate::labelmap;
+use crate::record::{self, Step};
 use crate::state::Model;
 use crate::support::internal;
 
@@ -20,30 +20,14 @@ pub(crate) const LABELMAP_BLOB: &str = "labelmap";
 pub(crate) const SUMMARY_BLOB: &str = "summary";
 pub(crate) const MODELS_BLOB: &str = "models";
 
-/// A record of a session's plan log (`E`: the entry, borrowed when written).
-#[derive(Debug, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-enum Record<E = LogEntry> {
-    /// A new base plan (label-map load or import): what follows edits it.
-    Reset {
-        plan: String,
-    },
-    Entry {
-        entry: E,
-    },
-}
-
 /// The log record that starts a new base plan.
 pub(crate) fn reset_record(plan: &Plan) -> Result<String> {
-    serde_json::to_string(&Record::<LogEntry>::Reset {
-        plan: plan.to_json()?,
-    })
-    .map_err(internal)
+    record::encode_reset(plan.to_json()?)
 }
 
 /// The log record of one edit.
 pub(crate) fn entry_record(entry: &LogEntry) -> Result<String> {
-    serde_json::to_string(&Record::Entry { entry }).map_err(internal)
+    record::encode_entry(entry)
 }
 
 /// The base plan and the edits that follow it in `records` (a reset drops what came before);
@@ -55,12 +39,12 @@ pub(crate) fn base_and_entries<'a>(
     let mut base = Plan::new(roles.clone());
     let mut entries = Vec::new();
     for r in records {
-        match serde_json::from_str::<Record>(r).map_err(internal)? {
-            Record::Reset { plan } => {
+        match record::decode(r)? {
+            Step::Reset(plan) => {
                 base = Plan::from_json(&plan)?;
                 entries.clear();
             }
-            Record::Entry { entry } => entries.push(entry),
+            Step::Entry(entry) => entries.push(entry),
         }
     }
     Ok((base, entries))
@@ -241,6 +225,29 @@ mod tests {
         let (base, entries) = base_and_entries([reset.as_str(), reset.as_str()], &roles).unwrap();
         assert_eq!(base.to_json().unwrap(), plan.to_json().unwrap());
         assert!(entries.is_empty());
+    }
+
+    #[test]
+    fn a_log_written_by_version_1_replays() {
+        let records = include_str!("../tests/fixtures/log-v1.jsonl");
+        let want = Plan::from_json(include_str!("../tests/fixtures/log-v1.plan.json")).unwrap();
+        let (base, entries) = base_and_entries(records.lines(), &RoleMap::default()).unwrap();
+        assert_eq!(entries.len(), 17);
+        let history = History::replay(base, &entries).unwrap();
+        assert_eq!(history.plan(), &want);
+        // Written again in the current version, the same log replays to the same plan.
+        let mut again = vec![reset_record(history.base()).unwrap()];
+        again.extend(history.log().iter().map(|e| entry_record(e).unwrap()));
+        assert!(again.iter().all(|r| r.starts_with(r#"{"v":2,"#)));
+        let (base, entries) =
+            base_and_entries(again.iter().map(String::as_str), &RoleMap::default()).unwrap();
+        assert_eq!(History::replay(base, &entries).unwrap().plan(), &want);
+    }
+
+    #[test]
+    fn a_record_of_a_newer_version_is_refused_by_name() {
+        let r = base_and_entries([r#"{"v":3,"kind":"undo"}"#], &RoleMap::default());
+        assert!(matches!(r, Err(SessionError::Internal(m)) if m.contains("version 3")));
     }
 
     #[test]

@@ -1,8 +1,6 @@
 //! Edit history: an append-only log of edits, undos and redos (what a server persists), and the
 //! plan it produces. Undo and redo reach any depth; replaying the log rebuilds the same plan.
 
-use serde::{Deserialize, Serialize};
-
 use crate::error::PlanError;
 use crate::plan::{Plan, PlanEvent};
 
@@ -11,9 +9,8 @@ pub const MAX_LOG: usize = 1_000_000;
 /// A snapshot of the plan is kept every this many applied events, so undo replays at most this many.
 const CHECKPOINT_EVERY: usize = 64;
 
-/// One entry of the persisted log.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "snake_case")]
+/// One entry of the log (a server stores it in its own record format).
+#[derive(Debug, Clone, PartialEq)]
 pub enum LogEntry {
     Edit { event: PlanEvent },
     Undo,
