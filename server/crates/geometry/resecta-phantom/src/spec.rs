@@ -365,6 +365,72 @@ impl PhantomSpec {
         }
     }
 
+    /// Centre of the core ball of [`PhantomSpec::large_tumour`]'s bumpy tumour (RAS mm).
+    pub const LARGE_TUMOUR_CENTRE: [Real; 3] = [30.0, -5.0, 0.0];
+
+    /// A CT-like phantom with a large, bumpy tumour: a liver of two ellipsoids on a 512×512×130
+    /// grid of 0.57×0.57×1.6 mm (slightly oblique), one portal tube, and one tumour made of a
+    /// 32 mm core ball at [`Self::LARGE_TUMOUR_CENTRE`] with 26 overlapping balls of 7–13 mm on
+    /// its surface (Fibonacci directions): one connected, irregular tumour of about 170 ml
+    /// (333 k voxels) whose voxel-boundary margin surface has about 32 000 triangles. Its truth is
+    /// the union's volume, integrated numerically with its bound (the balls overlap).
+    pub fn large_tumour() -> Self {
+        let rot = |r, p, y| Orientation::EulerDeg([r, p, y]);
+        let c = Self::LARGE_TUMOUR_CENTRE;
+        let core = 32.0;
+        let mut tumors = vec![SphereSpec {
+            center: c,
+            radius: core,
+        }];
+        let n = 26;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        for k in 0..n {
+            // Fibonacci sphere directions; bump centres 0.8–0.95 core radii out, radii 7–13 mm.
+            let z = 1.0 - 2.0 * (k as Real + 0.5) / n as Real;
+            let r = (1.0 - z * z).sqrt();
+            let phi = golden * k as Real;
+            let dir = [r * phi.cos(), r * phi.sin(), z];
+            let out = core * (0.8 + 0.15 * ((k * 7 % 5) as Real / 4.0));
+            tumors.push(SphereSpec {
+                center: std::array::from_fn(|i| c[i] + out * dir[i]),
+                radius: 7.0 + 6.0 * ((k * 3 % 7) as Real / 6.0),
+            });
+        }
+        Self {
+            grid: GridSpec::centred(
+                [512, 512, 130],
+                [0.57, 0.57, 1.6],
+                [-5.0, 5.0, 0.0],
+                rot(1.0, -1.5, 2.0),
+            ),
+            liver: vec![
+                EllipsoidSpec {
+                    center: [20.0, 5.0, 0.0],
+                    radii: [95.0, 85.0, 75.0],
+                    rotation: rot(0.0, 5.0, 10.0),
+                },
+                EllipsoidSpec {
+                    center: [-70.0, 10.0, 10.0],
+                    radii: [55.0, 45.0, 35.0],
+                    rotation: rot(5.0, 0.0, -15.0),
+                },
+            ],
+            tumors,
+            vessels: vec![VesselSpec {
+                role: Role::Portal,
+                radius: 6.0,
+                points: vec![
+                    [-40.0, 40.0, -30.0],
+                    [0.0, 50.0, -25.0],
+                    [60.0, 45.0, -20.0],
+                ],
+            }],
+            roles: RoleMap::default(),
+            max_voxels: None,
+            truth_tolerance_mm: default_tolerance(),
+        }
+    }
+
     /// A coarse, fast phantom for tests: one ellipsoid, one tumour, one portal capsule on an
     /// oblique 2×2×3 mm grid.
     pub fn small() -> Self {

@@ -247,6 +247,82 @@ fn demo_is_liver_sized() {
 }
 
 #[test]
+fn large_tumour_is_one_bumpy_component() {
+    // The same extent as the 512×512×130 CT grid at 2 mm, so that debug runs stay short.
+    let mut spec = PhantomSpec::large_tumour();
+    let (dims, spacing) = (spec.grid.dims, spec.grid.spacing);
+    let coarse = std::array::from_fn(|i| (dims[i] as Real * spacing[i] / 2.0).floor() as usize);
+    let centre = Vec3::from(spec.grid.origin)
+        + spec.grid.direction.matrix("grid").unwrap()
+            * Vec3::from_fn(|i, _| spacing[i] * (dims[i] - 1) as Real / 2.0);
+    spec.grid = GridSpec::centred(coarse, [2.0; 3], centre.into(), spec.grid.direction);
+    spec.truth_tolerance_mm = 0.2;
+    let p = generate(&spec).unwrap();
+    let t = &p.truth;
+    let m = t.roles[&Role::Tumor];
+    // Overlapping balls: integrated, larger than the core ball, smaller than the sum of balls.
+    assert_eq!(m.method, Method::Numeric);
+    let core = 4.0 / 3.0 * PI * spec.tumors[0].radius.powi(3);
+    let sum: Real = spec
+        .tumors
+        .iter()
+        .map(|b| 4.0 / 3.0 * PI * b.radius.powi(3))
+        .sum();
+    assert!(
+        m.volume_mm3 > 1.15 * core && m.volume_mm3 < 0.9 * sum,
+        "{m:?}"
+    );
+    // One tumour label whose voxels form one 6-connected component with the voxelised volume.
+    let tumour = spec.roles.labels(Role::Tumor)[0];
+    let lt = &t.labels[&tumour];
+    assert!(
+        (lt.volume_mm3 - m.volume_mm3).abs() < 0.03 * m.volume_mm3,
+        "{lt:?} vs {m:?}"
+    );
+    let [nx, ny, nz] = p.labels.grid().dims();
+    let data = p.labels.data();
+    let is_tumour: Vec<bool> = data.iter().map(|&l| l == tumour).collect();
+    let start = is_tumour.iter().position(|&b| b).unwrap();
+    let mut seen = vec![false; data.len()];
+    let (mut stack, mut reached) = (vec![start], 0u64);
+    seen[start] = true;
+    while let Some(v) = stack.pop() {
+        reached += 1;
+        let (i, j, k) = (v % nx, v / nx % ny, v / (nx * ny));
+        let steps = [
+            (i > 0, v.wrapping_sub(1)),
+            (i + 1 < nx, v + 1),
+            (j > 0, v.wrapping_sub(nx)),
+            (j + 1 < ny, v + nx),
+            (k > 0, v.wrapping_sub(nx * ny)),
+            (k + 1 < nz, v + nx * ny),
+        ];
+        for (ok, w) in steps {
+            if ok && is_tumour[w] && !seen[w] {
+                seen[w] = true;
+                stack.push(w);
+            }
+        }
+    }
+    assert_eq!(reached, lt.voxels);
+    // Bumpy: some tumour voxel lies beyond the core ball by more than two voxels.
+    let c = Vec3::from(PhantomSpec::LARGE_TUMOUR_CENTRE);
+    let g = p.labels.grid();
+    let farthest = (0..data.len())
+        .filter(|&v| is_tumour[v])
+        .map(|v| {
+            let ijk = Vec3::new(
+                (v % nx) as Real,
+                (v / nx % ny) as Real,
+                (v / (nx * ny)) as Real,
+            );
+            (g.index_to_world(ijk) - c).norm()
+        })
+        .fold(0.0, Real::max);
+    assert!(farthest > spec.tumors[0].radius + 4.0, "{farthest}");
+}
+
+#[test]
 fn spec_and_truth_round_trip_through_json() {
     let p = generate(&PhantomSpec::small()).unwrap();
     let js = serde_json::to_string_pretty(&p.truth).unwrap();
