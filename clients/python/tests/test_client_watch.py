@@ -256,3 +256,39 @@ def test_reconnects_after_a_dropped_connection(ready: rc.Session, server) -> Non
                 assert np.array_equal(w.scene.surfaces["r1"].positions, fresh.scene.surfaces["r1"].positions)
     finally:
         proxy.close()
+
+
+def test_an_unreadable_snapshot_raises_instead_of_reopening() -> None:
+    """A snapshot the decoder cannot read (here: format version 1) ends the iteration with
+    `WireError`; reopening would bring the same snapshot again, for ever."""
+    bad = bytearray(rsms(np.zeros((3, 3), np.float32), np.array([[0, 1, 2]], np.uint32)))
+    bad[4:6] = (1).to_bytes(2, "little")
+    part = watch_pb2.Snapshot(complete=True)
+    part.models.add(name="m", mesh=bytes(bad))
+    opened = []
+
+    class Call:
+        def __init__(self) -> None:
+            self.messages = iter([pb.WatchResponse(seq=1, plan_version=1, snapshot=part)])
+
+        def __next__(self) -> pb.WatchResponse:
+            return next(self.messages)
+
+        def cancel(self) -> None:
+            pass
+
+    class Stub(rc.Watch):
+        def _open(self) -> Call:
+            opened.append(1)
+            if len(opened) > 3:
+                raise AssertionError("the watch reopened the stream after an unreadable snapshot")
+            self._call = Call()
+            return self._call
+
+    session = rc.Session.__new__(rc.Session)
+    w = Stub(session)
+    with pytest.raises(wire.WireError, match="version 1"):
+        next(w)
+    assert len(opened) == 1
+    with pytest.raises(StopIteration):
+        next(w)

@@ -600,7 +600,7 @@ class Watch:
     events after that sequence number (the server sends a snapshot instead when it no longer
     has them). When the connection drops (UNAVAILABLE) it reconnects up to `reconnect` times in
     a row with ``since_seq = scene.seq``; when a delta does not fit the scene it asks for a
-    fresh snapshot. `stop()` ends the iteration from any thread (the blocked `next` returns
+    fresh snapshot, and a snapshot that does not decode raises `wire.WireError`. `stop()` ends the iteration from any thread (the blocked `next` returns
     with StopIteration). Plan versions seen advance the session's `plan_version`. Compressed
     payloads are asked for when the `zstandard` package is importable (`allow_zstd`), quantised
     ones only with `allow_quantized`.
@@ -696,6 +696,11 @@ class Watch:
             try:
                 update = self.scene.apply(msg)
             except wire.WireError:
+                if msg.WhichOneof("event") == "snapshot":
+                    # Every fresh start would bring the same unreadable snapshot (a format
+                    # version this decoder does not read, say): give up.
+                    self.stop()
+                    raise
                 # The scene cannot follow this stream: start again from a snapshot.
                 call.cancel()
                 with self._lock:
