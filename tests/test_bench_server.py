@@ -1,6 +1,8 @@
 """`resecta bench server --quick`: the load benchmark starts a server, runs every scenario and
 reports one JSON object (figures of a debug build and a quick run mean nothing; the shape does)."""
 import math
+import sys
+from pathlib import Path
 
 
 def test_bench_server_quick_smoke(resecta, tmp_path):
@@ -22,3 +24,32 @@ def test_bench_server_quick_smoke(resecta, tmp_path):
     assert rep["upload"]["bytes"] == 512 * 512 * 300 and rep["upload"]["median_s"] > 0
     assert (tmp_path / "edit_latency_cdf.png").stat().st_size > 0
     assert (tmp_path / "edit_latency_cdf.svg").stat().st_size > 0
+
+
+def test_bench_server_python_client_quick_smoke(resecta):
+    """`--client python`: the drag watched in turn by the benchmark's client and by the Python
+    client (clients/python/scripts/bench_watch.py, run with this interpreter)."""
+    root = Path(__file__).resolve().parents[1]
+    rep = resecta("bench", "server", "--client", "python", "--quick", "--json",
+                  "--python", sys.executable,
+                  "--python-driver", root / "clients/python/scripts/bench_watch.py").json()
+    assert rep["patient"]["name"] == "demo phantom"
+    assert rep["patient"]["tumour_voxels"] > 0 and rep["patient"]["margin_triangles"] > 0
+    assert rep["patient"]["resection_vertices"] == 40 * 40
+    rows = {r["scenario"]: r for r in rep["latencies"]}
+    assert set(rows) == {"rust client, round 1", "python client, round 1"}
+    for r in rows.values():
+        assert r["edits"] == 20 and 0 < r["p50_ms"] <= r["p90_ms"] <= r["p99_ms"] <= r["max_ms"]
+        assert 0 < r["ack_p50_ms"] <= r["ack_p99_ms"]
+        assert r["client_cores"] > 0 and r["server_cpu_ms_per_edit"] > 0
+    (run,) = rep["python_runs"]
+    assert run["client"] == "python" and run["edits"] == 20 and "samples_ms" not in run
+    assert run["p50_ms"] == rows["python client, round 1"]["p50_ms"]
+    b = run["breakdown"]
+    assert b["apply_p50_ms"] > 0 and 0 < b["to_apply_p50_ms"] <= run["max_ms"]
+
+
+def test_bench_server_python_client_refuses_a_missing_driver(resecta, tmp_path):
+    r = resecta("bench", "server", "--client", "python", "--quick",
+                "--python-driver", tmp_path / "absent.py", check=False)
+    assert r.code == 2 and "driver" in r.stderr

@@ -59,27 +59,29 @@ pub struct ServerArgs {
     /// Print one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub drag: Box<crate::bench_python::DragArgs>,
 }
 
 /// Latency percentiles of one scenario (milliseconds).
 #[derive(Debug, Clone, Serialize)]
-struct Latency {
-    scenario: String,
+pub(crate) struct Latency {
+    pub(crate) scenario: String,
     resolution: [u32; 2],
     sessions: usize,
-    edits: usize,
-    p50_ms: f64,
-    p90_ms: f64,
-    p99_ms: f64,
-    max_ms: f64,
+    pub(crate) edits: usize,
+    pub(crate) p50_ms: f64,
+    pub(crate) p90_ms: f64,
+    pub(crate) p99_ms: f64,
+    pub(crate) max_ms: f64,
     /// Edit sent → its acknowledgement (the log record durable): watchers are shown an edit
     /// before it is stored, so this can exceed the delta latency above.
-    ack_p50_ms: f64,
+    pub(crate) ack_p50_ms: f64,
     ack_p99_ms: f64,
     /// CPU the server process and the benchmark client used during the scenario (cores, from
     /// /proc: user + system time over wall time); absent where unreadable.
     server_cores: Option<f64>,
-    client_cores: Option<f64>,
+    pub(crate) client_cores: Option<f64>,
     /// Server CPU time per edit (ms): less sensitive than latency to other jobs on the machine.
     server_cpu_ms_per_edit: Option<f64>,
     #[serde(skip)]
@@ -116,12 +118,18 @@ struct Report {
     upload: Upload,
 }
 
-type Client = PlanningServiceClient<Channel>;
+pub(crate) type Client = PlanningServiceClient<Channel>;
 
 /// A started server process, stopped on drop.
-struct ServerProcess {
+pub(crate) struct ServerProcess {
     child: Child,
     _dir: tempfile::TempDir,
+}
+
+impl ServerProcess {
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
+    }
 }
 
 impl Drop for ServerProcess {
@@ -131,7 +139,7 @@ impl Drop for ServerProcess {
     }
 }
 
-fn start_server() -> Result<(ServerProcess, String), CliError> {
+pub(crate) fn start_server() -> Result<(ServerProcess, String), CliError> {
     let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
     let dir = tempfile::tempdir().map_err(|e| CliError::Failed(format!("temp dir: {e}")))?;
     let mut child = Command::new(exe)
@@ -172,12 +180,12 @@ fn rss_bytes(pid: u32) -> Option<f64> {
     Some(kb * 1024.0)
 }
 
-fn failed(what: &str) -> impl Fn(tonic::Status) -> CliError + '_ {
+pub(crate) fn failed(what: &str) -> impl Fn(tonic::Status) -> CliError + '_ {
     move |s| CliError::Failed(format!("{what}: {} ({:?})", s.message(), s.code()))
 }
 
 /// A request with the bearer token and the API version header.
-fn request<T>(msg: T, token: Option<&str>) -> tonic::Request<T> {
+pub(crate) fn request<T>(msg: T, token: Option<&str>) -> tonic::Request<T> {
     let mut r = tonic::Request::new(msg);
     let md = r.metadata_mut();
     md.insert(
@@ -193,9 +201,9 @@ fn request<T>(msg: T, token: Option<&str>) -> tonic::Request<T> {
 }
 
 /// The label map to plan on, as raw little-endian bytes with its header.
-struct LabelMap {
-    header: RawLabelMapHeader,
-    data: Vec<u8>,
+pub(crate) struct LabelMap {
+    pub(crate) header: RawLabelMapHeader,
+    pub(crate) data: Vec<u8>,
 }
 
 fn demo_label_map() -> Result<LabelMap, CliError> {
@@ -260,7 +268,7 @@ fn large_label_map() -> LabelMap {
     }
 }
 
-async fn upload(
+pub(crate) async fn upload(
     client: &mut Client,
     token: Option<&str>,
     id: &str,
@@ -284,7 +292,7 @@ async fn upload(
     Ok(())
 }
 
-async fn create_session(
+pub(crate) async fn create_session(
     client: &mut Client,
     token: Option<&str>,
     display_name: &str,
@@ -304,7 +312,7 @@ async fn create_session(
         .ok_or_else(|| CliError::Failed("create session: no session in the answer".into()))
 }
 
-async fn edit(
+pub(crate) async fn edit(
     client: &mut Client,
     token: Option<&str>,
     id: &str,
@@ -325,7 +333,7 @@ async fn edit(
         .into_inner())
 }
 
-fn v3(p: [f64; 3]) -> pb::Vec3 {
+pub(crate) fn v3(p: [f64; 3]) -> pb::Vec3 {
     pb::Vec3 {
         x: p[0],
         y: p[1],
@@ -471,11 +479,11 @@ impl Planning {
 }
 
 /// One edit's latencies (ms).
-struct Timed {
+pub(crate) struct Timed {
     /// Edit sent → its delta received by the watching client.
-    delta_ms: f64,
+    pub(crate) delta_ms: f64,
     /// Edit sent → acknowledged.
-    ack_ms: f64,
+    pub(crate) ack_ms: f64,
 }
 
 fn percentile(sorted: &[f64], q: f64) -> f64 {
@@ -486,7 +494,12 @@ fn percentile(sorted: &[f64], q: f64) -> f64 {
     sorted[rank.min(sorted.len() - 1)]
 }
 
-fn latency(scenario: &str, resolution: [u32; 2], sessions: usize, timed: Vec<Timed>) -> Latency {
+pub(crate) fn latency(
+    scenario: &str,
+    resolution: [u32; 2],
+    sessions: usize,
+    timed: Vec<Timed>,
+) -> Latency {
     let sorted = |f: fn(&Timed) -> f64| {
         let mut v: Vec<f64> = timed.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
@@ -523,7 +536,7 @@ fn cpu_seconds(pid: &str) -> Option<f64> {
 }
 
 /// CPU use of the server (`pid`) and this client from `start` to `finish`.
-struct Load {
+pub(crate) struct Load {
     pid: Option<u32>,
     server: Option<f64>,
     client: Option<f64>,
@@ -535,7 +548,7 @@ impl Load {
         pid.and_then(|p| cpu_seconds(&p.to_string()))
     }
 
-    fn start(pid: Option<u32>) -> Self {
+    pub(crate) fn start(pid: Option<u32>) -> Self {
         Self {
             pid,
             server: Self::server_now(pid),
@@ -544,7 +557,7 @@ impl Load {
         }
     }
 
-    fn finish(self, l: &mut Latency) {
+    pub(crate) fn finish(self, l: &mut Latency) {
         let wall = self.t.elapsed().as_secs_f64();
         l.server_cores = self
             .server
@@ -715,7 +728,7 @@ async fn uploads(channel: &Channel, token: Option<&str>, runs: usize) -> Result<
     })
 }
 
-fn cpu_name() -> String {
+pub(crate) fn cpu_name() -> String {
     std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| {
@@ -791,6 +804,9 @@ pub fn run(args: &ServerArgs) -> Result<(), CliError> {
 }
 
 async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
+    if args.drag.client == crate::bench_python::ClientKind::Python {
+        return crate::bench_python::run(args).await;
+    }
     let pb = progress(args.json);
     let (server, addr) = match &args.addr {
         Some(a) => (None, a.clone()),

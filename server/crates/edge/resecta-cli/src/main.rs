@@ -4,6 +4,7 @@
 //! progress and logs go to stderr. Exit codes: 0 success, 2 bad input, 1 other failure.
 
 mod bench;
+mod bench_python;
 mod bench_server;
 mod bezier;
 mod demo;
