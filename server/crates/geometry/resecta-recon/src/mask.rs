@@ -361,36 +361,77 @@ pub fn liver_envelope(labels: &LabelMap, roles: &RoleMap) -> Result<Volume<bool>
 }
 
 /// Sets every background voxel not connected (6-neighbour) to the volume border.
+///
+/// The fill runs on the mask's bounding box grown by one voxel (every voxel beyond it is
+/// background joined to the border along a straight line, and the box's own border voxels that
+/// are background are joined to the border the same way), by spans along x.
 pub fn fill_cavities(mask: &Volume<bool>) -> Result<Volume<bool>, ReconError> {
-    let [nx, ny, nz] = mask.grid().dims();
+    let Some((lo, hi)) = bounds(mask) else {
+        return Ok(mask.clone());
+    };
+    let (lo, hi) = padded(mask.grid(), lo, hi, 1);
+    let [nx, ny, _] = mask.grid().dims();
+    let [cx, cy, cz] = [0, 1, 2].map(|a| hi[a] - lo[a]);
     let data = mask.data();
-    let mut outside = vec![false; data.len()];
-    let mut stack = Vec::new();
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..nx {
-                let border =
-                    i == 0 || j == 0 || k == 0 || i + 1 == nx || j + 1 == ny || k + 1 == nz;
-                let v = i + nx * (j + ny * k);
-                if border && !data[v] && !outside[v] {
-                    outside[v] = true;
-                    stack.push(v);
+    let solid =
+        |i: usize, j: usize, k: usize| data[lo[0] + i + nx * (lo[1] + j + ny * (lo[2] + k))];
+    let mut outside = vec![false; cx * cy * cz];
+    let at = |i: usize, j: usize, k: usize| i + cx * (j + cy * k);
+    let mut seeds: Vec<[usize; 3]> = Vec::new();
+    for k in 0..cz {
+        for j in 0..cy {
+            if k == 0 || j == 0 || k + 1 == cz || j + 1 == cy {
+                seeds.extend((0..cx).map(|i| [i, j, k]));
+            } else {
+                seeds.push([0, j, k]);
+                seeds.push([cx - 1, j, k]);
+            }
+        }
+    }
+    while let Some([i, j, k]) = seeds.pop() {
+        if solid(i, j, k) || outside[at(i, j, k)] {
+            continue;
+        }
+        // The span of background voxels along x through (i, j, k) not yet reached.
+        let mut x0 = i;
+        while x0 > 0 && !solid(x0 - 1, j, k) && !outside[at(x0 - 1, j, k)] {
+            x0 -= 1;
+        }
+        let mut x1 = i;
+        while x1 + 1 < cx && !solid(x1 + 1, j, k) && !outside[at(x1 + 1, j, k)] {
+            x1 += 1;
+        }
+        outside[at(x0, j, k)..=at(x1, j, k)].fill(true);
+        let rows = [
+            (j > 0).then(|| (j - 1, k)),
+            (j + 1 < cy).then_some((j + 1, k)),
+            (k > 0).then(|| (j, k - 1)),
+            (k + 1 < cz).then_some((j, k + 1)),
+        ];
+        for (jj, kk) in rows.into_iter().flatten() {
+            // One seed per run of open voxels next to the span.
+            let mut open = false;
+            for x in x0..=x1 {
+                let free = !solid(x, jj, kk) && !outside[at(x, jj, kk)];
+                if free && !open {
+                    seeds.push([x, jj, kk]);
                 }
+                open = free;
             }
         }
     }
-    while let Some(v) = stack.pop() {
-        for n in face_neighbours(v, [nx, ny, nz]) {
-            if !data[n] && !outside[n] {
-                outside[n] = true;
-                stack.push(n);
+    let mut filled = vec![false; data.len()];
+    filled.par_chunks_mut(nx).enumerate().for_each(|(r, row)| {
+        let (j, k) = (r % ny, r / ny);
+        if (lo[1]..hi[1]).contains(&j) && (lo[2]..hi[2]).contains(&k) {
+            let (cj, ck) = (j - lo[1], k - lo[2]);
+            let inner = &outside[at(0, cj, ck)..][..cx];
+            for (v, o) in row[lo[0]..hi[0]].iter_mut().zip(inner) {
+                *v = !o;
             }
         }
-    }
-    Ok(Volume::from_vec(
-        mask.grid().clone(),
-        outside.into_par_iter().map(|o| !o).collect(),
-    )?)
+    });
+    Ok(Volume::from_vec(mask.grid().clone(), filled)?)
 }
 
 /// Offsets of the (up to six) face neighbours of voxel offset `v` in a volume of `dims`.
@@ -407,4 +448,97 @@ fn face_neighbours(v: usize, [nx, ny, nz]: [usize; 3]) -> impl Iterator<Item = u
     ]
     .into_iter()
     .flatten()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+
+    /// Every background voxel not joined to the border, by a plain flood fill of the whole grid.
+    fn reference_fill(mask: &Volume<bool>) -> Vec<bool> {
+        let dims = mask.grid().dims();
+        let data = mask.data();
+        let mut outside = vec![false; data.len()];
+        let mut stack: Vec<usize> = (0..data.len())
+            .filter(|&v| {
+                let (i, j, k) = (
+                    v % dims[0],
+                    (v / dims[0]) % dims[1],
+                    v / (dims[0] * dims[1]),
+                );
+                let border = i == 0
+                    || j == 0
+                    || k == 0
+                    || i + 1 == dims[0]
+                    || j + 1 == dims[1]
+                    || k + 1 == dims[2];
+                border && !data[v]
+            })
+            .collect();
+        for &v in &stack {
+            outside[v] = true;
+        }
+        while let Some(v) = stack.pop() {
+            for n in face_neighbours(v, dims) {
+                if !data[n] && !outside[n] {
+                    outside[n] = true;
+                    stack.push(n);
+                }
+            }
+        }
+        outside.iter().map(|o| !o).collect()
+    }
+
+    #[test]
+    fn cavities_are_filled_as_a_whole_grid_flood_fill_does() {
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut rand = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for case in 0..60 {
+            let dims = [
+                3 + (rand() % 14) as usize,
+                3 + (rand() % 12) as usize,
+                2 + (rand() % 10) as usize,
+            ];
+            let grid = Grid::new(
+                dims,
+                [1.0, 0.9, 1.7],
+                resecta_geom::Vec3::zeros(),
+                resecta_geom::Mat3::identity(),
+            )
+            .unwrap();
+            // Dense random masks (pockets and tunnels), shells with holes, empty and full ones.
+            let density = [0, 35, 50, 65, 100][case % 5];
+            let mut data: Vec<bool> = (0..grid.len()).map(|_| (rand() % 100) < density).collect();
+            if case % 3 == 0 {
+                // A box shell inside the grid: a cavity unless a hole opens it.
+                let [nx, ny, nz] = dims;
+                for k in 0..nz {
+                    for j in 0..ny {
+                        for i in 0..nx {
+                            let on = |c: usize, n: usize| c == 1 || c + 2 == n;
+                            let inside = (1..nx - 1).contains(&i)
+                                && (1..ny - 1).contains(&j)
+                                && (1..nz.max(3) - 1).contains(&k);
+                            if inside && (on(i, nx) || on(j, ny) || on(k, nz)) {
+                                data[i + nx * (j + ny * k)] = case % 2 == 0 || rand() % 9 != 0;
+                            }
+                        }
+                    }
+                }
+            }
+            let mask = Volume::from_vec(grid, data).unwrap();
+            let want = reference_fill(&mask);
+            assert_eq!(
+                fill_cavities(&mask).unwrap().data(),
+                &want[..],
+                "case {case}"
+            );
+        }
+    }
 }
