@@ -4,11 +4,15 @@
 //! their voxels): the components of at least [`resecta_recon::SPECK_MM3`], the same list as the
 //! reconstruction's tumour models.
 
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+
 use rayon::prelude::*;
 use resecta_geom::{Grid, LabelMap, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_recon::models::{self, LabelParts};
-use resecta_recon::{McsdParams, mask, mcsd};
+use resecta_recon::{McsdParams, ReconError, mask, mcsd};
 
+use crate::engine::{TargetModel, build_target};
 use crate::error::PlanError;
 use crate::inside::InsideField;
 use crate::resection::Target;
@@ -54,58 +58,155 @@ pub struct Anatomy {
     functional: Volume<bool>,
     parenchyma: TriMesh,
     tumours: Vec<Tumour>,
+    /// Margin structures per selection of tumours (at most [`MAX_TARGETS`]).
+    targets: Mutex<BTreeMap<Vec<usize>, Arc<TargetModel>>>,
+}
+
+/// Selections whose margin structures an anatomy keeps (more start the memory afresh).
+const MAX_TARGETS: usize = 32;
+
+/// Selections built with the anatomy, before any edit asks: all tumours (a target without
+/// labels or points) and the largest one alone (a target point on it); one when there is one
+/// tumour. Each costs as much as the rest of the set-up on a large liver, so others wait for
+/// their first use.
+pub fn likely_targets(tumours: usize) -> Vec<Vec<usize>> {
+    match tumours {
+        0 => Vec::new(),
+        1 => vec![vec![0]],
+        n => vec![(0..n).collect(), vec![0]],
+    }
 }
 
 impl Anatomy {
     /// Builds everything from a label map and its role map (one-time set-up).
     pub fn new(labels: &LabelMap, roles: &RoleMap) -> Result<Self, PlanError> {
-        let present = labels.value_counts();
-        let tumour_labels = roles.labels(Role::Tumor);
-        if tumour_labels.is_empty() {
+        Self::new_cancellable(labels, roles, &|| false)
+    }
+
+    /// [`Anatomy::new`] that stops with [`ReconError::Cancelled`] (as [`PlanError::Recon`])
+    /// once `cancelled()` holds; it is asked between the stages. Independent stages run in
+    /// parallel (rayon): the liver envelope and then its surface, inside levels and
+    /// functional mask beside the tumour components and their margin surfaces.
+    pub fn new_cancellable(
+        labels: &LabelMap,
+        roles: &RoleMap,
+        cancelled: &(dyn Fn() -> bool + Sync),
+    ) -> Result<Self, PlanError> {
+        let go_on = || {
+            if cancelled() {
+                Err(PlanError::Recon(ReconError::Cancelled))
+            } else {
+                Ok(())
+            }
+        };
+        if roles.labels(Role::Tumor).is_empty() {
             return Err(PlanError::NoTumour);
         }
-        if !roles
-            .labels(Role::Parenchyma)
-            .iter()
-            .any(|l| present.contains_key(l))
+        let parenchyma_labels = roles.labels(Role::Parenchyma);
+        if !labels
+            .data()
+            .par_iter()
+            .any(|l| parenchyma_labels.contains(l))
         {
             return Err(PlanError::EmptyLiver);
         }
-        let envelope = mask::liver_envelope(labels, roles)?;
+        go_on()?;
         let lut = roles.lookup_table();
-        let functional_data: Vec<bool> = labels
-            .data()
-            .par_iter()
-            .zip(envelope.data().par_iter())
-            .map(|(&l, &e)| {
-                e && lut
-                    .get(usize::from(l))
-                    .copied()
-                    .flatten()
-                    .is_some_and(Role::is_functional_liver)
-            })
-            .collect();
-        let functional = Volume::from_vec(labels.grid().clone(), functional_data)?;
-        let parenchyma = mcsd::reconstruct(&envelope, &McsdParams::default())?;
-        let mut tumours = Vec::new();
-        for LabelParts { label, parts } in models::tumours(labels, roles)? {
-            let mut kept = vec![false; labels.grid().len()];
-            let first = tumours.len();
-            for k in 0..parts.len() {
-                tumours.push(tumour(labels, &lut, label, &parts.crop(k)?, &mut kept)?);
-            }
-            if parts.dropped > 0 {
-                attach_specks(labels, label, &kept, &mut tumours[first..])?;
-            }
-        }
+        let (envelope, tumours) = rayon::join(
+            || -> Result<_, PlanError> {
+                let envelope = mask::liver_envelope(labels, roles)?;
+                go_on()?;
+                let inside = InsideField::new(&envelope);
+                Ok((envelope, inside))
+            },
+            || -> Result<_, PlanError> {
+                go_on()?;
+                let mut tumours = Vec::new();
+                for LabelParts { label, parts } in models::tumours(labels, roles)? {
+                    let mut kept = vec![false; labels.grid().len()];
+                    let first = tumours.len();
+                    for k in 0..parts.len() {
+                        go_on()?;
+                        tumours.push(tumour(labels, &lut, label, &parts.crop(k)?, &mut kept)?);
+                    }
+                    if parts.dropped > 0 {
+                        attach_specks(labels, label, &kept, &mut tumours[first..])?;
+                    }
+                }
+                Ok(tumours)
+            },
+        );
+        // Errors in the order of the stages done one after the other.
+        let (envelope, inside) = envelope?;
+        go_on()?;
+        // The parenchyma surface and the functional mask beside the margin structures of the
+        // likely first targets.
+        let ((parenchyma, functional), targets) = rayon::join(
+            || {
+                rayon::join(
+                    || mcsd::reconstruct(&envelope, &McsdParams::default()),
+                    || functional_mask(labels, &lut, &envelope),
+                )
+            },
+            || -> Result<_, PlanError> {
+                let Ok(tumours) = &tumours else {
+                    return Ok(Vec::new());
+                };
+                let Some(liver) = inside.bounds() else {
+                    return Ok(Vec::new());
+                };
+                let cell = envelope.grid().linear();
+                likely_targets(tumours.len())
+                    .into_iter()
+                    .map(|selected| {
+                        go_on()?;
+                        let model = build_target(tumours, &selected, liver, cell)?;
+                        Ok((selected, Arc::new(model)))
+                    })
+                    .collect()
+            },
+        );
+        let (parenchyma, functional) = (parenchyma?, functional?);
+        let tumours = tumours?;
+        let targets = targets?;
+        go_on()?;
         Ok(Self {
             roles: roles.clone(),
-            inside: InsideField::new(&envelope),
+            inside,
             envelope,
             functional,
             parenchyma,
             tumours,
+            targets: Mutex::new(targets.into_iter().collect()),
         })
+    }
+
+    /// The margin structures of the tumours `selected` (indices into [`Anatomy::tumours`]),
+    /// built once per patient: those of [`likely_targets`] with the anatomy, others on first
+    /// use.
+    pub fn target(&self, selected: &[usize]) -> Result<Arc<TargetModel>, PlanError> {
+        let cached = |t: &Self| -> Option<Arc<TargetModel>> {
+            t.targets.lock().ok()?.get(selected).cloned()
+        };
+        if let Some(m) = cached(self) {
+            return Ok(m);
+        }
+        let liver = self.liver_bounds().ok_or(PlanError::EmptyLiver)?;
+        let model = Arc::new(build_target(
+            &self.tumours,
+            selected,
+            liver,
+            self.envelope.grid().linear(),
+        )?);
+        if let Ok(mut targets) = self.targets.lock() {
+            if targets.len() >= MAX_TARGETS {
+                targets.clear();
+            }
+            return Ok(Arc::clone(
+                targets.entry(selected.to_vec()).or_insert(model),
+            ));
+        }
+        Ok(model)
     }
 
     pub fn roles(&self) -> &RoleMap {
@@ -211,6 +312,27 @@ impl Anatomy {
     pub fn liver_bounds(&self) -> Option<(Vec3, Vec3)> {
         self.inside.bounds()
     }
+}
+
+/// Voxels that count in volumetry: envelope voxels whose label is parenchyma or vessel.
+fn functional_mask(
+    labels: &LabelMap,
+    lut: &[Option<Role>],
+    envelope: &Volume<bool>,
+) -> Result<Volume<bool>, PlanError> {
+    let data: Vec<bool> = labels
+        .data()
+        .par_iter()
+        .zip(envelope.data().par_iter())
+        .map(|(&l, &e)| {
+            e && lut
+                .get(usize::from(l))
+                .copied()
+                .flatten()
+                .is_some_and(Role::is_functional_liver)
+        })
+        .collect();
+    Ok(Volume::from_vec(labels.grid().clone(), data)?)
 }
 
 /// Tumour voxels in components below the speck volume get no model and are no target, but a

@@ -38,6 +38,30 @@ const PARALLEL_INSIDE: usize = 10_000;
 /// Target selections remembered (more distinct targets start the memory afresh).
 const MAX_SELECTIONS: usize = 32;
 
+/// The margin structures of the tumours `selected` of `tumours` (mesh of all of them, hints
+/// over the liver's bounding box `liver` grown by [`HINT_PAD_MM`], voxel cell `cell`).
+pub(crate) fn build_target(
+    tumours: &[crate::anatomy::Tumour],
+    selected: &[usize],
+    liver: (Vec3, Vec3),
+    cell: resecta_geom::Mat3,
+) -> Result<TargetModel, PlanError> {
+    let meshes: Vec<TriMesh> = selected.iter().map(|&k| tumours[k].mesh.clone()).collect();
+    let mesh = TriMesh::concat(&meshes)?;
+    let (lo, hi) = liver;
+    let pad = Vec3::repeat(HINT_PAD_MM);
+    let (lo, hi) = (lo - pad, hi + pad);
+    let extent = hi - lo;
+    let spacing = HINT_SPACING_MM.max((extent.x * extent.y * extent.z / HINT_NODES).cbrt());
+    let field = MarginField::new(&mesh, lo, hi, spacing)?.with_voxel_cell(cell);
+    let centroids = selected.iter().map(|&k| tumours[k].centroid).collect();
+    Ok(TargetModel {
+        tumours: selected.to_vec(),
+        centroids,
+        field,
+    })
+}
+
 /// The target tumours of a resection, ready for margin queries.
 #[derive(Debug)]
 pub struct TargetModel {
@@ -297,23 +321,7 @@ impl Planner {
         if let Some(m) = self.targets.get(&tumours) {
             return Ok(Arc::clone(m));
         }
-        let mesh = self.anatomy.tumour_mesh(&tumours)?;
-        let (lo, hi) = self.anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
-        let pad = Vec3::repeat(HINT_PAD_MM);
-        let (lo, hi) = (lo - pad, hi + pad);
-        let extent = hi - lo;
-        let spacing = HINT_SPACING_MM.max((extent.x * extent.y * extent.z / HINT_NODES).cbrt());
-        let field = MarginField::new(&mesh, lo, hi, spacing)?
-            .with_voxel_cell(self.anatomy.envelope().grid().linear());
-        let centroids = tumours
-            .iter()
-            .map(|&k| self.anatomy.tumours()[k].centroid)
-            .collect();
-        let model = Arc::new(TargetModel {
-            tumours: tumours.clone(),
-            centroids,
-            field,
-        });
+        let model = self.anatomy.target(&tumours)?;
         self.targets.insert(tumours, Arc::clone(&model));
         Ok(model)
     }

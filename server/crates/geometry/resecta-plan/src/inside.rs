@@ -2,6 +2,7 @@
 //! (one `u64` each, 1/8 of a byte per voxel), so the eight corners of a trilinear lookup usually
 //! share a cache line even on a 512×512×300 grid.
 
+use rayon::prelude::*;
 use resecta_geom::{Grid, Real, Vec3, Volume};
 
 /// Bricked bit copy of a mask with trilinear lookups and the bounds of its set voxels.
@@ -20,22 +21,47 @@ impl InsideField {
         let grid = mask.grid().clone();
         let dims = grid.dims();
         let nb = dims.map(|d| d.div_ceil(4));
-        let mut words = vec![0u64; nb[0] * nb[1] * nb[2]];
-        let mut lo = [usize::MAX; 3];
-        let mut hi = [0usize; 3];
-        for (v, _) in mask.data().iter().enumerate().filter(|(_, b)| **b) {
-            let ijk = [
-                v % dims[0],
-                (v / dims[0]) % dims[1],
-                v / (dims[0] * dims[1]),
-            ];
-            let (w, bit) = Self::slot(nb, ijk);
-            words[w] |= 1 << bit;
-            for a in 0..3 {
-                lo[a] = lo[a].min(ijk[a]);
-                hi[a] = hi[a].max(ijk[a]);
-            }
-        }
+        let layer = nb[0] * nb[1];
+        let plane = dims[0] * dims[1];
+        let data = mask.data();
+        let mut words = vec![0u64; layer * nb[2]];
+        // One job per layer of bricks (four voxel planes): its words and the bounds of its set
+        // voxels.
+        let bounds_per_layer: Vec<Option<([usize; 3], [usize; 3])>> = words
+            .par_chunks_mut(layer.max(1))
+            .enumerate()
+            .map(|(bk, out)| {
+                let mut lo = [usize::MAX; 3];
+                let mut hi = [0usize; 3];
+                for k in 4 * bk..(4 * bk + 4).min(dims[2]) {
+                    for j in 0..dims[1] {
+                        let row = &data[k * plane + j * dims[0]..][..dims[0]];
+                        if !row.iter().fold(false, |any, &b| any | b) {
+                            continue;
+                        }
+                        for (i, _) in row.iter().enumerate().filter(|(_, b)| **b) {
+                            let (w, bit) = Self::slot(nb, [i, j, k]);
+                            out[w - bk * layer] |= 1 << bit;
+                            let ijk = [i, j, k];
+                            for a in 0..3 {
+                                lo[a] = lo[a].min(ijk[a]);
+                                hi[a] = hi[a].max(ijk[a]);
+                            }
+                        }
+                    }
+                }
+                (lo[0] != usize::MAX).then_some((lo, hi))
+            })
+            .collect();
+        let (lo, hi) = bounds_per_layer.into_iter().flatten().fold(
+            ([usize::MAX; 3], [0usize; 3]),
+            |(lo, hi), (a, b)| {
+                (
+                    [0, 1, 2].map(|x| lo[x].min(a[x])),
+                    [0, 1, 2].map(|x| hi[x].max(b[x])),
+                )
+            },
+        );
         let bounds = (lo[0] != usize::MAX).then(|| {
             // The voxel-centre box's corners, mapped to RAS (any affine: take all 8).
             let mut a = Vec3::repeat(Real::INFINITY);

@@ -447,3 +447,57 @@ fn the_targets_are_the_reconstructions_tumour_models_specks_left_out() {
         (Role::Tumor, 2)
     );
 }
+
+#[test]
+fn a_cancelled_set_up_stops_with_cancelled_and_an_uncancelled_one_matches_new() {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    let p = generate(&spec()).unwrap();
+    let roles = RoleMap::default();
+    // Cancelled at the first check: nothing is built.
+    let asked = AtomicUsize::new(0);
+    let stopped = Anatomy::new_cancellable(&p.labels, &roles, &|| {
+        asked.fetch_add(1, Ordering::Relaxed);
+        true
+    });
+    assert!(matches!(
+        stopped,
+        Err(PlanError::Recon(resecta_recon::ReconError::Cancelled))
+    ));
+    assert_eq!(asked.load(Ordering::Relaxed), 1);
+    // Cancelled half-way (after some checks passed): also stopped.
+    let asked = AtomicUsize::new(0);
+    let stopped = Anatomy::new_cancellable(&p.labels, &roles, &|| {
+        asked.fetch_add(1, Ordering::Relaxed) >= 2
+    });
+    assert!(matches!(
+        stopped,
+        Err(PlanError::Recon(resecta_recon::ReconError::Cancelled))
+    ));
+    // Not cancelled: the same plan results as the plain set-up, for a prepared target (all
+    // tumours) and one built on first use (by label).
+    let a = Arc::new(Anatomy::new(&p.labels, &roles).unwrap());
+    let b = Arc::new(Anatomy::new_cancellable(&p.labels, &roles, &|| false).unwrap());
+    assert_eq!(a.parenchyma().vertices(), b.parenchyma().vertices());
+    assert_eq!(a.envelope().data(), b.envelope().data());
+    assert_eq!(a.functional().data(), b.functional().data());
+    for target in [
+        Target::default(),
+        Target {
+            labels: roles.labels(Role::Tumor).to_vec(),
+            points: Vec::new(),
+        },
+    ] {
+        let verdicts: Vec<Verdict> = [&a, &b]
+            .into_iter()
+            .map(|anatomy| {
+                let mut planner = Planner::new(Arc::clone(anatomy), Plan::new(roles.clone())).unwrap();
+                let (r, _) = planner
+                    .initial_resection("r", &target, Vec3::new(-30.0, 0.0, 0.0), [4, 4])
+                    .unwrap();
+                planner.edit(PlanEvent::AddResection { resection: r }).unwrap();
+                planner.state("r").unwrap().verdict.clone()
+            })
+            .collect();
+        assert_eq!(verdicts[0], verdicts[1]);
+    }
+}
