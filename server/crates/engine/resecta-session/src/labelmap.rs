@@ -1,6 +1,7 @@
 //! Uploaded label maps: raw voxels or image files to a validated `u16` [`LabelMap`], its summary,
 //! and its storage form (a JSON header and little-endian `u16` voxels).
 
+use rayon::prelude::*;
 use resecta_geom::{Grid, LabelMap, Mat3, Real, Role, RoleMap, Vec3, Volume, VoxelLimit};
 use resecta_io::{metaimage, nifti, nrrd};
 use serde::{Deserialize, Serialize};
@@ -93,10 +94,10 @@ fn from_raw(raw: &RawLabelMap, limit: VoxelLimit) -> Result<LabelMap> {
     }
     let bad = |v: i64| invalid(format!("label {v} is outside 0..=65535"));
     let labels: Vec<u16> = match raw.data_type {
-        DataType::U8 => raw.data.iter().map(|&b| u16::from(b)).collect(),
+        DataType::U8 => raw.data.par_iter().map(|&b| u16::from(b)).collect(),
         DataType::U16 => raw
             .data
-            .chunks_exact(2)
+            .par_chunks_exact(2)
             .map(|c| u16::from_le_bytes([c[0], c[1]]))
             .collect(),
         DataType::I16 => raw
@@ -216,10 +217,38 @@ pub fn check_roles(roles: &RoleMap, counts: &std::collections::BTreeMap<u16, u64
     Ok(())
 }
 
+/// Voxels per label (as [`resecta_geom::Volume::value_counts`]), counted in parallel.
+fn value_counts(labels: &LabelMap) -> std::collections::BTreeMap<u16, u64> {
+    const LABELS: usize = u16::MAX as usize + 1;
+    let histogram = labels
+        .data()
+        .par_chunks(1 << 20)
+        .map(|chunk| {
+            let mut h = vec![0u64; LABELS];
+            for &v in chunk {
+                h[usize::from(v)] += 1;
+            }
+            h
+        })
+        .reduce(
+            || vec![0u64; LABELS],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                a
+            },
+        );
+    histogram
+        .into_iter()
+        .enumerate()
+        .filter(|&(_, n)| n > 0)
+        .map(|(l, n)| (l as u16, n))
+        .collect()
+}
+
 /// Summary of a label map (voxel counts, functional liver volume).
 pub fn summary(labels: &LabelMap, roles: &RoleMap) -> LabelMapSummary {
     let g = labels.grid();
-    let mut counts = labels.value_counts();
+    let mut counts = value_counts(labels);
     counts.remove(&0);
     let voxel_ml = g.voxel_volume_mm3() / 1000.0;
     let liver: u64 = counts
@@ -261,7 +290,11 @@ pub fn to_blob(labels: &LabelMap, roles: &RoleMap) -> Result<resecta_store::Blob
     };
     let meta_json =
         serde_json::to_string(&header).map_err(|e| SessionError::Internal(e.to_string()))?;
-    let data = labels.data().iter().flat_map(|v| v.to_le_bytes()).collect();
+    let data = labels
+        .data()
+        .par_iter()
+        .flat_map_iter(|v| v.to_le_bytes())
+        .collect();
     Ok(resecta_store::Blob { meta_json, data })
 }
 
@@ -269,13 +302,25 @@ pub fn to_blob(labels: &LabelMap, roles: &RoleMap) -> Result<resecta_store::Blob
 pub fn from_blob(blob: &resecta_store::Blob, max_voxels: u64) -> Result<(LabelMap, RoleMap)> {
     let h: StoredHeader = serde_json::from_str(&blob.meta_json)
         .map_err(|e| SessionError::Internal(format!("stored label-map header: {e}")))?;
-    let raw = RawLabelMap {
-        dims: h.dims,
-        spacing: h.spacing,
-        origin: h.origin,
-        direction: h.direction,
-        data_type: DataType::U16,
-        data: blob.data.clone(),
-    };
-    Ok((from_raw(&raw, VoxelLimit(max_voxels))?, h.roles))
+    let g = grid(
+        h.dims,
+        h.spacing,
+        h.origin,
+        h.direction,
+        VoxelLimit(max_voxels),
+    )?;
+    if g.len().checked_mul(2) != Some(blob.data.len()) {
+        return Err(SessionError::Internal(format!(
+            "stored label map holds {} bytes for {} voxels",
+            blob.data.len(),
+            g.len()
+        )));
+    }
+    let labels = blob
+        .data
+        .par_chunks_exact(2)
+        .map(|c| u16::from_le_bytes([c[0], c[1]]))
+        .collect();
+    let labels = Volume::from_vec(g, labels).map_err(|e| invalid(format!("label map: {e}")))?;
+    Ok((labels, h.roles))
 }
