@@ -67,6 +67,8 @@ pub async fn run(
 ) -> Result<(), ServerError> {
     let store = open_store(&config)?;
     let service = Arc::new(Service::new(store, config.service.clone()));
+    // Stored sessions come back while the faces start: most recently used first.
+    service.restore_in_background();
     let tls = match &config.tls {
         Some(files) => Some(telemetry::load_tls(files).await?),
         None => None,

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use resecta_delta::{DecodeLimits, SurfaceFrame, Topology, decode_mesh};
 use resecta_geom::{LabelMap, Real, RoleMap, TriMesh, Vec3};
-use resecta_plan::{Anatomy, History, LogEntry, Plan, Planner};
+use resecta_plan::{History, LogEntry, Plan, Planner};
 use resecta_store::{Blob, LogRecord, SessionRecord, SessionStore};
 
 use crate::api::{LabelMapSummary, ModelInfo, Surface};
@@ -77,15 +77,16 @@ pub(crate) fn load(store: &dyn SessionStore, id: &str) -> Result<Stored> {
     })
 }
 
-/// A session decoded and replayed.
+/// A session decoded and its log replayed: the plan history its planner resumes once the
+/// anatomy is set up.
 pub(crate) struct Restored {
     pub(crate) rec: SessionRecord,
     pub(crate) version: u64,
-    pub(crate) loaded: Option<(Arc<LabelMap>, LabelMapSummary, Planner)>,
+    pub(crate) loaded: Option<(Arc<LabelMap>, LabelMapSummary, RoleMap, History)>,
     pub(crate) models: Option<Vec<Model>>,
 }
 
-/// Decodes a stored session and replays its log to its plan (CPU work: the background pool).
+/// Decodes a stored session and replays its log to its plan (CPU work: a worker pool).
 pub(crate) fn rebuild(stored: Stored, max_voxels: u64) -> Result<Restored> {
     let Stored {
         rec,
@@ -99,10 +100,9 @@ pub(crate) fn rebuild(stored: Stored, max_voxels: u64) -> Result<Restored> {
             let (labels, roles) = labelmap::from_blob(&blob, max_voxels)?;
             let (base, entries) =
                 base_and_entries(records.iter().map(|r| r.json.as_str()), &roles)?;
-            let anatomy = Arc::new(Anatomy::new(&labels, &roles)?);
-            let planner = Planner::resume(anatomy, History::replay(base, &entries)?)?;
+            let history = History::replay(base, &entries)?;
             let summary = labelmap::summary(&labels, &roles);
-            Some((Arc::new(labels), summary, planner))
+            Some((Arc::new(labels), summary, roles, history))
         }
     };
     let models = models.map(|b| decode_models(&b)).transpose()?;

@@ -44,6 +44,15 @@ fn background() -> Option<&'static rayon::ThreadPool> {
     .as_ref()
 }
 
+/// Threads of the background pool.
+#[cfg(test)]
+pub(crate) fn background_threads() -> usize {
+    background().map_or_else(
+        rayon::current_num_threads,
+        rayon::ThreadPool::current_num_threads,
+    )
+}
+
 /// A single-thread pool and the number of its jobs queued or running.
 type QuickPool = (rayon::ThreadPool, AtomicUsize);
 

@@ -59,13 +59,14 @@ impl Service {
             volumes_scheduled: AtomicBool::new(false),
             last_edit: Mutex::new(std::time::Instant::now()),
             memory: AtomicU64::new(0),
+            deleted: Arc::new(AtomicBool::new(false)),
         })
     }
 
-    /// The session `id`, from memory or the store; records the access.
-    pub(crate) async fn session(&self, id: &str) -> Result<Arc<Session>> {
+    /// The session `id`, from memory or the store, without recording an access.
+    pub(crate) async fn session_unrecorded(&self, id: &str) -> Result<Arc<Session>> {
         let found = self.map()?.get(id).cloned();
-        let session = match found {
+        Ok(match found {
             Some(s) => s,
             None => {
                 let store = Arc::clone(&self.store);
@@ -75,7 +76,12 @@ impl Service {
                 let fresh = self.new_session(&rec, false);
                 Arc::clone(self.map()?.entry(id.to_owned()).or_insert(fresh))
             }
-        };
+        })
+    }
+
+    /// The session `id`, from memory or the store; records the access.
+    pub(crate) async fn session(&self, id: &str) -> Result<Arc<Session>> {
+        let session = self.session_unrecorded(id).await?;
         let now = now_ms();
         if now - session.last_touch_ms.load(Ordering::Relaxed) >= TOUCH_EVERY_MS {
             session.last_touch_ms.store(now, Ordering::Relaxed);
@@ -159,6 +165,8 @@ impl Service {
         let existed = blocking(move || Ok(store.delete_session(&key)?)).await?;
         let dropped = self.map()?.remove(id);
         if let Some(s) = &dropped {
+            // Stops its planner set-up; what it holds is freed when the set-up returns.
+            s.deleted.store(true, Ordering::Release);
             s.hub.close();
         }
         if !existed && dropped.is_none() {

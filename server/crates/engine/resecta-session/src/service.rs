@@ -31,7 +31,7 @@ use crate::error::{Quota, Result, SessionError};
 use crate::labelmap;
 use crate::log;
 use crate::pools::{self, Priority};
-use crate::state::{BYTES_PER_VOXEL, Loaded, Session, State, loaded_mut, spawn_planner};
+use crate::state::{BYTES_PER_VOXEL, Loaded, Session, SetUp, State, loaded_mut, spawn_planner};
 use crate::support::{blocking, internal};
 use crate::watch::WatchStream;
 
@@ -92,22 +92,25 @@ impl Service {
         }
     }
 
-    /// Restores a session's label map, plan and models from the store (first use after a
-    /// restart).
-    async fn restore(&self, s: &Session, st: &mut State) -> Result<()> {
+    /// Restores a session's label map, plan and models from the store (in the background at
+    /// start-up, or on first use): the label map and the plan at once, the planner's set-up
+    /// (anatomy, then the plan's resections) on the pool for `priority`, where the next call
+    /// that needs the planner waits for it; watchers see the resections once it is built.
+    pub(crate) async fn restore(
+        &self,
+        s: &Session,
+        st: &mut State,
+        priority: Priority,
+    ) -> Result<()> {
         if st.restored {
             return Ok(());
         }
         let store = Arc::clone(&self.store);
         let id = s.id.clone();
         let max_voxels = self.config.max_voxels;
-        // The store on the blocking pool; decoding, replay and the planning set-up on the
-        // background pool, as after an upload, so a restore never slows other sessions' edits.
+        // The store on the blocking pool; decoding and replay on a worker pool.
         let stored = blocking(move || log::load(&*store, &id)).await?;
-        let restored = pools::run(Priority::Background, move || {
-            log::rebuild(stored, max_voxels)
-        })
-        .await??;
+        let restored = pools::run(priority, move || log::rebuild(stored, max_voxels)).await??;
         let log::Restored {
             rec,
             version,
@@ -118,17 +121,23 @@ impl Service {
         st.created_ms = rec.created_ms;
         st.version = version;
         st.restored = true;
-        if let Some((labels, summary, planner)) = loaded {
+        if let Some((labels, summary, roles, history)) = loaded {
             s.memory.store(
                 labels.data().len() as u64 * BYTES_PER_VOXEL,
                 Ordering::Relaxed,
             );
-            s.hub.reset(version, planner.plan(), planner.states())?;
+            let setup = SetUp {
+                labels: Arc::clone(&labels),
+                roles,
+                history: Some(history),
+                deleted: Arc::clone(&s.deleted),
+            };
+            let pending = spawn_planner(setup, priority, Some((Arc::clone(&s.hub), version)));
             st.loaded = Some(Loaded {
                 labels,
                 summary,
-                planner: Some(planner),
-                pending: None,
+                planner: None,
+                pending: Some(pending),
                 generation: 0,
             });
         }
@@ -141,6 +150,71 @@ impl Service {
         Ok(())
     }
 
+    /// Restores every stored session in the background, most recently used first, one at a
+    /// time (its planner set up before the next starts), while the memory budget allows; a call
+    /// for a session the restorer has not reached restores that one at once, at interactive
+    /// priority. Restoring records no access (idle expiry is unchanged).
+    pub fn restore_in_background(self: &Arc<Self>) -> tokio::task::JoinHandle<()> {
+        let service = Arc::clone(self);
+        tokio::spawn(async move {
+            let started = std::time::Instant::now();
+            match service.restore_all().await {
+                Ok(n) => tracing::info!(
+                    sessions = n,
+                    ms = started.elapsed().as_secs_f64() * 1e3,
+                    "sessions restored in the background"
+                ),
+                Err(e) => tracing::warn!(error = %e, "restoring sessions in the background"),
+            }
+        })
+    }
+
+    async fn restore_all(&self) -> Result<usize> {
+        let store = Arc::clone(&self.store);
+        let mut records = blocking(move || Ok(store.sessions()?)).await?;
+        records.sort_by(|a, b| {
+            b.last_access_ms
+                .cmp(&a.last_access_ms)
+                .then(b.created_ms.cmp(&a.created_ms))
+        });
+        let mut n = 0;
+        for rec in records {
+            let store = Arc::clone(&self.store);
+            let key = rec.id.clone();
+            let Ok((_, summary, _)) = blocking(move || log::stored_summary(&*store, &key)).await
+            else {
+                continue;
+            };
+            let need = summary.map_or(0, |s| {
+                s.dims.iter().map(|&d| d as u64).product::<u64>() * BYTES_PER_VOXEL
+            });
+            if self.memory_in_use()? + need > self.config.max_memory_bytes {
+                tracing::info!(session = %rec.id, "not restored in the background: memory budget");
+                continue;
+            }
+            let Ok(s) = self.session_unrecorded(&rec.id).await else {
+                continue;
+            };
+            let mut st = Arc::clone(&s.state).lock_owned().await;
+            if st.restored {
+                continue;
+            }
+            let restored = match self.restore(&s, &mut st, Priority::Background).await {
+                Ok(()) => match st.loaded.as_mut() {
+                    Some(loaded) => loaded.ready().await.map(|_| ()),
+                    None => Ok(()),
+                },
+                Err(e) => Err(e),
+            };
+            match restored {
+                Ok(()) => n += 1,
+                Err(SessionError::Cancelled | SessionError::UnknownSession(_)) => {}
+                Err(e) => tracing::warn!(session = %rec.id, error = %e, "background restore"),
+            }
+        }
+        Ok(n)
+    }
+
     /// The session, locked and restored.
     pub(crate) async fn open(
         &self,
@@ -148,7 +222,7 @@ impl Service {
     ) -> Result<(Arc<Session>, tokio::sync::OwnedMutexGuard<State>)> {
         let s = self.session(id).await?;
         let mut st = Arc::clone(&s.state).lock_owned().await;
-        self.restore(&s, &mut st).await?;
+        self.restore(&s, &mut st, Priority::Interactive).await?;
         Ok((s, st))
     }
 
@@ -193,16 +267,37 @@ impl Service {
                 ),
             ));
         }
+        let labels = Arc::new(labels);
+        let summary = {
+            let (labels, roles) = (Arc::clone(&labels), roles.clone());
+            blocking(move || {
+                let summary = labelmap::summary(&labels, &roles);
+                labelmap::check_roles(&roles, &summary.labels)?;
+                Ok(summary)
+            })
+            .await?
+        };
+        // The planner's set-up starts before the label map is stored: it overlaps the store
+        // write, and is cancelled (dropped) if the write fails.
+        let setup = SetUp {
+            labels: Arc::clone(&labels),
+            roles: summary.roles.clone(),
+            history: None,
+            deleted: Arc::clone(&s.deleted),
+        };
+        let pending = spawn_planner(setup, Priority::Background, None);
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let version = st.version;
-        let (labels, summary, plan, version) = blocking(move || {
+        let stored = Arc::clone(&labels);
+        let roles = summary.roles.clone();
+        let kept = summary.clone();
+        let (plan, version) = blocking(move || {
             let t = std::time::Instant::now();
-            let summary = labelmap::summary(&labels, &roles);
-            labelmap::check_roles(&roles, &summary.labels)?;
-            let (plan, version) = log::store_label_map(&*store, &key, version, &labels, &roles, &summary)?;
+            let (plan, version) =
+                log::store_label_map(&*store, &key, version, &stored, &roles, &kept)?;
             tracing::debug!(session = %key, ms = t.elapsed().as_secs_f64() * 1e3, "label map stored");
-            Ok((Arc::new(labels), summary, plan, version))
+            Ok((plan, version))
         })
         .await?;
         s.memory.store(need, Ordering::Relaxed);
@@ -211,7 +306,6 @@ impl Service {
         st.models = None;
         s.hub.reset(version, &plan, &BTreeMap::new())?;
         s.hub.publish_models(Vec::new())?;
-        let pending = spawn_planner(Arc::clone(&labels), summary.roles.clone());
         st.loaded = Some(Loaded {
             labels,
             summary: summary.clone(),
@@ -276,7 +370,13 @@ impl Service {
     /// The session's event stream: from `since` when the server still holds what followed it,
     /// else from a snapshot.
     pub async fn watch(&self, id: &str, since: Option<u64>) -> Result<WatchStream> {
-        let (s, _st) = self.open(id).await?;
+        let (s, mut st) = self.open(id).await?;
+        // A restored session's resections reach its hub once its planner is set up.
+        if let Some(loaded) = st.loaded.as_mut()
+            && loaded.unpublished()
+        {
+            loaded.ready().await?;
+        }
         Ok(s.hub.subscribe(since))
     }
 }

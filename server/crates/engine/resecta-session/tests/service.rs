@@ -1028,3 +1028,97 @@ async fn requests_whose_callers_go_away_leave_the_session_usable() {
         .unwrap();
     assert_eq!(next.plan_version, now + 1);
 }
+
+/// What watchers are shown of a resection state (as the hub encodes it).
+fn frame_of(s: &resecta_plan::ResectionState) -> SurfaceFrame {
+    let f = |v: &resecta_geom::Vec3| [v.x as f32, v.y as f32, v.z as f32];
+    SurfaceFrame {
+        positions: s.surface.points().iter().map(f).collect(),
+        normals: s.surface.normals().iter().map(f).collect(),
+        margins: s.margins.distance.iter().map(|&d| d as f32).collect(),
+        classes: s.margins.class.iter().map(|&c| c as u8).collect(),
+    }
+}
+
+/// The eager planner of the phantom: the anatomy built up front, then `ops` applied.
+fn eager_planner(ops: &[EditOp]) -> resecta_plan::Planner {
+    use resecta_plan::{Anatomy, Plan, Planner};
+    let roles = RoleMap::default();
+    let anatomy = Arc::new(Anatomy::new(&phantom(), &roles).unwrap());
+    let mut planner = Planner::new(anatomy, Plan::new(roles)).unwrap();
+    for op in ops {
+        match op.clone() {
+            EditOp::InitFromEndPoint {
+                name,
+                target,
+                end_point,
+                grid,
+            } => {
+                let (r, _) = planner
+                    .initial_resection(&name, &target, end_point.into(), grid)
+                    .unwrap();
+                planner
+                    .edit(PlanEvent::AddResection { resection: r })
+                    .unwrap();
+            }
+            EditOp::Event { event } => {
+                planner.edit(event).unwrap();
+            }
+            other => panic!("not used here: {other:?}"),
+        }
+    }
+    planner
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sessions_restored_in_the_background_plan_like_an_eager_planner() {
+    let dir = tempfile::tempdir().unwrap();
+    let before = [init_op(), drag([-6.0, 4.0, 3.0])];
+    let ids: Vec<String> = {
+        let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
+        let service = Arc::new(Service::new(store, config()));
+        let mut ids = Vec::new();
+        for name in ["older", "newer"] {
+            let id = loaded_session(&service, name).await;
+            for op in &before {
+                service.edit(&id, 0, op.clone()).await.unwrap();
+            }
+            ids.push(id);
+        }
+        ids
+    };
+    let store = Arc::new(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
+    let service = Arc::new(Service::new(store, config()));
+    let restoring = service.restore_in_background();
+    // A call on the newer session meanwhile waits for (or does) its restore.
+    let after = drag([-8.0, 5.0, 2.0]);
+    let outcome = service.edit(&ids[1], 0, after.clone()).await.unwrap();
+    restoring.await.unwrap();
+    let mut eager = eager_planner(&[before[0].clone(), before[1].clone(), after]);
+    let state = eager.state("r1").unwrap();
+    assert_eq!(outcome.resections[0].verdict.as_ref(), Some(&state.verdict));
+    let mut w = service.watch(&ids[1], None).await.unwrap();
+    let shown = snapshot_frame(&*next(&mut w).await, "r1");
+    let frame = frame_of(state);
+    assert_same_surface(&shown, &frame);
+    let volumes = service.volumes(&ids[1]).await.unwrap().value;
+    assert_eq!(
+        serde_json::to_string(&volumes).unwrap(),
+        serde_json::to_string(&eager.volumes().unwrap()).unwrap()
+    );
+    // The older session, restored by the background task alone, has its plan and surface.
+    let mut eager = eager_planner(&before);
+    let mut w = service.watch(&ids[0], None).await.unwrap();
+    let shown = snapshot_frame(&*next(&mut w).await, "r1");
+    let frame = frame_of(eager.state("r1").unwrap());
+    assert_same_surface(&shown, &frame);
+    let volumes = service.volumes(&ids[0]).await.unwrap().value;
+    assert_eq!(
+        serde_json::to_string(&volumes).unwrap(),
+        serde_json::to_string(&eager.volumes().unwrap()).unwrap()
+    );
+    // Restoring in the background records no access.
+    let listed = service.list_sessions().await.unwrap();
+    let older = listed.iter().find(|s| s.id == ids[0]).unwrap();
+    assert_eq!(older.plan_version, 3);
+}
