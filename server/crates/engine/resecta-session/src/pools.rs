@@ -4,8 +4,9 @@
 //! worker may just have been preempted, which puts scheduler time slices into the edit's latency
 //! tail; one thread per edit also never wakes a sleeping sibling. Other edits run on rayon's
 //! global pool, so their parallel loops fork inside a worker instead of queueing behind other
-//! callers. Heavy work —
-//! reconstruction, planning set-up, volumes recomputed between edits — runs on a background pool
+//! callers. A planner set-up (after an upload or a restore: a client is about to wait for it)
+//! runs on a pool of its own at normal priority. Other heavy work —
+//! reconstruction, volumes recomputed between edits — runs on a background pool
 //! whose threads are in the idle scheduling class (Linux `SCHED_IDLE`; elsewhere the lowest
 //! priority), so the edits of a drag preempt it and a long job never holds the workers an edit
 //! needs.
@@ -25,6 +26,10 @@ pub(crate) enum Priority {
     Quick,
     /// Throughput matters; yields the cores to interactive work.
     Background,
+    /// A planner set-up (after an upload, or a restore): heavy, but a client is about to wait
+    /// for it; its own pool at normal priority, so it neither queues behind edits' fork-joins
+    /// nor starves behind every other thread of the machine.
+    SetUp,
 }
 
 fn background() -> Option<&'static rayon::ThreadPool> {
@@ -44,13 +49,25 @@ fn background() -> Option<&'static rayon::ThreadPool> {
     .as_ref()
 }
 
-/// Threads of the background pool.
+/// Threads of the set-up pool.
 #[cfg(test)]
-pub(crate) fn background_threads() -> usize {
-    background().map_or_else(
+pub(crate) fn set_up_threads() -> usize {
+    set_up().map_or_else(
         rayon::current_num_threads,
         rayon::ThreadPool::current_num_threads,
     )
+}
+
+fn set_up() -> Option<&'static rayon::ThreadPool> {
+    static POOL: OnceLock<Option<rayon::ThreadPool>> = OnceLock::new();
+    POOL.get_or_init(|| {
+        rayon::ThreadPoolBuilder::new()
+            .thread_name(|k| format!("resecta-setup-{k}"))
+            .build()
+            .map_err(|e| tracing::error!(error = %e, "set-up pool; using the global pool"))
+            .ok()
+    })
+    .as_ref()
 }
 
 /// A single-thread pool and the number of its jobs queued or running.
@@ -121,6 +138,10 @@ pub(crate) async fn run<T: Send + 'static>(
                     queued.fetch_sub(1, Ordering::Relaxed);
                 });
             }
+            None => rayon::spawn(job),
+        },
+        Priority::SetUp => match set_up() {
+            Some(pool) => pool.spawn(job),
             None => rayon::spawn(job),
         },
         Priority::Interactive => rayon::spawn(job),

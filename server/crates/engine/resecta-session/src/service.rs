@@ -2,8 +2,9 @@
 //! faces alike.
 //!
 //! Per session, one async mutex orders the operations. CPU work runs off the runtime (module
-//! `pools`): small edits on single-thread quick pools, others on rayon's pool, heavy work (anatomy set-up after an upload or a restart,
-//! volumes between edits, reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
+//! `pools`): small edits on single-thread quick pools, others on rayon's pool, the planner set-up
+//! after an upload or a restore on a set-up pool, other heavy work (volumes between edits,
+//! reconstruction) on an idle-class background pool, store I/O on the blocking pool, so a long
 //! job never stalls the runtime or another session's edits. Watchers see an edit as soon as it is
 //! computed; it is acknowledged only after its log record is durable in the store (a record that
 //! cannot be stored rolls the edit back, and watchers get a snapshot of the plan as it was);
@@ -94,14 +95,9 @@ impl Service {
 
     /// Restores a session's label map, plan and models from the store (in the background at
     /// start-up, or on first use): the label map and the plan at once, the planner's set-up
-    /// (anatomy, then the plan's resections) on the pool for `priority`, where the next call
+    /// (anatomy, then the plan's resections) on the set-up pool, where the next call
     /// that needs the planner waits for it; watchers see the resections once it is built.
-    pub(crate) async fn restore(
-        &self,
-        s: &Session,
-        st: &mut State,
-        priority: Priority,
-    ) -> Result<()> {
+    pub(crate) async fn restore(&self, s: &Session, st: &mut State) -> Result<()> {
         if st.restored {
             return Ok(());
         }
@@ -110,7 +106,8 @@ impl Service {
         let max_voxels = self.config.max_voxels;
         // The store on the blocking pool; decoding and replay on a worker pool.
         let stored = blocking(move || log::load(&*store, &id)).await?;
-        let restored = pools::run(priority, move || log::rebuild(stored, max_voxels)).await??;
+        let restored =
+            pools::run(Priority::SetUp, move || log::rebuild(stored, max_voxels)).await??;
         let log::Restored {
             rec,
             version,
@@ -132,7 +129,8 @@ impl Service {
                 history: Some(history),
                 deleted: Arc::clone(&s.deleted),
             };
-            let pending = spawn_planner(setup, priority, Some((Arc::clone(&s.hub), version)));
+            let pending =
+                spawn_planner(setup, Priority::SetUp, Some((Arc::clone(&s.hub), version)));
             st.loaded = Some(Loaded {
                 labels,
                 summary,
@@ -152,8 +150,8 @@ impl Service {
 
     /// Restores every stored session in the background, most recently used first, one at a
     /// time (its planner set up before the next starts), while the memory budget allows; a call
-    /// for a session the restorer has not reached restores that one at once, at interactive
-    /// priority. Restoring records no access (idle expiry is unchanged).
+    /// for a session the restorer has not reached restores that one at once, beside it.
+    /// Restoring records no access (idle expiry is unchanged).
     pub fn restore_in_background(self: &Arc<Self>) -> tokio::task::JoinHandle<()> {
         let service = Arc::clone(self);
         tokio::spawn(async move {
@@ -199,7 +197,7 @@ impl Service {
             if st.restored {
                 continue;
             }
-            let restored = match self.restore(&s, &mut st, Priority::Background).await {
+            let restored = match self.restore(&s, &mut st).await {
                 Ok(()) => match st.loaded.as_mut() {
                     Some(loaded) => loaded.ready().await.map(|_| ()),
                     None => Ok(()),
@@ -222,7 +220,7 @@ impl Service {
     ) -> Result<(Arc<Session>, tokio::sync::OwnedMutexGuard<State>)> {
         let s = self.session(id).await?;
         let mut st = Arc::clone(&s.state).lock_owned().await;
-        self.restore(&s, &mut st, Priority::Interactive).await?;
+        self.restore(&s, &mut st).await?;
         Ok((s, st))
     }
 
@@ -285,7 +283,7 @@ impl Service {
             history: None,
             deleted: Arc::clone(&s.deleted),
         };
-        let pending = spawn_planner(setup, Priority::Background, None);
+        let pending = spawn_planner(setup, Priority::SetUp, None);
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let version = st.version;

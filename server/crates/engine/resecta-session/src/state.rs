@@ -128,7 +128,7 @@ impl Loaded {
                 }
                 Err(SessionError::Cancelled) => return Err(SessionError::Cancelled),
                 Err(e) => {
-                    self.pending = Some(spawn_planner(setup, Priority::Background, publish));
+                    self.pending = Some(spawn_planner(setup, Priority::SetUp, publish));
                     return Err(e);
                 }
             }
@@ -237,12 +237,12 @@ mod tests {
         })
     }
 
-    /// Occupies every background worker until the returned gate opens.
+    /// Occupies every set-up worker until the returned gate opens.
     fn hold_background() -> Arc<(Mutex<bool>, Condvar)> {
         let gate = Arc::new((Mutex::new(false), Condvar::new()));
-        for _ in 0..pools::background_threads() {
+        for _ in 0..pools::set_up_threads() {
             let gate = Arc::clone(&gate);
-            tokio::spawn(pools::run(Priority::Background, move || {
+            tokio::spawn(pools::run(Priority::SetUp, move || {
                 let (open, cv) = &*gate;
                 let mut g = open.lock().unwrap();
                 while !*g {
