@@ -24,6 +24,16 @@ def test_bench_server_quick_smoke(resecta, tmp_path):
     assert rep["upload"]["bytes"] == 512 * 512 * 300 and rep["upload"]["median_s"] > 0
     assert (tmp_path / "edit_latency_cdf.png").stat().st_size > 0
     assert (tmp_path / "edit_latency_cdf.svg").stat().st_size > 0
+    ready, restart = rep["ready"], rep["restart"]
+    assert ready["dims"] == [512, 512, 300]
+    for f in ("ack", "first_resection_from_ack", "first_resection_from_start", "volumes_from_start"):
+        assert len(ready[f]["runs_s"]) == 1 and ready[f]["median_s"] > 0
+    assert ready["first_resection_from_start"]["median_s"] > ready["first_resection_from_ack"]["median_s"]
+    assert ready["volumes_from_start"]["median_s"] >= ready["first_resection_from_start"]["median_s"]
+    assert restart["older_sessions"] == 1
+    for f in ("bound", "first_edit", "volumes_after_edit", "first_volumes"):
+        assert restart[f]["runs_s"] and restart[f]["min_s"] <= restart[f]["median_s"] <= restart[f]["max_s"]
+    assert restart["volumes_after_edit"]["median_s"] >= restart["first_edit"]["median_s"]
 
 
 def test_bench_server_python_client_quick_smoke(resecta):
@@ -53,3 +63,10 @@ def test_bench_server_python_client_refuses_a_missing_driver(resecta, tmp_path):
     r = resecta("bench", "server", "--client", "python", "--quick",
                 "--python-driver", tmp_path / "absent.py", check=False)
     assert r.code == 2 and "driver" in r.stderr
+
+def test_bench_server_runs_only_the_scenarios_asked_for(resecta):
+    rep = resecta("bench", "server", "--quick", "--json", "--scenarios", "upload").json()
+    assert rep["latencies"] == [] and rep["idle_session_bytes"] is None
+    assert rep["concurrent_p99_ratio"] is None
+    assert rep["upload"]["bytes"] == 512 * 512 * 300
+    assert rep["ready"] is None and rep["restart"] is None

@@ -3,8 +3,9 @@
 //! `--addr` names a running server, uploads the demo phantom, and measures
 //! edit → delta latency as a watching client sees it (the time from sending an edit until the
 //! watch stream delivers the delta of that plan version), alone at 40×40 and 200×200 and with many
-//! sessions editing at a fixed rate at once; the server's memory per idle session; and the upload
-//! time of a 512×512×300 u8 label map.
+//! sessions editing at a fixed rate at once; the server's memory per idle session; the upload
+//! time of a 512×512×300 u8 label map; and how soon such a session plans after its upload and
+//! after a restart (`bench_ready`). `--scenarios` picks some of these.
 
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -20,6 +21,7 @@ use serde::Serialize;
 use tokio::sync::mpsc;
 use tonic::transport::Channel;
 
+use crate::bench_ready::Scenario;
 use crate::error::CliError;
 use crate::output::{print_json, progress};
 
@@ -61,6 +63,8 @@ pub struct ServerArgs {
     pub json: bool,
     #[command(flatten)]
     pub drag: Box<crate::bench_python::DragArgs>,
+    #[command(flatten)]
+    pub ready: crate::bench_ready::ReadyArgs,
 }
 
 /// Latency percentiles of one scenario (milliseconds).
@@ -115,7 +119,11 @@ struct Report {
     /// Server resident memory per idle session with the demo label map and one resection
     /// (bytes); absent against `--addr`.
     idle_session_bytes: Option<f64>,
-    upload: Upload,
+    upload: Option<Upload>,
+    /// Upload → first resection → volumes (`bench_ready`).
+    ready: Option<crate::bench_ready::Ready>,
+    /// Restart → first planning call (`bench_ready`).
+    restart: Option<crate::bench_ready::Restart>,
 }
 
 pub(crate) type Client = PlanningServiceClient<Channel>;
@@ -206,7 +214,7 @@ pub(crate) struct LabelMap {
     pub(crate) data: Vec<u8>,
 }
 
-fn demo_label_map() -> Result<LabelMap, CliError> {
+pub(crate) fn demo_label_map() -> Result<LabelMap, CliError> {
     let phantom = generate(&PhantomSpec::demo()).map_err(|e| CliError::Failed(e.to_string()))?;
     let g = phantom.labels.grid();
     let d = g.direction();
@@ -232,7 +240,7 @@ fn demo_label_map() -> Result<LabelMap, CliError> {
 }
 
 /// A 512×512×300 u8 label map at 0.7×0.7×1 mm: an ellipsoid liver (1) with a tumour (2).
-fn large_label_map() -> LabelMap {
+pub(crate) fn large_label_map() -> LabelMap {
     let (nx, ny, nz) = (512usize, 512usize, 300usize);
     let mut data = vec![0u8; nx * ny * nz];
     for k in 0..nz {
@@ -486,7 +494,7 @@ pub(crate) struct Timed {
     pub(crate) ack_ms: f64,
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }
@@ -652,7 +660,7 @@ async fn paced(
     Ok(l)
 }
 
-async fn delete(channel: &Channel, token: Option<&str>, id: &str) {
+pub(crate) async fn delete(channel: &Channel, token: Option<&str>, id: &str) {
     let mut client = PlanningServiceClient::new(channel.clone());
     let _ = client
         .delete_session(request(
@@ -833,28 +841,50 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
     };
 
     let pid = server.as_ref().map(|s| s.child.id());
-    // First, on a fresh process: later the allocator holds memory freed by earlier scenarios and
-    // new sessions reuse it, which would understate their cost.
-    let idle_session_bytes = match &server {
-        Some(s) => {
+    let scenarios = &args.ready;
+    let mut idle_session_bytes = None;
+    let mut latencies = Vec::new();
+    let (mut ratio, mut ratio_paced) = (f64::NAN, f64::NAN);
+    if scenarios.runs(Scenario::Latency) {
+        // First, on a fresh process: later the allocator holds memory freed by earlier
+        // scenarios and new sessions reuse it, which would understate their cost.
+        if let Some(s) = &server {
             pb.set_message("idle sessions");
             let n = if args.quick { 2 } else { args.idle_sessions };
-            Some(idle_memory(&channel, token, &map, s.child.id(), n).await?)
+            idle_session_bytes = Some(idle_memory(&channel, token, &map, s.child.id(), n).await?);
         }
-        None => None,
-    };
-    pb.set_message("single session, 40×40");
-    let s40 = single(&channel, token, &map, [40, 40], edits, pid).await?;
-    pb.set_message("single session, 200×200");
-    let s200 = single(&channel, token, &map, [200, 200], edits, pid).await?;
-    pb.set_message(format!("1 session at {}/s", args.rate));
-    let alone = paced(&channel, token, &map, args, 1, seconds, pid).await?;
-    pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
-    let multi = paced(&channel, token, &map, args, args.sessions, seconds, pid).await?;
-    pb.set_message("512×512×300 upload");
-    let upload = uploads(&channel, token, if args.quick { 1 } else { args.uploads }).await?;
-    pb.finish_and_clear();
+        pb.set_message("single session, 40×40");
+        let s40 = single(&channel, token, &map, [40, 40], edits, pid).await?;
+        pb.set_message("single session, 200×200");
+        let s200 = single(&channel, token, &map, [200, 200], edits, pid).await?;
+        pb.set_message(format!("1 session at {}/s", args.rate));
+        let alone = paced(&channel, token, &map, args, 1, seconds, pid).await?;
+        pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
+        let multi = paced(&channel, token, &map, args, args.sessions, seconds, pid).await?;
+        ratio = multi.p99_ms / s40.p99_ms;
+        ratio_paced = multi.p99_ms / alone.p99_ms;
+        latencies = vec![s40, s200, alone, multi];
+    }
+    let ready_runs = if args.quick { 1 } else { scenarios.ready_runs };
+    let mut upload = None;
+    if scenarios.runs(Scenario::Upload) {
+        pb.set_message("512×512×300 upload");
+        let runs = if args.quick { 1 } else { args.uploads };
+        upload = Some(uploads(&channel, token, runs).await?);
+    }
+    let mut ready = None;
+    if scenarios.runs(Scenario::Ready) {
+        pb.set_message("512×512×300 upload → first resection");
+        ready = Some(crate::bench_ready::ready(&channel, token, ready_runs).await?);
+    }
     drop(server);
+    let mut restart = None;
+    if scenarios.runs(Scenario::Restart) {
+        pb.set_message("restart → first planning call");
+        let older = if args.quick { 1 } else { 3 };
+        restart = Some(crate::bench_ready::restart(ready_runs, older).await?);
+    }
+    pb.finish_and_clear();
 
     let report = Report {
         quick: args.quick,
@@ -865,18 +895,48 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         } else {
             "started by the benchmark (resecta serve, SQLite data dir)"
         },
-        concurrent_p99_ratio: multi.p99_ms / s40.p99_ms,
-        concurrent_p99_ratio_paced: multi.p99_ms / alone.p99_ms,
-        latencies: vec![s40, s200, alone, multi],
+        concurrent_p99_ratio: ratio,
+        concurrent_p99_ratio_paced: ratio_paced,
+        latencies,
         idle_session_bytes,
         upload,
+        ready,
+        restart,
     };
-    if let Some(dir) = &args.plot_dir {
+    if let Some(dir) = &args.plot_dir
+        && !report.latencies.is_empty()
+    {
         plot(dir, &report.latencies)?;
     }
     if args.json {
         return print_json(&report);
     }
+    if !report.latencies.is_empty() {
+        print_latencies(&report.latencies);
+        println!(
+            "concurrent p99 / single p99 = {:.2} (back to back), {:.2} (same pace)",
+            report.concurrent_p99_ratio, report.concurrent_p99_ratio_paced
+        );
+    }
+    if let Some(b) = report.idle_session_bytes {
+        println!("server memory per idle session: {:.1} MB", b / 1e6);
+    }
+    if let Some(u) = &report.upload {
+        println!(
+            "upload 512×512×300 u8 ({:.1} MB): median {:.3} s",
+            u.bytes as f64 / 1e6,
+            u.median_s
+        );
+    }
+    crate::bench_ready::print(report.ready.as_ref(), report.restart.as_ref());
+    println!(
+        "machine: {} ({} logical cores)",
+        report.cpu, report.logical_cores
+    );
+    Ok(())
+}
+
+fn print_latencies(latencies: &[Latency]) {
     println!(
         "{:<22} {:>9} {:>8} {:>6} {:>8} {:>8} {:>8} {:>8} {:>10} {:>10}",
         "scenario",
@@ -890,7 +950,7 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         "ack p50",
         "ack p99"
     );
-    for l in &report.latencies {
+    for l in latencies {
         println!(
             "{:<22} {:>9} {:>8} {:>6} {:>8.2} {:>8.2} {:>8.2} {:>8.2} {:>10.2} {:>10.2}",
             l.scenario,
@@ -905,21 +965,4 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
             l.ack_p99_ms
         );
     }
-    println!(
-        "concurrent p99 / single p99 = {:.2} (back to back), {:.2} (same pace)",
-        report.concurrent_p99_ratio, report.concurrent_p99_ratio_paced
-    );
-    if let Some(b) = report.idle_session_bytes {
-        println!("server memory per idle session: {:.1} MB", b / 1e6);
-    }
-    println!(
-        "upload 512×512×300 u8 ({:.1} MB): median {:.3} s",
-        report.upload.bytes as f64 / 1e6,
-        report.upload.median_s
-    );
-    println!(
-        "machine: {} ({} logical cores)",
-        report.cpu, report.logical_cores
-    );
-    Ok(())
 }

@@ -5,6 +5,7 @@
 
 mod bench;
 mod bench_python;
+mod bench_ready;
 mod bench_server;
 mod bezier;
 mod demo;
