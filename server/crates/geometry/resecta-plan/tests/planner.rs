@@ -490,11 +490,14 @@ fn a_cancelled_set_up_stops_with_cancelled_and_an_uncancelled_one_matches_new() 
         let verdicts: Vec<Verdict> = [&a, &b]
             .into_iter()
             .map(|anatomy| {
-                let mut planner = Planner::new(Arc::clone(anatomy), Plan::new(roles.clone())).unwrap();
+                let mut planner =
+                    Planner::new(Arc::clone(anatomy), Plan::new(roles.clone())).unwrap();
                 let (r, _) = planner
                     .initial_resection("r", &target, Vec3::new(-30.0, 0.0, 0.0), [4, 4])
                     .unwrap();
-                planner.edit(PlanEvent::AddResection { resection: r }).unwrap();
+                planner
+                    .edit(PlanEvent::AddResection { resection: r })
+                    .unwrap();
                 planner.state("r").unwrap().verdict.clone()
             })
             .collect();
