@@ -1064,7 +1064,9 @@ fn eager_planner(ops: &[EditOp]) -> resecta_plan::Planner {
             EditOp::Event { event } => {
                 planner.edit(event).unwrap();
             }
-            other => panic!("not used here: {other:?}"),
+            other @ (EditOp::InitFromPlane { .. } | EditOp::Undo | EditOp::Redo) => {
+                panic!("not used here: {other:?}")
+            }
         }
     }
     planner
