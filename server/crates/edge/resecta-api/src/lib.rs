@@ -1,7 +1,9 @@
 //! The `resecta.v1` gRPC API, generated from `proto/resecta/v1/*.proto` at build time: prost
 //! messages, the tonic server trait and service
 //! ([`v1::planning_service_server::PlanningService`], [`v1::planning_service_server::PlanningServiceServer`])
-//! and the client ([`v1::planning_service_client::PlanningServiceClient`]). No logic lives here.
+//! and the client ([`v1::planning_service_client::PlanningServiceClient`]), and every message's
+//! serde impls in the canonical protobuf JSON mapping (pbjson: the HTTP face's bodies, equal to
+//! what `json_format.MessageToJson` makes of the same message). No logic lives here.
 
 /// Messages and stubs of package `resecta.v1`.
 // Generated code; its style is prost's and tonic's (e.g. the inline `Snapshot` of
@@ -9,6 +11,7 @@
 #[allow(clippy::all)]
 pub mod v1 {
     include!(concat!(env!("OUT_DIR"), "/resecta.v1.rs"));
+    include!(concat!(env!("OUT_DIR"), "/resecta.v1.serde.rs"));
 }
 
 /// The encoded `google.protobuf.FileDescriptorSet` of every `resecta.v1` file (with source
