@@ -19,7 +19,7 @@ class GetServerInfoRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class ServerLimits(_message.Message):
-    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s")
+    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes")
     MAX_VOXELS_FIELD_NUMBER: _ClassVar[int]
     MAX_SESSIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_UPLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
@@ -29,6 +29,7 @@ class ServerLimits(_message.Message):
     MAX_CONTROL_POINTS_FIELD_NUMBER: _ClassVar[int]
     MAX_RESOLUTION_FIELD_NUMBER: _ClassVar[int]
     SESSION_IDLE_TIMEOUT_S_FIELD_NUMBER: _ClassVar[int]
+    MAX_MEMORY_BYTES_FIELD_NUMBER: _ClassVar[int]
     max_voxels: int
     max_sessions: int
     max_upload_bytes: int
@@ -38,7 +39,8 @@ class ServerLimits(_message.Message):
     max_control_points: int
     max_resolution: int
     session_idle_timeout_s: int
-    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ...) -> None: ...
+    max_memory_bytes: int
+    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ...) -> None: ...
 
 class GetServerInfoResponse(_message.Message):
     __slots__ = ("server_version", "api_version", "capabilities", "limits")
@@ -133,7 +135,7 @@ class ReconstructResponse(_message.Message):
     def __init__(self, progress: _Optional[_Union[_reconstruction_pb2.ReconstructProgress, _Mapping]] = ..., model: _Optional[_Union[_reconstruction_pb2.ModelInfo, _Mapping]] = ..., done: _Optional[_Union[_reconstruction_pb2.ReconstructDone, _Mapping]] = ...) -> None: ...
 
 class EditRequest(_message.Message):
-    __slots__ = ("session_id", "base_version", "init_from_end_point", "init_from_plane", "set_control_point", "set_control_points", "move_group", "translate", "rotate", "set_margin", "set_band", "set_resolution", "set_target", "delete_resection", "undo", "redo")
+    __slots__ = ("session_id", "base_version", "init_from_end_point", "init_from_plane", "set_control_point", "set_control_points", "move_group", "translate", "rotate", "set_margin", "set_band", "set_resolution", "set_target", "delete_resection", "undo", "redo", "add_resection")
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     BASE_VERSION_FIELD_NUMBER: _ClassVar[int]
     INIT_FROM_END_POINT_FIELD_NUMBER: _ClassVar[int]
@@ -150,6 +152,7 @@ class EditRequest(_message.Message):
     DELETE_RESECTION_FIELD_NUMBER: _ClassVar[int]
     UNDO_FIELD_NUMBER: _ClassVar[int]
     REDO_FIELD_NUMBER: _ClassVar[int]
+    ADD_RESECTION_FIELD_NUMBER: _ClassVar[int]
     session_id: str
     base_version: int
     init_from_end_point: _resection_pb2.InitFromEndPoint
@@ -166,7 +169,8 @@ class EditRequest(_message.Message):
     delete_resection: _resection_pb2.DeleteResection
     undo: _resection_pb2.Undo
     redo: _resection_pb2.Redo
-    def __init__(self, session_id: _Optional[str] = ..., base_version: _Optional[int] = ..., init_from_end_point: _Optional[_Union[_resection_pb2.InitFromEndPoint, _Mapping]] = ..., init_from_plane: _Optional[_Union[_resection_pb2.InitFromPlane, _Mapping]] = ..., set_control_point: _Optional[_Union[_resection_pb2.SetControlPoint, _Mapping]] = ..., set_control_points: _Optional[_Union[_resection_pb2.SetControlPoints, _Mapping]] = ..., move_group: _Optional[_Union[_resection_pb2.MoveGroup, _Mapping]] = ..., translate: _Optional[_Union[_resection_pb2.Translate, _Mapping]] = ..., rotate: _Optional[_Union[_resection_pb2.Rotate, _Mapping]] = ..., set_margin: _Optional[_Union[_resection_pb2.SetMargin, _Mapping]] = ..., set_band: _Optional[_Union[_resection_pb2.SetBand, _Mapping]] = ..., set_resolution: _Optional[_Union[_resection_pb2.SetResolution, _Mapping]] = ..., set_target: _Optional[_Union[_resection_pb2.SetTarget, _Mapping]] = ..., delete_resection: _Optional[_Union[_resection_pb2.DeleteResection, _Mapping]] = ..., undo: _Optional[_Union[_resection_pb2.Undo, _Mapping]] = ..., redo: _Optional[_Union[_resection_pb2.Redo, _Mapping]] = ...) -> None: ...
+    add_resection: _resection_pb2.AddResection
+    def __init__(self, session_id: _Optional[str] = ..., base_version: _Optional[int] = ..., init_from_end_point: _Optional[_Union[_resection_pb2.InitFromEndPoint, _Mapping]] = ..., init_from_plane: _Optional[_Union[_resection_pb2.InitFromPlane, _Mapping]] = ..., set_control_point: _Optional[_Union[_resection_pb2.SetControlPoint, _Mapping]] = ..., set_control_points: _Optional[_Union[_resection_pb2.SetControlPoints, _Mapping]] = ..., move_group: _Optional[_Union[_resection_pb2.MoveGroup, _Mapping]] = ..., translate: _Optional[_Union[_resection_pb2.Translate, _Mapping]] = ..., rotate: _Optional[_Union[_resection_pb2.Rotate, _Mapping]] = ..., set_margin: _Optional[_Union[_resection_pb2.SetMargin, _Mapping]] = ..., set_band: _Optional[_Union[_resection_pb2.SetBand, _Mapping]] = ..., set_resolution: _Optional[_Union[_resection_pb2.SetResolution, _Mapping]] = ..., set_target: _Optional[_Union[_resection_pb2.SetTarget, _Mapping]] = ..., delete_resection: _Optional[_Union[_resection_pb2.DeleteResection, _Mapping]] = ..., undo: _Optional[_Union[_resection_pb2.Undo, _Mapping]] = ..., redo: _Optional[_Union[_resection_pb2.Redo, _Mapping]] = ..., add_resection: _Optional[_Union[_resection_pb2.AddResection, _Mapping]] = ...) -> None: ...
 
 class EditResponse(_message.Message):
     __slots__ = ("plan_version", "resections", "removed")

@@ -178,8 +178,8 @@ class PlanningServiceServicer:
         raise NotImplementedError('Method not implemented!')
 
     def Edit(self, request, context):
-        """Applies one resection operation (init, control points, groups, translate, rotate, margin,
-        band, resolution, target, delete, undo, redo) and returns the new plan version and the
+        """Applies one resection operation (init, add, control points, groups, translate, rotate,
+        margin, band, resolution, target, delete, undo, redo) and returns the new plan version and the
         affected resections with their verdicts. The edit is durable when this returns. With a
         non-zero `base_version` other than the current plan version it is refused with ABORTED
         (STALE_VERSION): edits are never rebased. FAILED_PRECONDITION (NO_LABEL_MAP) before a label

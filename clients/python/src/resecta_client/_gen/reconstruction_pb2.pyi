@@ -41,20 +41,22 @@ class ReconstructProgress(_message.Message):
     def __init__(self, stage: _Optional[str] = ..., fraction: _Optional[float] = ...) -> None: ...
 
 class ModelInfo(_message.Message):
-    __slots__ = ("name", "kind", "label", "triangle_count", "vertex_count", "volume_ml")
+    __slots__ = ("name", "kind", "label", "triangle_count", "vertex_count", "volume_ml", "method")
     NAME_FIELD_NUMBER: _ClassVar[int]
     KIND_FIELD_NUMBER: _ClassVar[int]
     LABEL_FIELD_NUMBER: _ClassVar[int]
     TRIANGLE_COUNT_FIELD_NUMBER: _ClassVar[int]
     VERTEX_COUNT_FIELD_NUMBER: _ClassVar[int]
     VOLUME_ML_FIELD_NUMBER: _ClassVar[int]
+    METHOD_FIELD_NUMBER: _ClassVar[int]
     name: str
     kind: _surface_pb2.SurfaceKind
     label: int
     triangle_count: int
     vertex_count: int
     volume_ml: float
-    def __init__(self, name: _Optional[str] = ..., kind: _Optional[_Union[_surface_pb2.SurfaceKind, str]] = ..., label: _Optional[int] = ..., triangle_count: _Optional[int] = ..., vertex_count: _Optional[int] = ..., volume_ml: _Optional[float] = ...) -> None: ...
+    method: ReconstructionMethod
+    def __init__(self, name: _Optional[str] = ..., kind: _Optional[_Union[_surface_pb2.SurfaceKind, str]] = ..., label: _Optional[int] = ..., triangle_count: _Optional[int] = ..., vertex_count: _Optional[int] = ..., volume_ml: _Optional[float] = ..., method: _Optional[_Union[ReconstructionMethod, str]] = ...) -> None: ...
 
 class ReconstructDone(_message.Message):
     __slots__ = ("model_count", "elapsed_s", "dropped", "min_component_mm3")

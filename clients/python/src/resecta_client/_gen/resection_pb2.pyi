@@ -202,6 +202,12 @@ class DeleteResection(_message.Message):
     name: str
     def __init__(self, name: _Optional[str] = ...) -> None: ...
 
+class AddResection(_message.Message):
+    __slots__ = ("resection",)
+    RESECTION_FIELD_NUMBER: _ClassVar[int]
+    resection: Resection
+    def __init__(self, resection: _Optional[_Union[Resection, _Mapping]] = ...) -> None: ...
+
 class Undo(_message.Message):
     __slots__ = ()
     def __init__(self) -> None: ...

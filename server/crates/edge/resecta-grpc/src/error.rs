@@ -1,5 +1,6 @@
 //! Every error this face returns, mapped to a gRPC status once: operation-layer errors
-//! ([`SessionError`]), access refusals ([`AccessError`]) and malformed wire input ([`WireError`]).
+//! ([`SessionError`]), access refusals ([`AccessError`]) and malformed wire input ([`WireError`],
+//! from `resecta-face`).
 //! Each status carries a `google.rpc.Status` in its details (the `grpc-status-details-bin`
 //! trailer) whose one `Any` is a `resecta.v1.ErrorInfo`, as proto/README.md prescribes.
 
@@ -7,6 +8,7 @@ use prost::Message;
 use resecta_api::ERROR_INFO_TYPE_URL;
 use resecta_api::v1::ErrorInfo;
 use resecta_auth::AccessError;
+use resecta_face::{FaceError, WireError};
 use resecta_session::{ErrorKind, SessionError};
 use tonic::{Code, Status};
 
@@ -22,47 +24,6 @@ pub struct RpcStatus {
     /// One `resecta.v1.ErrorInfo`.
     #[prost(message, repeated, tag = "3")]
     pub details: Vec<prost_types::Any>,
-}
-
-/// Request input refused before it reaches the operation layer.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum WireError {
-    /// A field is missing, NaN, out of range, of the wrong length or UNSPECIFIED.
-    #[error("{field}: {message}")]
-    Invalid { field: String, message: String },
-    /// An upload stream is malformed (header missing or repeated, chunk too big, wrong length).
-    #[error("{field}: {message}")]
-    BadChunk { field: String, message: String },
-    /// An upload is larger than the server accepts.
-    #[error("{0}")]
-    TooLarge(String),
-    /// A message would exceed the largest the server sends.
-    #[error("{0}")]
-    MessageTooLarge(String),
-    /// The request needs a state or setting the server does not have.
-    #[error("{field}: {message}")]
-    Precondition { field: String, message: String },
-    /// A valid request this server cannot serve (yet).
-    #[error("{field}: {message}")]
-    Unsupported { field: String, message: String },
-}
-
-impl WireError {
-    /// An [`WireError::Invalid`] of `field`.
-    pub fn invalid(field: impl Into<String>, message: impl Into<String>) -> Self {
-        Self::Invalid {
-            field: field.into(),
-            message: message.into(),
-        }
-    }
-
-    /// A [`WireError::BadChunk`] of `field`.
-    pub fn bad_chunk(field: impl Into<String>, message: impl Into<String>) -> Self {
-        Self::BadChunk {
-            field: field.into(),
-            message: message.into(),
-        }
-    }
 }
 
 /// A status with `info` in its details.
@@ -122,26 +83,22 @@ pub fn access_status(e: &AccessError) -> Status {
     status(code, e.to_string(), info(name, field))
 }
 
-impl From<WireError> for Status {
-    fn from(e: WireError) -> Self {
-        let message = e.to_string();
-        let (code, detail) = match &e {
-            WireError::Invalid { field, .. } => {
-                (Code::InvalidArgument, info("INVALID_ARGUMENT", field))
-            }
-            WireError::BadChunk { field, .. } => (Code::InvalidArgument, info("BAD_CHUNK", field)),
-            WireError::TooLarge(_) => (Code::ResourceExhausted, info("UPLOAD_TOO_LARGE", "")),
-            WireError::MessageTooLarge(_) => {
-                (Code::ResourceExhausted, info("MESSAGE_TOO_LARGE", ""))
-            }
-            WireError::Precondition { field, .. } => {
-                (Code::FailedPrecondition, info("FAILED_PRECONDITION", field))
-            }
-            WireError::Unsupported { field, .. } => {
-                (Code::Unimplemented, info("UNSUPPORTED", field))
-            }
-        };
-        status(code, message, detail)
+/// The status of malformed wire input.
+pub fn wire_status(e: &WireError) -> Status {
+    let code = match e {
+        WireError::Invalid { .. } | WireError::BadChunk { .. } => Code::InvalidArgument,
+        WireError::TooLarge(_) | WireError::MessageTooLarge(_) => Code::ResourceExhausted,
+        WireError::Precondition { .. } => Code::FailedPrecondition,
+        WireError::Unsupported { .. } => Code::Unimplemented,
+    };
+    status(code, e.to_string(), info(e.code(), e.field()))
+}
+
+/// The status of a shared face operation's error.
+pub fn face_status(e: &FaceError) -> Status {
+    match e {
+        FaceError::Wire(e) => wire_status(e),
+        FaceError::Session(e) => session_status(e),
     }
 }
 
@@ -153,6 +110,12 @@ pub(crate) trait OrStatus<T> {
 impl<T> OrStatus<T> for Result<T, SessionError> {
     fn or_status(self) -> Result<T, Status> {
         self.map_err(|e| session_status(&e))
+    }
+}
+
+impl<T> OrStatus<T> for Result<T, WireError> {
+    fn or_status(self) -> Result<T, Status> {
+        self.map_err(|e| wire_status(&e))
     }
 }
 

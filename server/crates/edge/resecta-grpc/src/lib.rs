@@ -4,15 +4,12 @@
 //!
 //! [`grpc_routes`] is all the server process needs: it adds the routes to its tonic server,
 //! binds, and adds TLS. Every RPC is an adaptation: wire validation and translation in
-//! [`convert`], errors mapped to statuses once in [`error`], no planning logic.
+//! `resecta-face` (shared with the HTTP face), errors mapped to statuses once in [`error`], no
+//! planning logic.
 
 mod access;
-pub mod convert;
 pub mod error;
 mod service;
-pub mod shutdown;
-mod upload;
-mod watch;
 
 use std::sync::Arc;
 
@@ -23,19 +20,12 @@ use resecta_auth::AccessPolicy;
 use resecta_session::Service;
 use tonic::service::Routes;
 
-pub use error::{RpcStatus, WireError, access_status, error_info, session_status};
+pub use error::{RpcStatus, access_status, error_info, session_status};
+pub use resecta_face::{MAX_MESSAGE_BYTES, ShutdownSignal, WireError};
 pub use service::Planning;
-pub use shutdown::ShutdownSignal;
 
 /// Largest request message the server accepts: one 4 MiB chunk plus room for its header.
 pub const MAX_REQUEST_BYTES: usize = MAX_CHUNK_BYTES + (64 << 10);
-
-/// Largest message the server sends (`ServerLimits.max_message_bytes`): one snapshot part
-/// holding one big surface. Clients raise their receive limit to it.
-pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
-
-/// Snapshot parts are filled up to this; a larger single surface travels in a part of its own.
-pub(crate) const SNAPSHOT_PART_BYTES: usize = MAX_CHUNK_BYTES;
 
 /// The gRPC services of the planning server: `resecta.v1.PlanningService` behind `policy`
 /// (token on every call, API version on every call but `GetServerInfo`) with the message size

@@ -1,5 +1,5 @@
 //! `resecta.v1.PlanningService` over [`resecta_session::Service`]: every RPC translates its
-//! request with [`crate::convert`], calls the operation once and translates the answer.
+//! request with [`resecta_face::convert`], calls the operation once and translates the answer.
 
 use std::pin::Pin;
 use std::sync::Arc;
@@ -12,11 +12,11 @@ use resecta_session::Service;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::MAX_MESSAGE_BYTES;
-use crate::convert;
-use crate::error::{OrStatus, WireError, session_status};
-use crate::shutdown::{ShutdownSignal, until_shutdown};
-use crate::upload::Upload;
+use resecta_face::shutdown::{SHUTTING_DOWN, ShutdownSignal, until_shutdown};
+use resecta_face::upload::Upload;
+use resecta_face::{WireError, convert};
+
+use crate::error::{OrStatus, face_status, session_status, wire_status};
 
 type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send>>;
 
@@ -46,11 +46,15 @@ impl Planning {
 }
 
 fn missing_surface() -> Status {
-    WireError::invalid("surface", "is required (model or resection)").into()
+    wire_status(&WireError::invalid(
+        "surface",
+        "is required (model or resection)",
+    ))
 }
 
-fn saturating_u32(v: usize) -> u32 {
-    u32::try_from(v).unwrap_or(u32::MAX)
+/// The status that ends a stream when the server shuts down.
+fn unavailable<T>() -> Result<T, Status> {
+    Err(Status::unavailable(SHUTTING_DOWN))
 }
 
 #[tonic::async_trait]
@@ -59,24 +63,9 @@ impl PlanningService for Planning {
         &self,
         _request: Request<pb::GetServerInfoRequest>,
     ) -> Result<Response<pb::GetServerInfoResponse>, Status> {
-        let info = self.service.info();
-        let config = self.service.config();
-        Ok(Response::new(pb::GetServerInfoResponse {
-            server_version: info.version.to_owned(),
-            api_version: info.api_version.to_owned(),
-            capabilities: info.capabilities,
-            limits: Some(pb::ServerLimits {
-                max_voxels: info.limits.max_voxels,
-                max_sessions: saturating_u32(info.limits.max_sessions),
-                max_upload_bytes: info.limits.max_upload_bytes,
-                max_chunk_bytes: saturating_u32(MAX_CHUNK_BYTES),
-                max_message_bytes: saturating_u32(MAX_MESSAGE_BYTES),
-                max_resections: saturating_u32(resecta_plan::MAX_RESECTIONS),
-                max_control_points: saturating_u32(resecta_bezier::MAX_CONTROL_POINTS),
-                max_resolution: saturating_u32(resecta_plan::resection::MAX_RESOLUTION),
-                session_idle_timeout_s: config.idle_expiry.map_or(0, |d| d.as_secs()),
-            }),
-        }))
+        Ok(Response::new(resecta_face::info::server_info(
+            &self.service,
+        )))
     }
 
     async fn create_session(
@@ -133,22 +122,24 @@ impl PlanningService for Planning {
         request: Request<Streaming<pb::UploadLabelMapRequest>>,
     ) -> Result<Response<pb::UploadLabelMapResponse>, Status> {
         let mut chunks = request.into_inner();
-        let first = chunks
-            .message()
-            .await?
-            .ok_or_else(|| WireError::bad_chunk("header", "the upload stream is empty"))?;
+        let first = chunks.message().await?.ok_or_else(|| {
+            wire_status(&WireError::bad_chunk(
+                "header",
+                "the upload stream is empty",
+            ))
+        })?;
         let max = self.service.config().max_upload_bytes;
-        let mut upload = Upload::start(first.header.as_ref(), max)?;
+        let mut upload = Upload::start(first.header.as_ref(), max).or_status()?;
         // An unknown session fails before any data is taken in.
         self.service
             .get_session(&upload.session_id)
             .await
             .or_status()?;
-        upload.push(first, true)?;
+        upload.push(first, true).or_status()?;
         while let Some(chunk) = chunks.message().await? {
-            upload.push(chunk, false)?;
+            upload.push(chunk, false).or_status()?;
         }
-        let (id, source, roles) = upload.finish()?;
+        let (id, source, roles) = upload.finish().or_status()?;
         let summary = self
             .service
             .upload_label_map(&id, source, roles)
@@ -166,7 +157,7 @@ impl PlanningService for Planning {
         request: Request<pb::ReconstructRequest>,
     ) -> Result<Response<Self::ReconstructStream>, Status> {
         let r = request.into_inner();
-        let options = convert::reconstruct_options(&r)?;
+        let options = convert::reconstruct_options(&r).or_status()?;
         // Dropping the stream (the client cancelled) drops the receiver, which cancels the work.
         let events = self
             .service
@@ -177,7 +168,7 @@ impl PlanningService for Planning {
             Ok(e) => Ok(convert::reconstruct_event(e)),
             Err(e) => Err(session_status(&e)),
         });
-        let stream = until_shutdown(stream, self.shutdown.clone());
+        let stream = until_shutdown(stream, self.shutdown.clone(), unavailable);
         Ok(Response::new(Box::pin(stream)))
     }
 
@@ -186,25 +177,13 @@ impl PlanningService for Planning {
         request: Request<pb::EditRequest>,
     ) -> Result<Response<pb::EditResponse>, Status> {
         let r = request.into_inner();
-        let op = convert::edit(r.edit.as_ref())?;
+        let op = convert::edit(r.edit.as_ref()).or_status()?;
         let out = self
             .service
             .edit(&r.session_id, r.base_version, op)
             .await
             .or_status()?;
-        let answer = pb::EditResponse {
-            plan_version: out.plan_version,
-            resections: out
-                .resections
-                .iter()
-                .map(|r| pb::ResectionStatus {
-                    resection: Some(convert::resection(&r.resection)),
-                    verdict: r.verdict.as_ref().map(convert::verdict),
-                })
-                .collect(),
-            removed: out.removed,
-        };
-        Ok(Response::new(answer))
+        Ok(Response::new(convert::edit_response(out)))
     }
 
     async fn get_volumes(
@@ -256,7 +235,7 @@ impl PlanningService for Planning {
             Some(Surface::Model(n) | Surface::Resection(n)) => n,
             None => return Err(missing_surface()),
         };
-        let format = convert::mesh_format(r.format)?;
+        let format = convert::mesh_format(r.format).or_status()?;
         let file = self
             .service
             .export_model(&r.session_id, name, format)
@@ -281,16 +260,10 @@ impl PlanningService for Planning {
     ) -> Result<Response<pb::GetSlicesResponse>, Status> {
         use pb::get_slices_request::Surface;
         let r = request.get_ref();
-        let at = convert::slice_positions(r)?;
+        let at = convert::slice_positions(r).or_status()?;
         let name = match &r.surface {
             Some(Surface::Resection(n)) => n,
-            Some(Surface::Model(_)) => {
-                return Err(WireError::Unsupported {
-                    field: "model".into(),
-                    message: "slices of models are not supported yet; ask for a resection".into(),
-                }
-                .into());
-            }
+            Some(Surface::Model(_)) => return Err(wire_status(&convert::model_slices())),
             None => return Err(missing_surface()),
         };
         let slices = self
@@ -308,25 +281,13 @@ impl PlanningService for Planning {
         request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchStream>, Status> {
         let r = request.into_inner();
-        let encode = &self.service.config().encode;
-        let refuse = |field: &str, what: &str| -> Status {
-            WireError::Precondition {
-                field: field.to_owned(),
-                message: format!(
-                    "this server sends {what} mesh payloads; the client must accept them"
-                ),
-            }
-            .into()
-        };
-        if encode.zstd_level.is_some() && !r.allow_zstd {
-            return Err(refuse("allow_zstd", "zstd-compressed"));
-        }
-        if encode.quantise.is_some() && !r.allow_quantized {
-            return Err(refuse("allow_quantized", "quantised"));
-        }
+        resecta_face::watch::check_payloads(&self.service, &r).or_status()?;
         let stream =
-            crate::watch::watch(Arc::clone(&self.service), r.session_id, r.since_seq).await?;
-        let stream = until_shutdown(stream, self.shutdown.clone());
+            resecta_face::watch::watch(Arc::clone(&self.service), r.session_id, r.since_seq)
+                .await
+                .or_status()?
+                .map(|m| m.map_err(|e| face_status(&e)));
+        let stream = until_shutdown(stream, self.shutdown.clone(), unavailable);
         Ok(Response::new(Box::pin(stream)))
     }
 }

@@ -148,8 +148,11 @@ pub enum EditOp {
     Redo,
 }
 
+/// Control points per direction of a new resection when the edit names none.
+pub const DEFAULT_GRID: [usize; 2] = [4, 4];
+
 fn default_grid() -> [usize; 2] {
-    [4, 4]
+    DEFAULT_GRID
 }
 
 #[derive(Debug, Clone, Serialize)]

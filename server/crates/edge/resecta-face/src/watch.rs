@@ -1,6 +1,6 @@
-//! The Watch stream: the session's [`WatchStream`] pulled one event at a time as the client reads
-//! (HTTP/2 flow control is the back-pressure; nothing queues here beyond one snapshot's parts),
-//! each event translated to `WatchResponse` messages.
+//! The watch stream of both faces: the session's [`WatchStream`] pulled one event at a time as
+//! the client reads (the transport's flow control is the back-pressure; nothing queues here
+//! beyond one snapshot's parts), each event translated to `WatchResponse` messages.
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::sync::Arc;
@@ -13,10 +13,9 @@ use resecta_api::v1::watch_response::Event;
 use resecta_plan::{Resection, Verdict};
 use resecta_session::api::{WatchBody, WatchEvent};
 use resecta_session::{Service, SessionError, WatchStream};
-use tonic::Status;
 
 use crate::convert;
-use crate::error::{OrStatus, WireError, session_status};
+use crate::error::{FaceError, WireError};
 use crate::{MAX_MESSAGE_BYTES, SNAPSHOT_PART_BYTES};
 
 /// Room left in a message for its envelope (seq, version, field tags and lengths).
@@ -162,7 +161,7 @@ struct State {
 
 impl State {
     /// The next message, pulling the session's stream only when nothing is pending.
-    async fn next(&mut self) -> Option<Result<pb::WatchResponse, Status>> {
+    async fn next(&mut self) -> Option<Result<pb::WatchResponse, FaceError>> {
         loop {
             if let Some(m) = self.pending.pop_front() {
                 return Some(Ok(m));
@@ -172,45 +171,60 @@ impl State {
             }
             match self.step().await {
                 Ok(()) => {}
-                Err(status) => {
+                Err(e) => {
                     self.ended = true;
-                    return Some(Err(status));
+                    return Some(Err(e));
                 }
             }
         }
     }
 
-    async fn step(&mut self) -> Result<(), Status> {
+    async fn step(&mut self) -> Result<(), FaceError> {
         let event = match self.events.next().await {
-            Some(e) => e.or_status()?,
-            // The hub closes when the session is deleted.
-            None => {
-                return Err(session_status(&SessionError::UnknownSession(
-                    self.id.clone(),
-                )));
-            }
+            Some(e) => e?,
+            // The hub closes when the session is deleted or expires.
+            None => return Err(SessionError::UnknownSession(self.id.clone()).into()),
         };
         let session = match event.body {
-            WatchBody::Snapshot { .. } => Some(convert::session(
-                &self.service.get_session(&self.id).await.or_status()?,
-            )),
+            WatchBody::Snapshot { .. } => {
+                Some(convert::session(&self.service.get_session(&self.id).await?))
+            }
             WatchBody::Delta { .. } | WatchBody::Models { .. } | WatchBody::Volumes { .. } => None,
         };
         match responses(&event, session)? {
             Some(messages) => self.pending.extend(messages),
-            None => self.events = self.service.watch(&self.id, None).await.or_status()?,
+            None => self.events = self.service.watch(&self.id, None).await?,
         }
         Ok(())
     }
 }
 
-/// The stream of `Watch` for session `id` from `since` (absent: a snapshot first).
+/// Refuses a watch whose client cannot decode the mesh payloads this server sends (zstd
+/// compressed or quantised: `allow_zstd` / `allow_quantized` must then be set).
+pub fn check_payloads(service: &Service, r: &pb::WatchRequest) -> Result<(), WireError> {
+    let encode = &service.config().encode;
+    let refuse = |field: &str, what: &str| WireError::Precondition {
+        field: field.to_owned(),
+        message: format!("this server sends {what} mesh payloads; the client must accept them"),
+    };
+    if encode.zstd_level.is_some() && !r.allow_zstd {
+        return Err(refuse("allow_zstd", "zstd-compressed"));
+    }
+    if encode.quantise.is_some() && !r.allow_quantized {
+        return Err(refuse("allow_quantized", "quantised"));
+    }
+    Ok(())
+}
+
+/// The `WatchResponse` messages of session `id` after `since` (absent: a snapshot first). It
+/// ends after its first error (a deleted session is `UnknownSession`).
 pub async fn watch(
     service: Arc<Service>,
     id: String,
     since: Option<u64>,
-) -> Result<impl Stream<Item = Result<pb::WatchResponse, Status>> + Send + 'static, Status> {
-    let events = service.watch(&id, since).await.or_status()?;
+) -> Result<impl Stream<Item = Result<pb::WatchResponse, FaceError>> + Send + 'static, SessionError>
+{
+    let events = service.watch(&id, since).await?;
     let state = State {
         service,
         id,

@@ -1,6 +1,7 @@
-//! Assembly of a client-streamed label-map upload: the header chunk fixes what comes and how
-//! much; every chunk is checked before its bytes are kept, so an oversized or overlong stream is
-//! refused before it is buffered. The operation layer sees the upload only once it is complete.
+//! Assembly of a label-map upload (a gRPC client stream of chunks, or an HTTP body): the header
+//! fixes what comes and how much; every chunk is checked before its bytes are kept, so an
+//! oversized or overlong upload is refused before it is buffered. The operation layer sees the
+//! upload only once it is complete.
 
 use resecta_api::MAX_CHUNK_BYTES;
 use resecta_api::v1 as pb;
@@ -68,7 +69,7 @@ impl Upload {
         })
     }
 
-    /// Appends one chunk's data.
+    /// Appends one chunk's data (gRPC: at most [`MAX_CHUNK_BYTES`]).
     pub fn push(&mut self, msg: pb::UploadLabelMapRequest, first: bool) -> Result<(), WireError> {
         if !first && msg.header.is_some() {
             return Err(WireError::bad_chunk(
@@ -83,7 +84,12 @@ impl Upload {
                 format!("a chunk carries {n} bytes; at most {MAX_CHUNK_BYTES} are allowed"),
             ));
         }
-        let received = self.data.len() as u64 + n as u64;
+        self.append(&msg.data)
+    }
+
+    /// Appends data of any length (the HTTP face's body, already bounded by the upload limit).
+    pub fn append(&mut self, data: &[u8]) -> Result<(), WireError> {
+        let received = self.data.len() as u64 + data.len() as u64;
         if received > self.total_bytes {
             return Err(WireError::bad_chunk(
                 "data",
@@ -96,14 +102,14 @@ impl Upload {
         if let Kind::Raw(RawGeometry {
             signed_bytes: true, ..
         }) = self.kind
-            && msg.data.iter().any(|&b| b >= 0x80)
+            && data.iter().any(|&b| b >= 0x80)
         {
             return Err(WireError::invalid(
                 "data",
                 "INT8 data holds negative labels",
             ));
         }
-        self.data.extend_from_slice(&msg.data);
+        self.data.extend_from_slice(data);
         Ok(())
     }
 

@@ -1,5 +1,5 @@
 //! Wire (`resecta.v1` prost messages) ⇄ operation layer (`resecta_session::api`) translation, in
-//! one place. Inbound conversions validate what the wire type cannot express (required fields,
+//! one place for both faces. Inbound conversions validate what the wire type cannot express (required fields,
 //! finite numbers, array lengths, UNSPECIFIED enums, label ranges) and name the offending field;
 //! the operation layer checks the rest (ranges of plan parameters, geometry, quotas).
 
@@ -8,13 +8,14 @@ use std::collections::BTreeMap;
 use resecta_api::v1 as pb;
 use resecta_geom::{Mat3, Real, Role, RoleMap};
 use resecta_io::mesh::MeshFormat;
+use resecta_plan::resection::ResectionKind;
 use resecta_plan::{
     Group, IncompleteCut, PlanEvent, Resection, SlicePositions, SliceProjections, Target, Verdict,
     VolumeReport,
 };
 use resecta_session::api::{
-    DataType, EditOp, FileFormat, LabelMapSummary, ModelInfo, ReconMethod, ReconOptions,
-    ReconstructEvent, SessionInfo, SessionState, Surface, SurfaceKind,
+    DEFAULT_GRID, DataType, EditOp, EditOutcome, FileFormat, LabelMapSummary, ModelInfo,
+    ReconMethod, ReconOptions, ReconstructEvent, SessionInfo, SessionState, Surface, SurfaceKind,
 };
 
 use crate::error::WireError;
@@ -40,6 +41,15 @@ fn point(field: &str, v: &pb::Vec3) -> Wire<[Real; 3]> {
         finite(&format!("{field}.y"), v.y)?,
         finite(&format!("{field}.z"), v.z)?,
     ])
+}
+
+/// A repeated `Vec3` field, every coordinate finite.
+fn points(field: &str, values: &[pb::Vec3]) -> Wire<Vec<[Real; 3]>> {
+    values
+        .iter()
+        .enumerate()
+        .map(|(k, p)| point(&format!("{field}[{k}]"), p))
+        .collect()
 }
 
 /// A required `Vec3` field.
@@ -114,19 +124,29 @@ fn target(field: &str, t: Option<&pb::Target>) -> Wire<Target> {
     };
     Ok(Target {
         labels: labels(&format!("{field}.labels"), &t.labels)?,
-        points: t
-            .points
-            .iter()
-            .enumerate()
-            .map(|(k, p)| point(&format!("{field}.points[{k}]"), p))
-            .collect::<Wire<_>>()?,
+        points: points(&format!("{field}.points"), &t.points)?,
     })
 }
 
-/// Grid size of an init: 0 means 4.
+/// Grid size of an init: 0 means the default ([`DEFAULT_GRID`]).
 fn grid(m: u32, n: u32) -> [usize; 2] {
-    let side = |v: u32| if v == 0 { 4 } else { v as usize };
-    [side(m), side(n)]
+    let side = |v: u32, default: usize| if v == 0 { default } else { v as usize };
+    [side(m, DEFAULT_GRID[0]), side(n, DEFAULT_GRID[1])]
+}
+
+/// A resection as given on the wire (`AddResection`); the plan checks the ranges.
+fn resection_in(field: &str, r: Option<&pb::Resection>) -> Wire<Resection> {
+    let r = r.ok_or_else(|| WireError::invalid(field, "is required"))?;
+    Ok(Resection {
+        name: r.name.clone(),
+        kind: ResectionKind::Bezier,
+        grid: [r.grid_m as usize, r.grid_n as usize],
+        control_points: points(&format!("{field}.control_points"), &r.control_points)?,
+        margin_mm: finite(&format!("{field}.margin_mm"), r.margin_mm)?,
+        band_mm: finite(&format!("{field}.band_mm"), r.band_mm)?,
+        target: target(&format!("{field}.target"), r.target.as_ref())?,
+        resolution: [r.ru as usize, r.rv as usize],
+    })
 }
 
 /// The operation of an `EditRequest`.
@@ -155,12 +175,7 @@ pub fn edit(edit: Option<&pb::edit_request::Edit>) -> Wire<EditOp> {
         }),
         E::SetControlPoints(e) => event(PlanEvent::SetControlPoints {
             name: e.name.clone(),
-            points: e
-                .points
-                .iter()
-                .enumerate()
-                .map(|(k, p)| point(&format!("set_control_points.points[{k}]"), p))
-                .collect::<Wire<_>>()?,
+            points: points("set_control_points.points", &e.points)?,
         }),
         E::MoveGroup(e) => {
             use pb::move_group::Selection;
@@ -217,6 +232,9 @@ pub fn edit(edit: Option<&pb::edit_request::Edit>) -> Wire<EditOp> {
         }),
         E::DeleteResection(e) => event(PlanEvent::DeleteResection {
             name: e.name.clone(),
+        }),
+        E::AddResection(e) => event(PlanEvent::AddResection {
+            resection: resection_in("add_resection.resection", e.resection.as_ref())?,
         }),
         E::Undo(_) => Ok(EditOp::Undo),
         E::Redo(_) => Ok(EditOp::Redo),
@@ -387,6 +405,14 @@ pub fn reconstruct_options(r: &pb::ReconstructRequest) -> Wire<ReconOptions> {
     Ok(options)
 }
 
+/// The refusal of slices of a model (only resections are sliced so far).
+pub fn model_slices() -> WireError {
+    WireError::Unsupported {
+        field: "model".into(),
+        message: "slices of models are not supported yet; ask for a resection".into(),
+    }
+}
+
 pub fn slice_positions(r: &pb::GetSlicesRequest) -> Wire<SlicePositions> {
     let at = |field: &str, v: Option<f64>| v.map(|v| finite(field, v)).transpose();
     Ok(SlicePositions {
@@ -478,6 +504,22 @@ pub fn resection(r: &Resection) -> pb::Resection {
     }
 }
 
+/// The answer of an edit.
+pub fn edit_response(out: EditOutcome) -> pb::EditResponse {
+    pb::EditResponse {
+        plan_version: out.plan_version,
+        resections: out
+            .resections
+            .iter()
+            .map(|r| pb::ResectionStatus {
+                resection: Some(resection(&r.resection)),
+                verdict: r.verdict.as_ref().map(verdict),
+            })
+            .collect(),
+        removed: out.removed,
+    }
+}
+
 pub fn verdict(v: &Verdict) -> pb::Verdict {
     pb::Verdict {
         min_margin_mm: v.min_margin_mm,
@@ -552,6 +594,11 @@ pub fn model_info(m: &ModelInfo) -> pb::ModelInfo {
         triangle_count: m.triangles as u64,
         vertex_count: m.vertices as u64,
         volume_ml: m.volume_ml,
+        method: (match m.method.as_str() {
+            "psr" => pb::ReconstructionMethod::Psr,
+            "mcsd" => pb::ReconstructionMethod::Mcsd,
+            _ => pb::ReconstructionMethod::Unspecified,
+        }) as i32,
     }
 }
 
