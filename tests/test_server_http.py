@@ -5,20 +5,25 @@ import json
 import subprocess
 import sys
 import threading
-import urllib.parse
 
+from google.protobuf import json_format
 import nibabel as nib
 import numpy as np
 import pytest
 import requests
 
 from conftest import ROOT
-from server_harness import Server, phantom, server  # noqa: F401 (fixtures)
+from server_harness import Server, generate_stubs, phantom, server  # noqa: F401 (fixtures)
 
 sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
 from resecta_client.wire import apply_delta, decode_mesh  # noqa: E402
 
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
+
+
+@pytest.fixture(scope="module")
+def stubs(tmp_path_factory):
+    return generate_stubs(tmp_path_factory.mktemp("stubs"))
 
 
 def problem(r, status, code):
@@ -30,40 +35,52 @@ def problem(r, status, code):
 
 
 def session(url, name="e2e"):
-    r = requests.post(f"{url}/v1/sessions", json={"display_name": name}, timeout=30)
+    r = requests.post(f"{url}/v1/sessions", json={"displayName": name}, timeout=30)
     assert r.status_code == 201, r.text
-    return r.json()["id"]
+    return r.json()["session"]["id"]
 
 
-def csv(values):
-    return ",".join(repr(float(v)) for v in values)
+def plan_version(url, sid):
+    """A session's plan version (a uint64: a decimal string in proto JSON, absent when 0)."""
+    r = requests.get(f"{url}/v1/sessions/{sid}", timeout=60)
+    assert r.status_code == 200, r.text
+    return int(r.json()["session"].get("planVersion", "0"))
 
 
-def upload_raw(url, sid, path, cut=0):
+def raw_header(path):
+    """The `RawLabelMapHeader` of a NIfTI label map as proto JSON, and its voxels (u16)."""
     img = nib.load(str(path))
     a = img.affine
     spacing = np.linalg.norm(a[:3, :3], axis=0)
     direction = (a[:3, :3] / spacing).reshape(-1)
     data = np.asarray(img.dataobj).astype("<u2").transpose(2, 1, 0).tobytes()
-    q = urllib.parse.urlencode({
-        "format": "raw", "data_type": "u16",
-        "dims": ",".join(map(str, img.shape)), "spacing": csv(spacing), "origin": csv(a[:3, 3]), "direction": csv(direction),
-        "roles": json.dumps(ROLES)})
-    return requests.put(f"{url}/v1/sessions/{sid}/label-map?{q}", data=data[: len(data) - cut],
-                        timeout=60)
+    header = {"dims": list(img.shape), "spacing": spacing.tolist(), "origin": a[:3, 3].tolist(),
+              "direction": direction.tolist(), "dataType": "DATA_TYPE_UINT16", "roles": ROLES}
+    return header, data
+
+
+def upload_raw(url, sid, path, cut=0):
+    header, data = raw_header(path)
+    return requests.put(f"{url}/v1/sessions/{sid}/label-map", params={"raw": json.dumps(header)},
+                        data=data[: len(data) - cut], timeout=60)
 
 
 def edit(url, sid, op, base=0):
-    return requests.post(f"{url}/v1/sessions/{sid}/edits", json={"base_version": base, "edit": op},
-                         timeout=60)
+    """POST an `EditRequest` (proto JSON): `op` is its operation, e.g. `{"undo": {}}`."""
+    return requests.post(f"{url}/v1/sessions/{sid}/edits",
+                         json={"baseVersion": str(base), **op}, timeout=60)
 
 
-INIT = {"op": "init_from_end_point", "name": "r1", "end_point": [-30.0, 0.0, 0.0], "grid": [4, 4]}
+INIT = {"initFromEndPoint": {"name": "r1", "endPoint": {"x": -30.0, "y": 0.0, "z": 0.0},
+                             "gridM": 4, "gridN": 4}}
+
+
+def xyz(point):
+    return dict(zip("xyz", point))
 
 
 def drag(point):
-    return {"op": "event", "event": {"op": "set_control_point", "name": "r1", "i": 1, "j": 2,
-                                     "point": list(point)}}
+    return {"setControlPoint": {"name": "r1", "i": 1, "j": 2, "point": xyz(point)}}
 
 
 def sse(response):
@@ -99,33 +116,37 @@ def test_edits_watch_and_volumes_over_http(server, phantom, tmp_path):
     sid = session(url)
     r = upload_raw(url, sid, phantom)
     assert r.status_code == 200, r.text
-    assert r.json()["dims"] == list(nib.load(str(phantom)).shape)
-    version = requests.get(f"{url}/v1/sessions/{sid}", timeout=10).json()["plan_version"]
+    assert r.json()["labelMap"]["dims"] == list(nib.load(str(phantom)).shape)
+    version = plan_version(url, sid)
     watch = requests.get(f"{url}/v1/sessions/{sid}/watch", stream=True, timeout=60)
     assert watch.headers["content-type"].startswith("text/event-stream")
     events = sse(watch)
     _, kind, snap = next(events)
-    assert kind == "snapshot"
+    assert kind == "snapshot" and "snapshot" in snap
     out = edit(url, sid, INIT, version)
     assert out.status_code == 200, out.text
-    v1 = out.json()["plan_version"]
+    v1 = int(out.json()["planVersion"])
     assert out.json()["resections"][0]["resection"]["name"] == "r1"
-    v2 = edit(url, sid, drag((-28.0, 3.0, 2.0)), v1).json()["plan_version"]
+    v2 = int(edit(url, sid, drag((-28.0, 3.0, 2.0)), v1).json()["planVersion"])
     mesh, ids = None, []
     for eid, kind, ev in events:
         if kind != "delta":
             continue
         ids.append(int(eid))
-        (u,) = ev["body"]["updates"]
-        data = base64.b64decode(u["bytes"])
-        mesh = decode_mesh(data) if u["full"] else apply_delta(mesh, data)
-        if ev["plan_version"] == v2:
+        assert ev["seq"] == eid
+        (r1,) = [r for r in ev["delta"]["resections"] if r["name"] == "r1"]
+        if "fullMesh" in r1:
+            mesh = decode_mesh(base64.b64decode(r1["fullMesh"]))
+        else:
+            mesh = apply_delta(mesh, base64.b64decode(r1["meshDelta"]))
+        if int(ev["planVersion"]) == v2:
             break
     watch.close()
     assert ids == sorted(ids) and len(ids) == 2
     assert mesh is not None and mesh["positions"].shape[1] == 3
     # The snapshot + deltas a watcher applied match the resection model the server exports now.
-    ply = requests.get(f"{url}/v1/sessions/{sid}/models/r1?format=ply", timeout=30)
+    ply = requests.get(f"{url}/v1/sessions/{sid}/models/r1", params={"format": "MODEL_FORMAT_PLY"},
+                       timeout=30)
     assert ply.status_code == 200
     (tmp_path / "r1.ply").write_bytes(ply.content)
     from conftest import resecta_bin
@@ -136,10 +157,94 @@ def test_edits_watch_and_volumes_over_http(server, phantom, tmp_path):
     lo = np.nanmin(mesh["positions"], axis=0)
     assert lo == pytest.approx(info["bounds"][0], abs=1e-3)
     vols = requests.get(f"{url}/v1/sessions/{sid}/volumes", timeout=60).json()
-    assert vols["plan_version"] == v2 and vols["volumes"]["total_ml"] > 0
-    plan = requests.get(f"{url}/v1/sessions/{sid}/plan", timeout=10)
-    assert plan.headers["resecta-plan-version"] == str(v2)
-    assert plan.json()["resections"][0]["control_points"][6] == pytest.approx([-28.0, 3.0, 2.0])
+    assert int(vols["planVersion"]) == v2 and vols["volumes"]["totalMl"] > 0
+    plan = requests.get(f"{url}/v1/sessions/{sid}/plan", timeout=10).json()
+    assert int(plan["planVersion"]) == v2
+    document = json.loads(plan["planJson"])
+    assert document["resections"][0]["control_points"][6] == pytest.approx([-28.0, 3.0, 2.0])
+
+
+def test_http_bodies_are_the_grpc_messages_in_proto_json(server, phantom, stubs):
+    """The same requests on both faces of one server: the HTTP body is `MessageToJson` of the
+    gRPC request, and the answers are equal once the gRPC one is mapped to JSON the same way."""
+    pb, pb_grpc = stubs
+    stub = pb_grpc.PlanningServiceStub(server.channel())
+    url = server.http_url
+
+    volatile = ("id", "sessionId", "createdMs", "lastAccessMs")
+
+    def close(a, b, path=""):
+        """`a` equals `b` but for volatile keys; floats within a relative 1e-9."""
+        if isinstance(a, dict) and isinstance(b, dict):
+            keys = (a.keys() | b.keys()) - set(volatile)
+            for k in keys:
+                assert k in a and k in b, f"{path}/{k}: {a.get(k)!r} vs {b.get(k)!r}"
+                close(a[k], b[k], f"{path}/{k}")
+        elif isinstance(a, list) and isinstance(b, list):
+            assert len(a) == len(b), f"{path}: {len(a)} vs {len(b)} items"
+            for k, (x, y) in enumerate(zip(a, b)):
+                close(x, y, f"{path}/{k}")
+        elif isinstance(a, float) or isinstance(b, float):
+            assert a == pytest.approx(b, rel=1e-9), f"{path}: {a} vs {b}"
+        else:
+            assert a == b, f"{path}: {a!r} vs {b!r}"
+
+    def same(message, body):
+        close(json.loads(json_format.MessageToJson(message)), body)
+
+    same(stub.GetServerInfo(pb.GetServerInfoRequest()),
+         requests.get(f"{url}/v1/info", timeout=10).json())
+    a = stub.CreateSession(pb.CreateSessionRequest(display_name="side")).session.id
+    b = session(url, "side")
+    header, data = raw_header(phantom)
+    grpc_header = json_format.ParseDict(header, pb.RawLabelMapHeader())
+    grpc_header.session_id, grpc_header.total_bytes = a, len(data)
+    chunks = [pb.UploadLabelMapRequest(raw=grpc_header)] + [
+        pb.UploadLabelMapRequest(data=data[k:k + (1 << 20)]) for k in range(0, len(data), 1 << 20)]
+    same(stub.UploadLabelMap(iter(chunks)), upload_raw(url, b, phantom).json())
+    same(stub.GetSession(pb.GetSessionRequest(session_id=a)),
+         requests.get(f"{url}/v1/sessions/{a}", timeout=10).json())
+
+    requests_ = [
+        pb.EditRequest(base_version=1, init_from_end_point=pb.InitFromEndPoint(
+            name="r1", end_point=pb.Vec3(x=-30.0))),
+        pb.EditRequest(base_version=2, set_control_point=pb.SetControlPoint(
+            name="r1", i=1, j=2, point=pb.Vec3(x=-28.0, y=3.0, z=2.0))),
+        pb.EditRequest(base_version=3, set_margin=pb.SetMargin(name="r1", margin_mm=5.0)),
+        pb.EditRequest(base_version=4, undo=pb.Undo()),
+    ]
+    for request in requests_:
+        request.session_id = a
+        answer = stub.Edit(request)
+        request.session_id = b
+        body = json_format.MessageToJson(request)
+        r = requests.post(f"{url}/v1/sessions/{b}/edits", data=body, timeout=60,
+                          headers={"content-type": "application/json"})
+        assert r.status_code == 200, r.text
+        same(answer, r.json())
+    assert json.loads(json_format.MessageToJson(requests_[0])) == {
+        "sessionId": b, "baseVersion": "1", "initFromEndPoint": {"name": "r1", "endPoint": {"x": -30.0}}}
+    # add_resection on both faces: the resection an answer held, under a new name.
+    r1 = stub.Edit(pb.EditRequest(session_id=a, base_version=5, set_band=pb.SetBand(
+        name="r1", band_mm=4.0))).resections[0].resection
+    requests.post(f"{url}/v1/sessions/{b}/edits", timeout=60, json={
+        "baseVersion": "5", "setBand": {"name": "r1", "bandMm": 4.0}}).raise_for_status()
+    r1.name = "copy"
+    add = pb.EditRequest(session_id=a, base_version=6, add_resection=pb.AddResection(resection=r1))
+    answer = stub.Edit(add)
+    add.session_id = b
+    r = requests.post(f"{url}/v1/sessions/{b}/edits", data=json_format.MessageToJson(add),
+                      timeout=60, headers={"content-type": "application/json"})
+    assert r.status_code == 200, r.text
+    same(answer, r.json())
+    assert [s.resection.name for s in answer.resections] == ["copy"]
+    same(stub.GetVolumes(pb.GetVolumesRequest(session_id=a)),
+         requests.get(f"{url}/v1/sessions/{b}/volumes", timeout=60).json())
+    same(stub.ExportPlan(pb.ExportPlanRequest(session_id=a)),
+         requests.get(f"{url}/v1/sessions/{b}/plan", timeout=60).json())
+    same(stub.GetSlices(pb.GetSlicesRequest(session_id=a, resection="r1", axial=0.0)),
+         requests.get(f"{url}/v1/sessions/{b}/slices", params={"resection": "r1", "axial": "0"},
+                      timeout=60).json())
 
 
 def test_sigterm_ends_open_watch_streams(tmp_path):
@@ -166,12 +271,14 @@ def test_bad_input_over_http(server, phantom):
     url = server.http_url
     problem(requests.get(f"{url}/v1/sessions/nope", timeout=10), 404, "SESSION_NOT_FOUND")
     sid = session(url)
-    problem(upload_raw(url, sid, phantom, cut=1), 400, "BAD_LABEL_MAP")
+    problem(upload_raw(url, sid, phantom, cut=1), 400, "INVALID_ARGUMENT")
     problem(edit(url, sid, INIT), 409, "NO_LABEL_MAP")
     assert upload_raw(url, sid, phantom).status_code == 200
-    v = edit(url, sid, INIT).json()["plan_version"]
-    problem(edit(url, sid, drag(("nan", 0, 0)), v), 400, "INVALID_ARGUMENT")
-    body = '{"base_version": %d, "edit": %s}' % (v, json.dumps(drag((0, 0, 0))).replace("[0, 0, 0]", "[1e999, 0, 0]"))
+    v = int(edit(url, sid, INIT).json()["planVersion"])
+    problem(edit(url, sid, drag(("NaN", 0, 0)), v), 400, "INVALID_ARGUMENT")
+    problem(edit(url, sid, {"undo": {}, "redo": {}}, v), 400, "INVALID_ARGUMENT")
+    problem(edit(url, sid, {"edit": {"op": "undo"}}, v), 400, "INVALID_ARGUMENT")
+    body = '{"baseVersion": "%d", "setControlPoint": {"name": "r1", "i": 1, "j": 2, "point": {"x": 1e999}}}' % v
     r = requests.post(f"{url}/v1/sessions/{sid}/edits", data=body, timeout=10,
                       headers={"content-type": "application/json"})
     problem(r, 400, "INVALID_ARGUMENT")
@@ -180,7 +287,7 @@ def test_bad_input_over_http(server, phantom):
     r = requests.post(f"{url}/v1/sessions/{sid}/edits", data=b"{not json", timeout=10,
                       headers={"content-type": "application/json"})
     problem(r, 400, "INVALID_ARGUMENT")
-    assert requests.get(f"{url}/v1/sessions/{sid}", timeout=10).json()["plan_version"] == v
+    assert plan_version(url, sid) == v
     r = requests.get(f"{url}/v1/sessions", headers={"resecta-api-version": "v2"}, timeout=10)
     p = problem(r, 400, "API_VERSION_MISMATCH")
     assert "v2" in p["detail"] and "v1" in p["detail"]
@@ -192,9 +299,9 @@ def test_restart_keeps_acknowledged_http_edits(tmp_path, phantom):
     try:
         sid = session(s.http_url)
         assert upload_raw(s.http_url, sid, phantom).status_code == 200
-        v = edit(s.http_url, sid, INIT).json()["plan_version"]
+        v = int(edit(s.http_url, sid, INIT).json()["planVersion"])
         for k in range(5):
-            v = edit(s.http_url, sid, drag((-30.0 + k, 1.0, 1.0)), v).json()["plan_version"]
+            v = int(edit(s.http_url, sid, drag((-30.0 + k, 1.0, 1.0)), v).json()["planVersion"])
         metrics = requests.get(f"{s.http_url}/metrics", timeout=10).text
         assert "resecta_edit_seconds_count 6" in metrics, metrics
         assert "resecta_edits_in_flight 0" in metrics
@@ -203,10 +310,10 @@ def test_restart_keeps_acknowledged_http_edits(tmp_path, phantom):
         s.kill()
     s2 = Server(data_dir=data)
     try:
-        info = requests.get(f"{s2.http_url}/v1/sessions/{sid}", timeout=60).json()
-        assert info["plan_version"] == v
+        assert plan_version(s2.http_url, sid) == v
         plan = requests.get(f"{s2.http_url}/v1/sessions/{sid}/plan", timeout=60).json()
-        assert plan["resections"][0]["control_points"][6] == pytest.approx([-26.0, 1.0, 1.0])
+        document = json.loads(plan["planJson"])
+        assert document["resections"][0]["control_points"][6] == pytest.approx([-26.0, 1.0, 1.0])
         assert requests.get(f"{s2.http_url}/metrics", timeout=10).status_code == 200
     finally:
         s2.stop()
@@ -218,14 +325,14 @@ def test_idle_sessions_expire_and_limits_come_from_the_config_file(tmp_path):
     s = Server("--config", str(cfg))
     try:
         info = requests.get(f"{s.http_url}/v1/info", timeout=10).json()
-        assert info["limits"]["max_sessions"] == 2
+        assert info["limits"]["maxSessions"] == 2
         a, b = session(s.http_url, "a"), session(s.http_url, "b")
-        problem(requests.post(f"{s.http_url}/v1/sessions", json={"display_name": "c"}, timeout=10),
+        problem(requests.post(f"{s.http_url}/v1/sessions", json={"displayName": "c"}, timeout=10),
                 429, "SESSION_QUOTA")
         import time
         deadline = time.monotonic() + 20
         while time.monotonic() < deadline:
-            if requests.get(f"{s.http_url}/v1/sessions", timeout=10).json()["sessions"] == []:
+            if requests.get(f"{s.http_url}/v1/sessions", timeout=10).json().get("sessions") is None:
                 break
             time.sleep(0.5)
         problem(requests.get(f"{s.http_url}/v1/sessions/{a}", timeout=10), 404, "SESSION_NOT_FOUND")

@@ -36,27 +36,12 @@ pub async fn read_body(headers: &HeaderMap, body: Body, limit: u64) -> Result<By
     Ok(out.into())
 }
 
-/// A JSON request body of at most [`crate::HttpOptions::max_json_bytes`].
+/// A request message as its proto JSON body, of at most [`crate::HttpOptions::max_json_bytes`];
+/// an empty body (or only whitespace) is the message with every field at its default.
 #[derive(Debug)]
-pub struct Json<T>(pub T);
+pub struct ProtoJson<T>(pub T);
 
-impl<T: DeserializeOwned> FromRequest<App> for Json<T> {
-    type Rejection = Problem;
-
-    async fn from_request(req: Request, app: &App) -> Result<Self, Problem> {
-        let (parts, body) = req.into_parts();
-        let bytes = read_body(&parts.headers, body, app.max_json_bytes).await?;
-        serde_json::from_slice(&bytes)
-            .map(Json)
-            .map_err(|e| Problem::invalid(format!("request body: {e}")))
-    }
-}
-
-/// An optional JSON request body: empty (or only whitespace) is `T::default()`.
-#[derive(Debug)]
-pub struct OptionalJson<T>(pub T);
-
-impl<T: DeserializeOwned + Default> FromRequest<App> for OptionalJson<T> {
+impl<T: DeserializeOwned + Default> FromRequest<App> for ProtoJson<T> {
     type Rejection = Problem;
 
     async fn from_request(req: Request, app: &App) -> Result<Self, Problem> {
@@ -66,8 +51,28 @@ impl<T: DeserializeOwned + Default> FromRequest<App> for OptionalJson<T> {
             return Ok(Self(T::default()));
         }
         serde_json::from_slice(&bytes)
-            .map(OptionalJson)
+            .map(ProtoJson)
             .map_err(|e| Problem::invalid(format!("request body: {e}")))
+    }
+}
+
+/// A request message whose fields are the query parameters (by their proto or JSON names; the
+/// scalar fields of a GET route's request message, as gRPC transcoding has them).
+#[derive(Debug)]
+pub struct ProtoQuery<T>(pub T);
+
+impl<S: Send + Sync, T: DeserializeOwned + prost::Name> FromRequestParts<S> for ProtoQuery<T> {
+    type Rejection = Problem;
+
+    async fn from_request_parts(parts: &mut Parts, _: &S) -> Result<Self, Problem> {
+        let pairs: Vec<(String, String)> = axum::extract::Query::try_from_uri(&parts.uri)
+            .map(|q: axum::extract::Query<Vec<(String, String)>>| q.0)
+            .map_err(|e| Problem::invalid(e.body_text()))?;
+        let json = crate::proto::query_json(&T::full_name(), pairs)
+            .map_err(|e| Problem::invalid(format!("query: {e}")))?;
+        serde_json::from_value(json)
+            .map(ProtoQuery)
+            .map_err(|e| Problem::invalid(format!("query: {e}")))
     }
 }
 

@@ -1,6 +1,12 @@
-//! The HTTP/JSON face of the planning server: the [`resecta_session::Service`] operations as
-//! REST routes under `/v1/`, the watch stream and reconstruction progress as server-sent events,
-//! errors as RFC 9457 problem documents, and the OpenAPI 3.1 document at `GET /v1/openapi.json`.
+//! The HTTP/JSON face of the planning server: every RPC of `resecta.v1.PlanningService` as a
+//! route under `/v1/`, whose bodies are that RPC's messages in the canonical protobuf JSON mapping
+//! (`resecta_api`'s pbjson serde impls) and whose requests reach [`resecta_session::Service`]
+//! through the conversions the gRPC face uses too (`resecta-face`), so both faces are one API.
+//! The session id comes from the path; the rest of a POST/PUT body is exactly the request
+//! message's JSON, and the fields of a GET route's request message are its query parameters.
+//! Streamed answers are server-sent events whose data are the streamed messages; errors are
+//! RFC 9457 problem documents; the OpenAPI 3.1 document at `GET /v1/openapi.json` is generated
+//! from the route table and the descriptors.
 //!
 //! [`router`] builds the whole face; the server process binds it (plain or TLS). Every `/v1/`
 //! route but `GET /v1/info` and `GET /v1/openapi.json` passes the [`AccessPolicy`] (bearer token
@@ -9,31 +15,36 @@
 //! route, status, latency, request id) and counted in `resecta_http_requests_total{route,status}`.
 //! Bodies, display names and file names are never logged.
 //!
-//! | route | does |
-//! |---|---|
-//! | `GET /healthz`, `GET /metrics` | liveness; Prometheus text (when [`HttpOptions::metrics`]) |
-//! | `GET /v1/info`, `GET /v1/openapi.json` | server info and limits; the OpenAPI document |
-//! | `POST /v1/sessions` `{"display_name"}` → 201, `GET /v1/sessions` | create, list |
-//! | `GET`, `DELETE /v1/sessions/{id}` | one session; delete it (204) |
-//! | `PUT /v1/sessions/{id}/label-map?format=…` | body = raw voxels (`format=raw&dims=i,j,k&spacing=…&data_type=u8&origin=…&direction=…`) or a NIfTI/NRRD/.seg.nrrd/MetaImage file (`format=auto`, default); `roles=` a JSON role map |
-//! | `POST /v1/sessions/{id}/reconstruct` | SSE: `progress`, `model`, `done` (or `error`); disconnecting cancels |
-//! | `POST /v1/sessions/{id}/edits` `{"base_version", "edit": EditOp}` | one plan edit |
-//! | `GET /v1/sessions/{id}/volumes` | the plan's volumes |
-//! | `GET`, `PUT /v1/sessions/{id}/plan[?base_version=]` | export, import the `resecta-plan/1` document |
-//! | `GET /v1/sessions/{id}/models/{name}?format=vtp` | a model or resection as a mesh file |
-//! | `GET /v1/sessions/{id}/slices?resection=…&axial=…` | contours (base64 packed f32) |
-//! | `GET /v1/sessions/{id}/watch?since_seq=` | SSE, `id` = seq, `Last-Event-ID` resumes; meshes base64 |
+//! | route | RPC | body / query → answer |
+//! |---|---|---|
+//! | `GET /healthz`, `GET /metrics` | — | liveness; Prometheus text (when [`HttpOptions::metrics`]) |
+//! | `GET /v1/openapi.json` | — | the OpenAPI document |
+//! | `GET /v1/info` | `GetServerInfo` | → `GetServerInfoResponse` |
+//! | `POST /v1/sessions` | `CreateSession` | `CreateSessionRequest` → 201 `CreateSessionResponse` |
+//! | `GET /v1/sessions` | `ListSessions` | → `ListSessionsResponse` |
+//! | `GET`, `DELETE /v1/sessions/{id}` | `GetSession`, `DeleteSession` | → `GetSessionResponse`, `DeleteSessionResponse` |
+//! | `PUT /v1/sessions/{id}/label-map?raw=…` / `?file=…` | `UploadLabelMap` | header JSON in the query, the data as the body → `UploadLabelMapResponse` |
+//! | `POST /v1/sessions/{id}/reconstruct` | `Reconstruct` | `ReconstructRequest` → SSE of `ReconstructResponse` (`progress`, `model`, `done`); disconnecting cancels |
+//! | `POST /v1/sessions/{id}/edits` | `Edit` | `EditRequest` → `EditResponse` |
+//! | `GET /v1/sessions/{id}/volumes` | `GetVolumes` | → `GetVolumesResponse` |
+//! | `GET`, `PUT /v1/sessions/{id}/plan` | `ExportPlan`, `ImportPlan` | → `ExportPlanResponse`; `ImportPlanRequest` → `ImportPlanResponse` |
+//! | `GET /v1/sessions/{id}/models/{name}?format=MODEL_FORMAT_VTP` | `ExportModel` | → the mesh file as the body |
+//! | `GET /v1/sessions/{id}/slices?resection=…&axial=…` | `GetSlices` | → `GetSlicesResponse` |
+//! | `GET /v1/sessions/{id}/watch?sinceSeq=…` | `Watch` | → SSE of `WatchResponse` (`snapshot`, `delta`, `volumes`), `id` = seq, `Last-Event-ID` resumes |
 //!
-//! Errors map [`resecta_session::ErrorKind`] once (see [`Problem`]): 400, 404, 409 (exists,
-//! stale version with `current_version`, precondition), resource exhausted 413 when it answers
-//! an upload (bytes, voxels, the memory they need) and 429 otherwise (sessions, resections),
-//! 499 cancelled, 500 internal; 401 with `WWW-Authenticate: Bearer`; 400 `API_VERSION_MISMATCH`.
-//! Bodies over their limit (JSON [`MAX_JSON_BYTES`], uploads `max_upload_bytes`) get 413 from
-//! `Content-Length` before any byte is read, or as soon as a chunked body passes the limit.
+//! Errors map [`resecta_session::ErrorKind`] and `resecta_face::WireError` once (see
+//! [`Problem`]): 400, 404, 409 (exists, stale version with `current_version`, precondition),
+//! resource exhausted 413 when it answers an upload (bytes, voxels, the memory they need) and 429
+//! otherwise (sessions, resections), 499 cancelled, 500 internal, 501 unsupported; 401 with
+//! `WWW-Authenticate: Bearer`; 400 `API_VERSION_MISMATCH`. Bodies over their limit (JSON
+//! [`MAX_JSON_BYTES`], uploads `max_upload_bytes`) get 413 from `Content-Length` before any byte
+//! is read, or as soon as a chunked body passes the limit.
 
 mod extract;
 mod handlers;
+mod openapi;
 mod problem;
+mod proto;
 mod wire;
 
 use std::sync::Arc;
@@ -53,7 +64,7 @@ use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetReques
 use tower_http::trace::TraceLayer;
 use tracing::Span;
 
-pub use handlers::OPENAPI;
+pub use openapi::document_text as openapi_document;
 pub use problem::{PROBLEM_JSON, Problem};
 
 /// Renders the process' Prometheus metrics (text exposition format).
@@ -153,66 +164,113 @@ struct Route {
     path: &'static str,
     /// Passes the access policy.
     guarded: bool,
+    /// The `PlanningService` RPC the route is (`None`: health, metrics, the document).
+    rpc: Option<&'static str>,
     handler: MethodRouter<App>,
 }
 
 fn route<H: Handler<T, App>, T: 'static>(
     verb: Verb,
     path: &'static str,
-    guarded: bool,
+    rpc: Option<&'static str>,
     handler: H,
 ) -> Route {
     Route {
         verb,
         path,
-        guarded,
+        // Health, metrics, the document and the server info are open.
+        guarded: rpc.is_some_and(|r| r != "GetServerInfo"),
+        rpc,
         handler: on(verb.filter(), handler),
     }
 }
 
-/// The route table: the router is built from it, and [`routes`] lists it (the OpenAPI test
-/// checks the document against it).
+/// The route table: the router is built from it, and [`routes`] lists it (the OpenAPI document
+/// is generated from it; the tests walk it beside the gRPC face).
 fn table() -> Vec<Route> {
     use Verb::{Delete, Get, Post, Put};
     use handlers as h;
     const S: &str = "/v1/sessions/{id}";
     vec![
-        route(Get, "/healthz", false, h::healthz),
-        route(Get, METRICS_PATH, false, h::metrics),
-        route(Get, "/v1/info", false, h::info),
-        route(Get, "/v1/openapi.json", false, h::openapi),
-        route(Post, "/v1/sessions", true, h::create_session),
-        route(Get, "/v1/sessions", true, h::list_sessions),
-        route(Get, S, true, h::get_session),
-        route(Delete, S, true, h::delete_session),
+        route(Get, "/healthz", None, h::healthz),
+        route(Get, METRICS_PATH, None, h::metrics),
+        route(Get, "/v1/openapi.json", None, h::openapi),
+        route(Get, "/v1/info", Some("GetServerInfo"), h::info),
+        route(
+            Post,
+            "/v1/sessions",
+            Some("CreateSession"),
+            h::create_session,
+        ),
+        route(Get, "/v1/sessions", Some("ListSessions"), h::list_sessions),
+        route(Get, S, Some("GetSession"), h::get_session),
+        route(Delete, S, Some("DeleteSession"), h::delete_session),
         route(
             Put,
             "/v1/sessions/{id}/label-map",
-            true,
+            Some("UploadLabelMap"),
             h::upload_label_map,
         ),
-        route(Post, "/v1/sessions/{id}/reconstruct", true, h::reconstruct),
-        route(Post, "/v1/sessions/{id}/edits", true, h::edit),
-        route(Get, "/v1/sessions/{id}/volumes", true, h::volumes),
-        route(Get, "/v1/sessions/{id}/plan", true, h::export_plan),
-        route(Put, "/v1/sessions/{id}/plan", true, h::import_plan),
+        route(
+            Post,
+            "/v1/sessions/{id}/reconstruct",
+            Some("Reconstruct"),
+            h::reconstruct,
+        ),
+        route(Post, "/v1/sessions/{id}/edits", Some("Edit"), h::edit),
+        route(
+            Get,
+            "/v1/sessions/{id}/volumes",
+            Some("GetVolumes"),
+            h::volumes,
+        ),
+        route(
+            Get,
+            "/v1/sessions/{id}/plan",
+            Some("ExportPlan"),
+            h::export_plan,
+        ),
+        route(
+            Put,
+            "/v1/sessions/{id}/plan",
+            Some("ImportPlan"),
+            h::import_plan,
+        ),
         route(
             Get,
             "/v1/sessions/{id}/models/{name}",
-            true,
+            Some("ExportModel"),
             h::export_model,
         ),
-        route(Get, "/v1/sessions/{id}/slices", true, h::slices),
-        route(Get, "/v1/sessions/{id}/watch", true, h::watch),
+        route(
+            Get,
+            "/v1/sessions/{id}/slices",
+            Some("GetSlices"),
+            h::slices,
+        ),
+        route(Get, "/v1/sessions/{id}/watch", Some("Watch"), h::watch),
     ]
 }
 
-/// Every route as (method, path in OpenAPI template syntax); `/metrics` exists only when
-/// [`HttpOptions::metrics`] is given.
-pub fn routes() -> Vec<(Method, &'static str)> {
+/// One route of the face.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RouteInfo {
+    pub method: Method,
+    /// The path in OpenAPI template syntax.
+    pub path: &'static str,
+    /// The `PlanningService` RPC it is, if any.
+    pub rpc: Option<&'static str>,
+}
+
+/// Every route; `/metrics` exists only when [`HttpOptions::metrics`] is given.
+pub fn routes() -> Vec<RouteInfo> {
     table()
         .into_iter()
-        .map(|r| (r.verb.method(), r.path))
+        .map(|r| RouteInfo {
+            method: r.verb.method(),
+            path: r.path,
+            rpc: r.rpc,
+        })
         .collect()
 }
 

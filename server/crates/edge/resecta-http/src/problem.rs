@@ -1,9 +1,10 @@
 //! Every error of the HTTP face as an RFC 9457 `application/problem+json` document, mapped once
-//! from [`SessionError`] and [`AccessError`].
+//! from [`SessionError`], [`WireError`] and [`AccessError`].
 
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use resecta_auth::AccessError;
+use resecta_face::{FaceError, WireError};
 use resecta_session::{ErrorKind, SessionError};
 use serde::Serialize;
 
@@ -93,6 +94,28 @@ impl From<SessionError> for Problem {
             p.current_version = Some(current);
         }
         p
+    }
+}
+
+impl From<WireError> for Problem {
+    fn from(e: WireError) -> Self {
+        let status = match &e {
+            WireError::Invalid { .. } | WireError::BadChunk { .. } => StatusCode::BAD_REQUEST,
+            WireError::TooLarge(_) => StatusCode::PAYLOAD_TOO_LARGE,
+            WireError::MessageTooLarge(_) => StatusCode::TOO_MANY_REQUESTS,
+            WireError::Precondition { .. } => StatusCode::CONFLICT,
+            WireError::Unsupported { .. } => StatusCode::NOT_IMPLEMENTED,
+        };
+        Self::new(status, e.code(), e.to_string())
+    }
+}
+
+impl From<FaceError> for Problem {
+    fn from(e: FaceError) -> Self {
+        match e {
+            FaceError::Wire(e) => e.into(),
+            FaceError::Session(e) => e.into(),
+        }
     }
 }
 

@@ -22,17 +22,24 @@ use resecta_session::ServiceConfig;
 use serde_json::{Value, json};
 
 fn init_edit(base: u64) -> Value {
-    json!({"base_version": base, "edit": {"op": "init_from_end_point", "name": "r1", "end_point": [-30.0, 0.0, 0.0]}})
+    json!({"baseVersion": base.to_string(), "initFromEndPoint": {"name": "r1", "endPoint": {"x": -30.0}}})
 }
 
 fn drag_edit(base: u64, point: Value) -> Value {
-    json!({"base_version": base, "edit": {"op": "event", "event": {"op": "set_control_point", "name": "r1", "i": 1, "j": 2, "point": point}}})
+    json!({"baseVersion": base.to_string(), "setControlPoint": {"name": "r1", "i": 1, "j": 2, "point": point}})
+}
+
+fn xyz(x: f64, y: f64, z: f64) -> Value {
+    json!({"x": x, "y": y, "z": z})
+}
+
+/// A uint64 of a proto JSON answer (a decimal string).
+fn u64_of(v: &Value) -> u64 {
+    v.as_str().unwrap_or("0").parse().unwrap()
 }
 
 async fn plan_version(addr: std::net::SocketAddr, id: &str) -> u64 {
-    get(addr, &format!("/v1/sessions/{id}")).await.json()["plan_version"]
-        .as_u64()
-        .unwrap()
+    u64_of(&get(addr, &format!("/v1/sessions/{id}")).await.json()["session"]["planVersion"])
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -40,7 +47,7 @@ async fn session_crud_and_unknown_ids() {
     let s = open_server().await;
     let info = get(s.addr, "/v1/info").await;
     assert_eq!(info.status, StatusCode::OK);
-    assert_eq!(info.json()["api_version"], "resecta.v1");
+    assert_eq!(info.json()["apiVersion"], "resecta.v1");
     // True to the configuration: PSR, MCSD and deltas; the default encoder neither compresses nor
     // quantises, and this server needs no token.
     let mut caps: Vec<String> =
@@ -48,23 +55,24 @@ async fn session_crud_and_unknown_ids() {
     caps.sort();
     assert_eq!(caps, ["mcsd", "psr", "watch-deltas"]);
 
-    let created = post_json(s.addr, "/v1/sessions", &json!({"display_name": "Demo"})).await;
+    let created = post_json(s.addr, "/v1/sessions", &json!({"displayName": "Demo"})).await;
     assert_eq!(created.status, StatusCode::CREATED);
-    let id = created.json()["id"].as_str().unwrap().to_owned();
+    let id = created.json()["session"]["id"].as_str().unwrap().to_owned();
     assert_eq!(created.headers["location"], format!("/v1/sessions/{id}"));
-    assert_eq!(created.json()["state"], "empty");
+    assert_eq!(created.json()["session"]["state"], "SESSION_STATE_EMPTY");
 
     let list = get(s.addr, "/v1/sessions").await.json();
     assert_eq!(list["sessions"].as_array().unwrap().len(), 1);
     let one = get(s.addr, &format!("/v1/sessions/{id}")).await;
-    assert_eq!(one.json()["display_name"], "Demo");
+    assert_eq!(one.json()["session"]["displayName"], "Demo");
 
     let del = send(
         s.addr,
         request("DELETE", &format!("/v1/sessions/{id}"), Body::empty()),
     )
     .await;
-    assert_eq!(del.status, StatusCode::NO_CONTENT);
+    assert_eq!(del.status, StatusCode::OK);
+    assert_eq!(del.json(), json!({}));
     get(s.addr, &format!("/v1/sessions/{id}"))
         .await
         .problem(404, "SESSION_NOT_FOUND");
@@ -76,7 +84,7 @@ async fn session_crud_and_unknown_ids() {
         .await
         .problem(405, "METHOD_NOT_ALLOWED");
     // Bad input of the operation layer: an empty display name.
-    post_json(s.addr, "/v1/sessions", &json!({"display_name": ""}))
+    post_json(s.addr, "/v1/sessions", &json!({"displayName": ""}))
         .await
         .problem(400, "INVALID_ARGUMENT");
 }
@@ -86,8 +94,7 @@ async fn malformed_json_and_bad_queries_are_problems() {
     let s = open_server().await;
     let a = send(
         s.addr,
-        json_request("POST", "/v1/sessions", &json!(null))
-            .map(|_| Body::from("{\"display_name\":")),
+        json_request("POST", "/v1/sessions", &json!(null)).map(|_| Body::from("{\"displayName\":")),
     )
     .await;
     let p = a.problem(400, "INVALID_ARGUMENT");
@@ -99,12 +106,26 @@ async fn malformed_json_and_bad_queries_are_problems() {
         .await
         .problem(400, "INVALID_ARGUMENT");
     let id = create_session(s.addr, "Q").await;
-    get(s.addr, &format!("/v1/sessions/{id}/watch?since_seq=abc"))
-        .await
-        .problem(400, "INVALID_ARGUMENT");
-    get(s.addr, &format!("/v1/sessions/{id}/models/x?format=gif"))
-        .await
-        .problem(400, "INVALID_ARGUMENT");
+    for q in [
+        "watch?since_seq=abc",
+        "watch?sinceSeq=1&nope=2",
+        "watch?allowZstd=maybe",
+        "models/x?format=gif",
+        "models/x",
+        "slices?resection=r1&axial=north",
+    ] {
+        get(s.addr, &format!("/v1/sessions/{id}/{q}"))
+            .await
+            .problem(400, "INVALID_ARGUMENT");
+    }
+    // The body naming another session than the path.
+    post_json(
+        s.addr,
+        &format!("/v1/sessions/{id}/edits"),
+        &json!({"sessionId": "other", "undo": {}}),
+    )
+    .await
+    .problem(400, "INVALID_ARGUMENT");
     // No label map yet: failed precondition.
     get(s.addr, &format!("/v1/sessions/{id}/volumes"))
         .await
@@ -123,33 +144,61 @@ async fn raw_and_file_label_maps_upload() {
     short.pop();
     let p = send(s.addr, request("PUT", &url(&raw_query(&labels)), short))
         .await
-        .problem(400, "BAD_LABEL_MAP");
+        .problem(400, "INVALID_ARGUMENT");
     assert!(p["detail"].as_str().unwrap().contains("bytes"), "{p}");
-    // Missing geometry, bad numbers, NaN spacing, bad roles: 400 before the body matters.
+    // Missing geometry, wrong lengths, NaN spacing, bad roles, malformed JSON: 400.
+    let header = raw_header(&labels);
+    let with = |key: &str, v: Value| {
+        let mut h = header.clone();
+        h[key] = v;
+        format!("raw={}", encode(&h.to_string()))
+    };
     for q in [
-        "format=raw&data_type=u8".to_owned(),
-        raw_query(&labels).replace("dims=", "dims=1,"),
-        raw_query(&labels).replace("spacing=", "spacing=NaN,"),
-        format!("{}&roles=%7Bnope", raw_query(&labels)),
+        format!("raw={}", encode(r#"{"dataType":"DATA_TYPE_UINT8"}"#)),
+        with("dims", json!([1, 2, 3, 4])),
+        with("spacing", json!(["NaN", 1.0, 1.0])),
+        with("roles", json!({"tumor": [0]})),
+        with("dataType", json!("DATA_TYPE_UNSPECIFIED")),
+        "raw=%7Bnope".to_owned(),
+        format!("{}&file=%7B%7D", raw_query(&labels)),
     ] {
         let a = send(s.addr, request("PUT", &url(&q), raw_bytes(&labels))).await;
         a.problem(400, "INVALID_ARGUMENT");
     }
     let info = get(s.addr, &format!("/v1/sessions/{id}")).await.json();
-    assert_eq!(
-        (info["state"].as_str(), info["plan_version"].as_u64()),
-        (Some("empty"), Some(0))
-    );
+    assert_eq!(info["session"]["state"], "SESSION_STATE_EMPTY");
+    assert_eq!(info["session"].get("planVersion"), None);
 
     // Raw voxels with explicit roles.
-    let roles = "%7B%22parenchyma%22%3A%5B1%5D%2C%22tumor%22%3A%5B2%5D%2C%22portal%22%3A%5B3%5D%2C%22hepatic%22%3A%5B4%5D%7D";
+    let q = with(
+        "roles",
+        json!({"parenchyma": [1], "tumor": [2], "portal": [3], "hepatic": [4]}),
+    );
+    let a = send(s.addr, request("PUT", &url(&q), raw_bytes(&labels))).await;
+    assert_eq!(
+        a.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&a.body)
+    );
+    let summary = a.json()["labelMap"].clone();
+    let dims: Vec<usize> = serde_json::from_value(summary["dims"].clone()).unwrap();
+    assert_eq!(dims, labels.grid().dims());
+    let counts = labels.value_counts();
+    let one = summary["labels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|l| l["label"] == 1)
+        .unwrap();
+    assert_eq!(Some(u64_of(&one["voxels"])), counts.get(&1).copied());
+
+    // The same label map as a NIfTI file (format told from its bytes).
+    let nifti =
+        resecta_io::nifti::nifti_bytes(&resecta_io::Image::from_label_map(&labels), true).unwrap();
     let a = send(
         s.addr,
-        request(
-            "PUT",
-            &url(&format!("{}&roles={roles}", raw_query(&labels))),
-            raw_bytes(&labels),
-        ),
+        request("PUT", &format!("/v1/sessions/{id}/label-map"), nifti),
     )
     .await;
     assert_eq!(
@@ -158,25 +207,19 @@ async fn raw_and_file_label_maps_upload() {
         "{}",
         String::from_utf8_lossy(&a.body)
     );
-    let summary = a.json();
-    let dims: Vec<usize> = serde_json::from_value(summary["dims"].clone()).unwrap();
-    assert_eq!(dims, labels.grid().dims());
-    let counts = labels.value_counts();
-    assert_eq!(summary["labels"]["1"].as_u64(), counts.get(&1).copied());
-
-    // The same label map as a NIfTI file (format told from its bytes).
-    let nifti =
-        resecta_io::nifti::nifti_bytes(&resecta_io::Image::from_label_map(&labels), true).unwrap();
-    let a = send(s.addr, request("PUT", &url("format=auto"), nifti)).await;
-    assert_eq!(
-        a.status,
-        StatusCode::OK,
-        "{}",
-        String::from_utf8_lossy(&a.body)
-    );
-    assert_eq!(a.json()["labels"], summary["labels"]);
+    // The same voxels per label (the file's spacing is f32, so the volumes differ a little).
+    let voxels = |summary: &Value| -> Vec<(Value, Value)> {
+        summary["labels"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|l| (l["label"].clone(), l["voxels"].clone()))
+            .collect()
+    };
+    assert_eq!(voxels(&a.json()["labelMap"]), voxels(&summary));
     assert_eq!(plan_version(s.addr, &id).await, 2);
-    send(s.addr, request("PUT", &url("format=nifti"), "not an image"))
+    let nifti_query = format!("file={}", encode(r#"{"format":"LABEL_MAP_FORMAT_NIFTI"}"#));
+    send(s.addr, request("PUT", &url(&nifti_query), "not an image"))
         .await
         .problem(400, "BAD_LABEL_MAP");
 }
@@ -199,7 +242,7 @@ async fn oversized_bodies_are_refused_while_streaming() {
     )
     .await;
     let id = create_session(s.addr, "Big").await;
-    let url = format!("/v1/sessions/{id}/label-map?format=auto");
+    let url = format!("/v1/sessions/{id}/label-map");
 
     // A declared length beyond the limit: refused at once, although the body never comes.
     let pending = futures_util::stream::once(async { Ok::<_, std::io::Error>(Bytes::from("x")) })
@@ -238,7 +281,7 @@ async fn oversized_bodies_are_refused_while_streaming() {
     assert!(n < 1024, "the client sent {n} chunks of 64 KiB");
 
     // JSON bodies have their own limit.
-    let big = json!({"display_name": "x".repeat(2000)});
+    let big = json!({"displayName": "x".repeat(2000)});
     post_json(s.addr, "/v1/sessions", &big)
         .await
         .problem(413, "PAYLOAD_TOO_LARGE");
@@ -250,7 +293,7 @@ async fn oversized_bodies_are_refused_while_streaming() {
     send(s.addr, request("PUT", &q, raw_bytes(&labels)))
         .await
         .problem(413, "VOXEL_QUOTA");
-    post_json(s.addr, "/v1/sessions", &json!({"display_name": "Second"}))
+    post_json(s.addr, "/v1/sessions", &json!({"displayName": "Second"}))
         .await
         .problem(429, "SESSION_QUOTA");
 }
@@ -292,19 +335,20 @@ async fn reconstruction_streams_progress_models_and_done() {
     }
     let done = done.expect("a done event");
     assert!(progress > 0);
-    assert_eq!(done["models"].as_u64(), Some(models.len() as u64));
-    assert_eq!(done["dropped"], json!([]));
-    assert_eq!(done["min_component_mm3"], 10.0);
+    let done = &done["done"];
+    assert_eq!(done["modelCount"].as_u64(), Some(models.len() as u64));
+    assert_eq!(done.get("dropped"), None);
+    assert_eq!(done["minComponentMm3"], 10.0);
     assert!(models.contains(&"tumor_1".to_owned()), "{models:?}");
     assert_eq!(
-        get(s.addr, &format!("/v1/sessions/{id}")).await.json()["state"],
-        "ready"
+        get(s.addr, &format!("/v1/sessions/{id}")).await.json()["session"]["state"],
+        "SESSION_STATE_READY"
     );
 
     // Models export as files.
     let a = get(
         s.addr,
-        &format!("/v1/sessions/{id}/models/tumor_1?format=stl"),
+        &format!("/v1/sessions/{id}/models/tumor_1?format=MODEL_FORMAT_STL"),
     )
     .await;
     assert_eq!(a.status, StatusCode::OK);
@@ -313,9 +357,12 @@ async fn reconstruction_streams_progress_models_and_done() {
         resecta_io::mesh::read_mesh_bytes(&a.body, resecta_io::mesh::MeshFormat::Stl, "t.stl")
             .unwrap();
     assert!(!mesh.triangles().is_empty());
-    get(s.addr, &format!("/v1/sessions/{id}/models/nothing"))
-        .await
-        .problem(404, "MODEL_NOT_FOUND");
+    get(
+        s.addr,
+        &format!("/v1/sessions/{id}/models/nothing?format=MODEL_FORMAT_VTP"),
+    )
+    .await
+    .problem(404, "MODEL_NOT_FOUND");
 }
 
 /// Reconstructs with `body` and returns the `model` events' models.
@@ -348,13 +395,19 @@ async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
     let url = format!("/v1/sessions/{id}/reconstruct");
     for (body, needle) in [
         (json!({"method": "marching"}), "marching"),
-        (json!({"psr_depth": 0}), "psr_depth"),
-        (json!({"psr_depth": 11}), "psr_depth"),
-        (json!({"method": "mcsd", "smoothing": 1.5}), "smoothing"),
-        (json!({"decimation": 1.0}), "decimation"),
+        (json!({"options": {"psrDepth": 0}}), "psr_depth"),
+        (json!({"options": {"psrDepth": 11}}), "psr_depth"),
+        (
+            json!({"method": "RECONSTRUCTION_METHOD_MCSD", "options": {"smoothing": 1.5}}),
+            "smoothing",
+        ),
+        (json!({"options": {"decimation": 1.0}}), "decimation"),
         (json!({"smoothness": 0.5}), "smoothness"),
-        (json!({"min_component_mm3": -1}), "min_component_mm3"),
-        (json!({"split_components": "yes"}), "boolean"),
+        (
+            json!({"options": {"minComponentMm3": -1}}),
+            "min_component_mm3",
+        ),
+        (json!({"options": {"splitComponents": "yes"}}), "bool"),
     ] {
         let p = post_json(s.addr, &url, &body)
             .await
@@ -373,25 +426,35 @@ async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
     };
     // An empty JSON object is the defaults: PSR for the liver.
     let psr = liver(&reconstructed(s.addr, &id, &json!({})).await);
-    assert_eq!(psr["method"], "psr");
+    assert_eq!(psr["method"], "RECONSTRUCTION_METHOD_PSR");
     let mcsd = reconstructed(
         s.addr,
         &id,
-        &json!({"method": "mcsd", "smoothing": 0.3, "decimation": 0.5}),
+        &json!({"method": "RECONSTRUCTION_METHOD_MCSD", "options": {"smoothing": 0.3, "decimation": 0.5}}),
     )
     .await;
-    assert!(mcsd.iter().all(|m| m["method"] == "mcsd"), "{mcsd:?}");
+    assert!(
+        mcsd.iter()
+            .all(|m| m["method"] == "RECONSTRUCTION_METHOD_MCSD"),
+        "{mcsd:?}"
+    );
     let m = liver(&mcsd);
-    let rel = m["volume_ml"].as_f64().unwrap() / psr["volume_ml"].as_f64().unwrap() - 1.0;
+    let rel = m["volumeMl"].as_f64().unwrap() / psr["volumeMl"].as_f64().unwrap() - 1.0;
     assert!(rel.abs() < 0.05, "MCSD {m} vs PSR {psr}");
-    let coarse =
-        liver(&reconstructed(s.addr, &id, &json!({"method": "psr", "psr_depth": 4})).await);
-    assert_eq!(coarse["method"], "psr");
-    assert!(coarse["triangles"].as_u64() < psr["triangles"].as_u64());
+    let coarse = liver(
+        &reconstructed(
+            s.addr,
+            &id,
+            &json!({"method": "RECONSTRUCTION_METHOD_PSR", "options": {"psrDepth": 4}}),
+        )
+        .await,
+    );
+    assert_eq!(coarse["method"], "RECONSTRUCTION_METHOD_PSR");
+    assert!(u64_of(&coarse["triangleCount"]) < u64_of(&psr["triangleCount"]));
     let split = reconstructed(
         s.addr,
         &id,
-        &json!({"split_components": true, "min_component_mm3": 0}),
+        &json!({"options": {"splitComponents": true, "minComponentMm3": 0}}),
     )
     .await;
     let names: Vec<_> = split.iter().map(|m| (&m["name"], &m["label"])).collect();
@@ -414,8 +477,8 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     let snap = w.next_event().await.unwrap();
     assert_eq!(snap.event.as_deref(), Some("snapshot"));
     let first: u64 = snap.id.as_deref().unwrap().parse().unwrap();
-    assert_eq!(snap.json()["seq"].as_u64(), Some(first));
-    assert_eq!(snap.json()["body"]["type"], "snapshot");
+    assert_eq!(u64_of(&snap.json()["seq"]), first);
+    assert!(snap.json()["snapshot"].is_object());
 
     // A new resection: a whole mesh in the delta.
     let out = post_json(s.addr, &format!("/v1/sessions/{id}/edits"), &init_edit(1)).await;
@@ -425,55 +488,55 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         "{}",
         String::from_utf8_lossy(&out.body)
     );
-    assert_eq!(out.json()["plan_version"], 2);
+    assert_eq!(out.json()["planVersion"], "2");
     assert_eq!(out.json()["resections"][0]["resection"]["name"], "r1");
-    assert_eq!(out.json()["removed"], json!([]));
+    assert_eq!(out.json().get("removed"), None);
     let e = next_delta(&mut w).await;
     let mut last: u64 = e.id.as_deref().unwrap().parse().unwrap();
     assert!(last > first);
-    let update = &e.json()["body"]["updates"][0];
-    assert_eq!(update["full"], true);
-    let bytes = STANDARD.decode(update["bytes"].as_str().unwrap()).unwrap();
+    let update = &e.json()["delta"]["resections"][0];
+    let bytes = STANDARD
+        .decode(update["fullMesh"].as_str().unwrap())
+        .unwrap();
     let (_, mut frame) = decode_mesh(&bytes, &DecodeLimits::default()).unwrap();
 
     // A drag: a delta against it.
     let out = post_json(
         s.addr,
         &format!("/v1/sessions/{id}/edits"),
-        &drag_edit(2, json!([-8.0, 5.0, 4.0])),
+        &drag_edit(2, xyz(-8.0, 5.0, 4.0)),
     )
     .await;
-    assert_eq!(out.json()["plan_version"], 3);
+    assert_eq!(out.json()["planVersion"], "3");
     let e = next_delta(&mut w).await;
     let seq: u64 = e.id.as_deref().unwrap().parse().unwrap();
     assert!(seq > last);
     last = seq;
-    let body = e.json()["body"].clone();
-    assert_eq!(body["updates"][0]["full"], false);
-    assert_eq!(
-        body["resections"]["r1"]["control_points"][6],
-        json!([-8.0, 5.0, 4.0])
-    );
-    let delta = STANDARD
-        .decode(body["updates"][0]["bytes"].as_str().unwrap())
-        .unwrap();
+    let r1 = e.json()["delta"]["resections"][0].clone();
+    assert_eq!(r1.get("fullMesh"), None);
+    assert_eq!(r1["resection"]["controlPoints"][6], xyz(-8.0, 5.0, 4.0));
+    let delta = STANDARD.decode(r1["meshDelta"].as_str().unwrap()).unwrap();
     apply_delta(&mut frame, &delta, &DecodeLimits::default()).unwrap();
 
     // A late snapshot equals the frame the deltas built.
     let mut late = SseReader::watch(s.addr, &id).await;
     let snap = late.next_event().await.unwrap().json();
     let mesh = STANDARD
-        .decode(snap["body"]["resections"][0]["mesh"].as_str().unwrap())
+        .decode(
+            snap["snapshot"]["resections"][0]["fullMesh"]
+                .as_str()
+                .unwrap(),
+        )
         .unwrap();
     assert_eq!(
         decode_mesh(&mesh, &DecodeLimits::default()).unwrap().1,
         frame
     );
 
-    // Resume: Last-Event-ID wins over since_seq; what follows `first` comes, no snapshot.
+    // Resume: Last-Event-ID wins over sinceSeq; what follows `first` comes, no snapshot.
     let mut req = request(
         "GET",
-        &format!("{watch_url}?since_seq={last}"),
+        &format!("{watch_url}?sinceSeq={last}"),
         Body::empty(),
     );
     req.headers_mut()
@@ -497,23 +560,28 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     let p = post_json(
         s.addr,
         &format!("/v1/sessions/{id}/edits"),
-        &drag_edit(2, json!([-9.0, 5.0, 4.0])),
+        &drag_edit(2, xyz(-9.0, 5.0, 4.0)),
     )
     .await
     .problem(409, "STALE_VERSION");
     assert_eq!(p["current_version"], 3);
 
-    // NaN cannot travel as a JSON number; as a string, an over-large number or an index out of
-    // the grid it is refused with 400 and the plan stays.
+    // NaN (a string in proto JSON), an index out of the grid, a missing point, two operations
+    // in one request: refused with 400, and the plan stays.
     for edit in [
-        drag_edit(3, json!(["NaN", 0.0, 0.0])),
-        json!({"base_version": 3, "edit": {"op": "event", "event": {"op": "set_control_point", "name": "r1", "i": 99, "j": 2, "point": [0.0, 0.0, 0.0]}}}),
+        drag_edit(3, json!({"x": "NaN"})),
+        drag_edit(3, json!({"x": "Infinity"})),
+        json!({"baseVersion": "3", "setControlPoint": {"name": "r1", "i": 99, "j": 2, "point": xyz(0.0, 0.0, 0.0)}}),
+        json!({"baseVersion": "3", "setControlPoint": {"name": "r1", "i": 1, "j": 2}}),
+        json!({"baseVersion": "3", "undo": {}, "redo": {}}),
+        json!({"baseVersion": "3"}),
     ] {
         post_json(s.addr, &format!("/v1/sessions/{id}/edits"), &edit)
             .await
             .problem(400, "INVALID_ARGUMENT");
     }
-    let huge = r#"{"base_version":3,"edit":{"op":"event","event":{"op":"set_control_point","name":"r1","i":1,"j":2,"point":[1e999,0,0]}}}"#;
+    let huge =
+        r#"{"baseVersion":"3","setControlPoint":{"name":"r1","i":1,"j":2,"point":{"x":1e999}}}"#;
     let a = send(
         s.addr,
         request("POST", &format!("/v1/sessions/{id}/edits"), huge),
@@ -523,7 +591,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     post_json(
         s.addr,
         &format!("/v1/sessions/{id}/edits"),
-        &json!({"edit": {"op": "event", "event": {"op": "translate", "name": "nope", "delta": [1.0, 0.0, 0.0]}}}),
+        &json!({"translate": {"name": "nope", "delta": xyz(1.0, 0.0, 0.0)}}),
     )
     .await
     .problem(404, "RESECTION_NOT_FOUND");
@@ -533,7 +601,7 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
     let v = get(s.addr, &format!("/v1/sessions/{id}/volumes"))
         .await
         .json();
-    assert_eq!(v["plan_version"], 3);
+    assert_eq!(v["planVersion"], "3");
     assert_eq!(v["volumes"]["complete"], true);
     let sl = get(
         s.addr,
@@ -551,40 +619,24 @@ async fn edits_stream_to_watchers_with_resume_and_versions() {
         .decode(contour["points"].as_str().unwrap())
         .unwrap();
     assert!(!points.is_empty() && points.len() % 12 == 0);
-    assert!(sl.json()["sagittal"].as_array().unwrap().is_empty());
+    assert_eq!(sl.json().get("sagittal"), None);
     let plan = get(s.addr, &format!("/v1/sessions/{id}/plan")).await;
     assert_eq!(plan.content_type(), "application/json");
-    assert_eq!(plan.json()["format"], "resecta-plan/1");
-    let imported = send(
-        s.addr,
-        request(
-            "PUT",
-            &format!("/v1/sessions/{id}/plan?base_version=3"),
-            plan.body.clone(),
-        ),
-    )
-    .await;
-    assert_eq!(imported.json()["plan_version"], 4);
-    send(
-        s.addr,
-        request(
-            "PUT",
-            &format!("/v1/sessions/{id}/plan?base_version=3"),
-            plan.body.clone(),
-        ),
-    )
-    .await
-    .problem(409, "STALE_VERSION");
-    send(
-        s.addr,
-        request(
-            "PUT",
-            &format!("/v1/sessions/{id}/plan"),
-            "{\"format\":\"x\"}",
-        ),
-    )
-    .await
-    .problem(400, "BAD_PLAN");
+    assert_eq!(plan.json()["planVersion"], "3");
+    let document = plan.json()["planJson"].as_str().unwrap().to_owned();
+    let doc: Value = serde_json::from_str(&document).unwrap();
+    assert_eq!(doc["format"], "resecta-plan/1");
+    let plan_url = format!("/v1/sessions/{id}/plan");
+    let import = json!({"planJson": document, "baseVersion": "3"});
+    let imported = send(s.addr, json_request("PUT", &plan_url, &import)).await;
+    assert_eq!(imported.json()["planVersion"], "4");
+    send(s.addr, json_request("PUT", &plan_url, &import))
+        .await
+        .problem(409, "STALE_VERSION");
+    let bad = json!({"planJson": "{\"format\":\"x\"}"});
+    send(s.addr, json_request("PUT", &plan_url, &bad))
+        .await
+        .problem(400, "BAD_PLAN");
 
     // Deleting the session ends the watch stream.
     send(
@@ -778,11 +830,13 @@ async fn watch_streams_send_keep_alives() {
     }
 }
 
-/// Every route of the router is documented with its method, and every documented operation is
-/// routed (probed on the real router: it answers something other than "no route").
+/// Every route of the router is documented with its method, every documented operation is
+/// routed (probed on the real router: it answers something other than "no route"), every RPC of
+/// `PlanningService` is one route whose operation is named after it, and its schemas are the
+/// RPC's messages with the proto fields' JSON names.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn the_openapi_document_matches_the_router() {
-    let doc: Value = serde_json::from_str(resecta_http::OPENAPI).unwrap();
+async fn the_openapi_document_matches_the_router_and_the_protos() {
+    let doc: Value = serde_json::from_str(resecta_http::openapi_document()).unwrap();
     assert_eq!(doc["openapi"], "3.1.0");
     let paths = doc["paths"].as_object().unwrap();
     let mut documented = Vec::new();
@@ -794,14 +848,58 @@ async fn the_openapi_document_matches_the_router() {
     documented.sort();
     let mut routed: Vec<(String, String)> = resecta_http::routes()
         .into_iter()
-        .map(|(m, p)| (m.to_string(), p.to_owned()))
+        .map(|r| (r.method.to_string(), r.path.to_owned()))
         .collect();
     routed.sort();
     assert_eq!(routed, documented);
 
+    // Every RPC is one route, documented as that RPC with its messages.
+    let rpcs = rpc_names();
+    let mut covered: Vec<&str> = resecta_http::routes()
+        .iter()
+        .filter_map(|r| r.rpc)
+        .collect();
+    covered.sort_unstable();
+    let mut expected: Vec<&str> = rpcs.iter().map(String::as_str).collect();
+    expected.sort_unstable();
+    assert_eq!(covered, expected);
+    for r in resecta_http::routes() {
+        let Some(rpc) = r.rpc else { continue };
+        let op = &doc["paths"][r.path][r.method.as_str().to_lowercase()];
+        assert_eq!(op["operationId"], rpc, "{} {}", r.method, r.path);
+        let text = op.to_string();
+        let (input, output) = (format!("{rpc}Request"), format!("{rpc}Response"));
+        assert!(
+            rpc == "UploadLabelMap" || rpc == "ExportModel" || text.contains(&output),
+            "{rpc}: {text}"
+        );
+        if r.method == http::Method::POST || r.method == http::Method::PUT {
+            assert!(
+                rpc == "UploadLabelMap" || text.contains(&input),
+                "{rpc}: {text}"
+            );
+        }
+    }
+    // The edit request's schema: the proto's fields by their JSON names, enums by name.
+    let edit = &doc["components"]["schemas"]["resecta.v1.EditRequest"]["properties"];
+    for field in [
+        "sessionId",
+        "baseVersion",
+        "setControlPoint",
+        "addResection",
+        "undo",
+    ] {
+        assert!(edit.get(field).is_some(), "EditRequest.{field}: {edit}");
+    }
+    assert_eq!(edit["baseVersion"]["format"], "uint64");
+    let group = &doc["components"]["schemas"]["resecta.v1.ControlGroup"];
+    assert_eq!(group["enum"][1], "CONTROL_GROUP_INNER");
+
     // Every $ref resolves.
-    let text = resecta_http::OPENAPI;
-    for r in text.split("\"$ref\": \"#/").skip(1) {
+    let text = resecta_http::openapi_document();
+    let refs: Vec<&str> = text.split("\"$ref\":\"#/").skip(1).collect();
+    assert!(refs.len() > 20, "{} refs", refs.len());
+    for r in refs {
         let pointer = format!("/{}", &r[..r.find('"').unwrap()]);
         assert!(doc.pointer(&pointer).is_some(), "dangling $ref {pointer}");
     }
@@ -831,6 +929,19 @@ async fn the_openapi_document_matches_the_router() {
             "{method} {path}: {code}"
         );
     }
+}
+
+/// The methods of `resecta.v1.PlanningService`, from the descriptor set.
+fn rpc_names() -> Vec<String> {
+    use prost::Message;
+    let set = prost_types::FileDescriptorSet::decode(resecta_api::FILE_DESCRIPTOR_SET).unwrap();
+    set.file
+        .iter()
+        .flat_map(|f| &f.service)
+        .filter(|s| s.name() == "PlanningService")
+        .flat_map(|s| &s.method)
+        .map(|m| m.name().to_owned())
+        .collect()
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -38,11 +38,11 @@ async fn requests_are_logged_without_patient_data() {
     let mut req = json_request(
         "POST",
         "/v1/sessions",
-        &json!({"display_name": "Jane Roe 1970-01-01"}),
+        &json!({"displayName": "Jane Roe 1970-01-01"}),
     );
     req.headers_mut()
         .insert("x-request-id", "trace-me-7".parse().unwrap());
-    let id = send(s.addr, req).await.json()["id"]
+    let id = send(s.addr, req).await.json()["session"]["id"]
         .as_str()
         .unwrap()
         .to_owned();

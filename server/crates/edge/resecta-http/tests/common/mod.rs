@@ -138,31 +138,42 @@ pub async fn create_session(addr: SocketAddr, name: &str) -> String {
     let a = post_json(
         addr,
         "/v1/sessions",
-        &serde_json::json!({ "display_name": name }),
+        &serde_json::json!({ "displayName": name }),
     )
     .await;
     assert_eq!(a.status, StatusCode::CREATED);
-    a.json()["id"].as_str().unwrap().to_owned()
+    a.json()["session"]["id"].as_str().unwrap().to_owned()
+}
+
+/// Percent-encodes a query value.
+pub fn encode(v: &str) -> String {
+    v.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'.' | b'_' | b'~' => {
+                (b as char).to_string()
+            }
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
+}
+
+/// The `RawLabelMapHeader` of a label map (u8 voxels) as proto JSON.
+pub fn raw_header(labels: &LabelMap) -> Value {
+    let g = labels.grid();
+    let d = g.direction();
+    let o = g.origin();
+    serde_json::json!({
+        "dims": g.dims(),
+        "spacing": g.spacing(),
+        "origin": [o.x, o.y, o.z],
+        "direction": (0..9).map(|n| d[(n / 3, n % 3)]).collect::<Vec<_>>(),
+        "dataType": "DATA_TYPE_UINT8",
+    })
 }
 
 /// The raw-upload query of a label map (u8 voxels).
 pub fn raw_query(labels: &LabelMap) -> String {
-    let g = labels.grid();
-    let d = g.direction();
-    let join = |v: &[f64]| {
-        v.iter()
-            .map(ToString::to_string)
-            .collect::<Vec<_>>()
-            .join(",")
-    };
-    let [i, j, k] = g.dims();
-    let o = g.origin();
-    format!(
-        "format=raw&data_type=u8&dims={i},{j},{k}&spacing={}&origin={}&direction={}",
-        join(&g.spacing()),
-        join(&[o.x, o.y, o.z]),
-        join(&(0..9).map(|n| d[(n / 3, n % 3)]).collect::<Vec<_>>()),
-    )
+    format!("raw={}", encode(&raw_header(labels).to_string()))
 }
 
 pub fn raw_bytes(labels: &LabelMap) -> Vec<u8> {
