@@ -11,6 +11,7 @@ use rayon::prelude::*;
 use resecta_geom::{Grid, LabelMap, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_recon::models::{self, LabelParts};
 use resecta_recon::{McsdParams, ReconError, mask, mcsd};
+use resecta_volumetry::LiverVoxels;
 
 use crate::engine::{TargetModel, build_target};
 use crate::error::PlanError;
@@ -60,6 +61,9 @@ pub struct Anatomy {
     tumours: Vec<Tumour>,
     /// Margin structures per selection of tumours (at most [`MAX_TARGETS`]).
     targets: Mutex<BTreeMap<Vec<usize>, Arc<TargetModel>>>,
+    /// The functional voxels indexed for volumetry, built with the anatomy and taken by the
+    /// first planner's volumetry engine ([`Anatomy::take_liver_voxels`]).
+    liver_voxels: Mutex<Option<LiverVoxels>>,
 }
 
 /// Selections whose margin structures an anatomy keeps (more start the memory afresh).
@@ -145,7 +149,12 @@ impl Anatomy {
             || {
                 rayon::join(
                     || mcsd::reconstruct(&envelope, &McsdParams::default()),
-                    || functional_mask(labels, &lut, &envelope),
+                    || {
+                        let functional = functional_mask(labels, &lut, &envelope)?;
+                        // An empty liver is reported when a volumetry is asked for.
+                        let voxels = LiverVoxels::new(&functional).ok();
+                        Ok::<_, PlanError>((functional, voxels))
+                    },
                 )
             },
             || -> Result<_, PlanError> {
@@ -166,7 +175,7 @@ impl Anatomy {
                     .collect()
             },
         );
-        let (parenchyma, functional) = (parenchyma?, functional?);
+        let (parenchyma, (functional, liver_voxels)) = (parenchyma?, functional?);
         let tumours = tumours?;
         let targets = targets?;
         go_on()?;
@@ -178,6 +187,7 @@ impl Anatomy {
             parenchyma,
             tumours,
             targets: Mutex::new(targets.into_iter().collect()),
+            liver_voxels: Mutex::new(liver_voxels),
         })
     }
 
@@ -207,6 +217,12 @@ impl Anatomy {
             ));
         }
         Ok(model)
+    }
+
+    /// The functional voxels indexed for volumetry, once: the first caller takes them (a
+    /// volumetry engine is built once per planner), later callers index them again.
+    pub fn take_liver_voxels(&self) -> Option<LiverVoxels> {
+        self.liver_voxels.lock().ok()?.take()
     }
 
     pub fn roles(&self) -> &RoleMap {

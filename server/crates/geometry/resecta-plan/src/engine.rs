@@ -389,7 +389,10 @@ impl Planner {
 
     fn volumetry_engine(&mut self) -> Result<&mut Volumetry, PlanError> {
         if self.volumetry.is_none() {
-            let liver = LiverVoxels::new(self.anatomy.functional())?;
+            let liver = match self.anatomy.take_liver_voxels() {
+                Some(liver) => liver,
+                None => LiverVoxels::new(self.anatomy.functional())?,
+            };
             self.volumetry = Some(Volumetry::new(liver));
         }
         self.volumetry.as_mut().ok_or(PlanError::EmptyLiver)

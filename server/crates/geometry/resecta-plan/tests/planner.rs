@@ -504,3 +504,21 @@ fn a_cancelled_set_up_stops_with_cancelled_and_an_uncancelled_one_matches_new() 
         assert_eq!(verdicts[0], verdicts[1]);
     }
 }
+
+#[test]
+fn volumes_on_the_voxels_indexed_with_the_anatomy_equal_those_indexed_afresh() {
+    let p = generate(&spec()).unwrap();
+    let a = Arc::new(Anatomy::new(&p.labels, &spec().roles).unwrap());
+    let mut plan = Plan::new(spec().roles);
+    plan.apply(&PlanEvent::AddResection {
+        resection: plane_x("r1", 2.0, 70.0),
+    })
+    .unwrap();
+    // The first planner's engine takes the anatomy's indexed voxels; the second indexes anew.
+    let mut first = Planner::new(Arc::clone(&a), plan.clone()).unwrap();
+    let prebuilt = first.volumes().unwrap();
+    assert!(a.take_liver_voxels().is_none());
+    let afresh = Planner::new(a, plan).unwrap().volumes().unwrap();
+    assert_eq!(format!("{prebuilt:?}"), format!("{afresh:?}"));
+    assert!(prebuilt.resections[0].resected_ml.unwrap() > 0.0);
+}
