@@ -5,12 +5,11 @@ use std::collections::BTreeMap;
 
 use resecta_geom::{Real, RoleMap};
 use resecta_plan::{PlanEvent, Resection, Target, Verdict, VolumeReport};
-use serde::{Deserialize, Serialize};
 
 /// The API generation clients must speak.
 pub const API_VERSION: &str = "resecta.v1";
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct ServerInfo {
     pub version: &'static str,
     pub api_version: &'static str,
@@ -18,7 +17,7 @@ pub struct ServerInfo {
     pub limits: Limits,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct Limits {
     pub max_sessions: usize,
     pub max_voxels: u64,
@@ -27,8 +26,7 @@ pub struct Limits {
 }
 
 /// Where a session is in the workflow.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SessionState {
     /// Created, no label map yet.
     Empty,
@@ -38,7 +36,7 @@ pub enum SessionState {
     Ready,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct SessionInfo {
     pub id: String,
     pub display_name: String,
@@ -51,7 +49,7 @@ pub struct SessionInfo {
 }
 
 /// Geometry and contents of a loaded label map.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct LabelMapSummary {
     pub dims: [usize; 3],
     pub spacing: [Real; 3],
@@ -66,8 +64,7 @@ pub struct LabelMapSummary {
 }
 
 /// Voxel type of raw uploaded data (little-endian).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum DataType {
     U8,
     U16,
@@ -100,8 +97,7 @@ pub struct RawLabelMap {
 }
 
 /// Image file formats accepted as label-map uploads.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FileFormat {
     Nifti,
     Nrrd,
@@ -118,8 +114,7 @@ pub enum LabelMapSource {
 }
 
 /// One plan change.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "op", rename_all = "snake_case")]
+#[derive(Debug, Clone, PartialEq)]
 pub enum EditOp {
     /// Any plan event (set control points, move groups, translate, rotate, margins, ...).
     Event {
@@ -128,20 +123,16 @@ pub enum EditOp {
     /// A new resection initialised from its target tumour(s) and an end point (Alg. 1–2).
     InitFromEndPoint {
         name: String,
-        #[serde(default)]
         target: Target,
         end_point: [Real; 3],
-        #[serde(default = "default_grid")]
         grid: [usize; 2],
     },
     /// A new resection on the plane through `point` with `normal`.
     InitFromPlane {
         name: String,
-        #[serde(default)]
         target: Target,
         point: [Real; 3],
         normal: [Real; 3],
-        #[serde(default = "default_grid")]
         grid: [usize; 2],
     },
     Undo,
@@ -151,11 +142,7 @@ pub enum EditOp {
 /// Control points per direction of a new resection when the edit names none.
 pub const DEFAULT_GRID: [usize; 2] = [4, 4];
 
-fn default_grid() -> [usize; 2] {
-    DEFAULT_GRID
-}
-
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct EditOutcome {
     pub plan_version: u64,
     /// Resections the change added or changed, with their parameters and verdicts now.
@@ -165,7 +152,7 @@ pub struct EditOutcome {
 }
 
 /// A resection's parameters and margin verdict.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct ResectionStatus {
     pub resection: Resection,
     pub verdict: Option<Verdict>,
@@ -179,13 +166,12 @@ pub struct Versioned<T> {
 }
 
 /// Surface models of one reconstruction.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+#[derive(Debug, Clone)]
 pub struct ModelInfo {
     pub name: String,
     pub kind: SurfaceKind,
     /// The label value (segment) the model was built from; for the parenchyma its label when
     /// the role has one, 0 otherwise.
-    #[serde(default)]
     pub label: u16,
     pub method: String,
     pub triangles: usize,
@@ -194,8 +180,7 @@ pub struct ModelInfo {
 }
 
 /// Reconstruction methods for the parenchyma (tumours and vessels always use MCSD).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum ReconMethod {
     /// Screened Poisson at the given depth (the thesis' preferred parenchyma model).
     #[default]
@@ -206,9 +191,8 @@ pub enum ReconMethod {
 
 /// Options of one reconstruction; every field defaults to the server's choice (PSR at the
 /// configured depth, MCSD smoothing 0.5 and no decimation, one model per vessel label, specks
-/// below 10 mm³ left out). Also the HTTP request body.
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
+/// below 10 mm³ left out).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct ReconOptions {
     pub method: ReconMethod,
     /// PSR depth, 1..=10; absent: the server's configured depth. Checked whatever the method.
@@ -226,15 +210,14 @@ pub struct ReconOptions {
 }
 
 /// Components of one role left out of the models as specks.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct DroppedComponents {
     pub kind: SurfaceKind,
     pub count: usize,
     pub volume_ml: Real,
 }
 
-#[derive(Debug, Clone, Serialize)]
-#[serde(tag = "event", rename_all = "snake_case")]
+#[derive(Debug, Clone)]
 pub enum ReconstructEvent {
     Progress {
         stage: String,
@@ -254,8 +237,7 @@ pub enum ReconstructEvent {
 }
 
 /// What a surface shows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum SurfaceKind {
     Parenchyma,
     Tumor,
@@ -282,7 +264,7 @@ impl SurfaceKind {
 }
 
 /// A whole surface: `mesh` is a `resecta-delta` mesh encoding (magic `RSMS`).
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct Surface {
     pub name: String,
     pub kind: SurfaceKind,
@@ -290,7 +272,6 @@ pub struct Surface {
     pub label: u16,
     /// Suggested display colour (RGBA, 0–1): [`SurfaceKind::display_color`].
     pub color: Option<[f32; 4]>,
-    #[serde(skip)]
     pub mesh: Vec<u8>,
 }
 
@@ -314,16 +295,14 @@ impl Surface {
 
 /// A resection surface after an edit: a delta against the previous frame (magic `RSDL`) when
 /// the topology is unchanged, else the whole mesh.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct SurfaceUpdate {
     pub name: String,
     pub full: bool,
-    #[serde(skip)]
     pub bytes: Vec<u8>,
 }
 
-#[derive(Debug, Clone, Serialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
+#[derive(Debug, Clone)]
 pub enum WatchBody {
     /// Everything: models, resection surfaces with their verdicts, the last volumes.
     Snapshot {
@@ -349,7 +328,7 @@ pub enum WatchBody {
 }
 
 /// One message of a session's watch stream.
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone)]
 pub struct WatchEvent {
     /// Increases by one per event of this session (since the server started).
     pub seq: u64,

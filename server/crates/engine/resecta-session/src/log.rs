@@ -12,7 +12,7 @@ use resecta_store::{Blob, LogRecord, SessionRecord, SessionStore};
 use crate::api::{LabelMapSummary, ModelInfo, Surface};
 use crate::error::{Result, SessionError};
 use crate::labelmap;
-use crate::record::{self, Step};
+use crate::record::{self, ModelRecord, Step, SummaryRecord};
 use crate::state::Model;
 use crate::support::internal;
 
@@ -126,7 +126,7 @@ pub(crate) fn store_label_map(
 ) -> Result<(Plan, u64)> {
     let plan = Plan::new(roles.clone());
     let summary_blob = Blob {
-        meta_json: serde_json::to_string(summary).map_err(internal)?,
+        meta_json: serde_json::to_string(&SummaryRecord::from(summary)).map_err(internal)?,
         data: Vec::new(),
     };
     store.put_blob(key, LABELMAP_BLOB, &labelmap::to_blob(labels, roles)?)?;
@@ -147,7 +147,7 @@ pub(crate) fn stored_summary(
     let summary = store.blob(key, SUMMARY_BLOB)?;
     let models = store.blob(key, MODELS_BLOB)?.is_some();
     let summary: Option<LabelMapSummary> = summary
-        .map(|b| serde_json::from_str(&b.meta_json))
+        .map(|b| serde_json::from_str::<SummaryRecord>(&b.meta_json).map(Into::into))
         .transpose()
         .map_err(internal)?;
     Ok((version, summary, models))
@@ -174,9 +174,9 @@ pub(crate) fn roll_back(planner: &mut Planner, id: &str) {
 
 /// Models as a blob: JSON infos with byte lengths, then the `RSMS` encodings back to back.
 pub(crate) fn encode_models(models: &[Model]) -> Result<Blob> {
-    let meta: Vec<(&ModelInfo, usize)> = models
+    let meta: Vec<(ModelRecord, usize)> = models
         .iter()
-        .map(|m| (&m.info, m.surface.mesh.len()))
+        .map(|m| (ModelRecord::from(&m.info), m.surface.mesh.len()))
         .collect();
     Ok(Blob {
         meta_json: serde_json::to_string(&meta).map_err(internal)?,
@@ -188,10 +188,12 @@ pub(crate) fn encode_models(models: &[Model]) -> Result<Blob> {
 }
 
 pub(crate) fn decode_models(blob: &Blob) -> Result<Vec<Model>> {
-    let meta: Vec<(ModelInfo, usize)> = serde_json::from_str(&blob.meta_json).map_err(internal)?;
+    let meta: Vec<(ModelRecord, usize)> =
+        serde_json::from_str(&blob.meta_json).map_err(internal)?;
     let mut at = 0usize;
     let mut out = Vec::with_capacity(meta.len());
     for (info, len) in meta {
+        let info = ModelInfo::from(info);
         let bytes = at
             .checked_add(len)
             .and_then(|end| blob.data.get(at..end))

@@ -9,11 +9,17 @@
 //!   (`resecta-plan/1`).
 //! - Version 1 (read): no `v`; `{"type":"reset","plan":…}` and `{"type":"entry","entry":{"kind":…}}`
 //!   with the same event objects.
+//!
+//! The metadata of the label-map summary and model blobs are records of this module too
+//! ([`SummaryRecord`], [`ModelRecord`]), not the API's types.
 
-use resecta_geom::Real;
+use std::collections::BTreeMap;
+
+use resecta_geom::{Real, RoleMap};
 use resecta_plan::{Group, LogEntry, PlanEvent, Resection, Target};
 use serde::{Deserialize, Serialize};
 
+use crate::api::{LabelMapSummary, ModelInfo, SurfaceKind};
 use crate::error::{Result, SessionError};
 use crate::support::internal;
 
@@ -269,5 +275,133 @@ impl From<EventRecord> for PlanEvent {
                 },
             },
         }
+    }
+}
+
+/// A stored label-map summary.
+#[derive(Serialize, Deserialize)]
+pub(crate) struct SummaryRecord {
+    dims: [usize; 3],
+    spacing: [Real; 3],
+    origin: [Real; 3],
+    direction: [Real; 9],
+    labels: BTreeMap<u16, u64>,
+    liver_ml: Real,
+    roles: RoleMap,
+}
+
+impl From<&LabelMapSummary> for SummaryRecord {
+    fn from(s: &LabelMapSummary) -> Self {
+        let s = s.clone();
+        Self {
+            dims: s.dims,
+            spacing: s.spacing,
+            origin: s.origin,
+            direction: s.direction,
+            labels: s.labels,
+            liver_ml: s.liver_ml,
+            roles: s.roles,
+        }
+    }
+}
+
+impl From<SummaryRecord> for LabelMapSummary {
+    fn from(s: SummaryRecord) -> Self {
+        Self {
+            dims: s.dims,
+            spacing: s.spacing,
+            origin: s.origin,
+            direction: s.direction,
+            labels: s.labels,
+            liver_ml: s.liver_ml,
+            roles: s.roles,
+        }
+    }
+}
+
+/// A stored model's description.
+#[derive(Serialize, Deserialize)]
+pub(crate) struct ModelRecord {
+    name: String,
+    kind: KindRecord,
+    #[serde(default)]
+    label: u16,
+    method: String,
+    triangles: usize,
+    vertices: usize,
+    volume_ml: Real,
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+enum KindRecord {
+    Parenchyma,
+    Tumor,
+    Portal,
+    Hepatic,
+    Vessel,
+    Resection,
+}
+
+impl From<&ModelInfo> for ModelRecord {
+    fn from(m: &ModelInfo) -> Self {
+        Self {
+            name: m.name.clone(),
+            kind: match m.kind {
+                SurfaceKind::Parenchyma => KindRecord::Parenchyma,
+                SurfaceKind::Tumor => KindRecord::Tumor,
+                SurfaceKind::Portal => KindRecord::Portal,
+                SurfaceKind::Hepatic => KindRecord::Hepatic,
+                SurfaceKind::Vessel => KindRecord::Vessel,
+                SurfaceKind::Resection => KindRecord::Resection,
+            },
+            label: m.label,
+            method: m.method.clone(),
+            triangles: m.triangles,
+            vertices: m.vertices,
+            volume_ml: m.volume_ml,
+        }
+    }
+}
+
+impl From<ModelRecord> for ModelInfo {
+    fn from(m: ModelRecord) -> Self {
+        Self {
+            name: m.name,
+            kind: match m.kind {
+                KindRecord::Parenchyma => SurfaceKind::Parenchyma,
+                KindRecord::Tumor => SurfaceKind::Tumor,
+                KindRecord::Portal => SurfaceKind::Portal,
+                KindRecord::Hepatic => SurfaceKind::Hepatic,
+                KindRecord::Vessel => SurfaceKind::Vessel,
+                KindRecord::Resection => SurfaceKind::Resection,
+            },
+            label: m.label,
+            method: m.method,
+            triangles: m.triangles,
+            vertices: m.vertices,
+            volume_ml: m.volume_ml,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_summary_as_stored_by_version_1_reads_and_round_trips() {
+        let stored = r#"{"dims":[3,4,5],"spacing":[0.8,0.8,2.5],"origin":[1.0,2.0,3.0],
+            "direction":[1.0,0.0,0.0,0.0,1.0,0.0,0.0,0.0,1.0],"labels":{"1":40,"2":7},
+            "liver_ml":0.5,"roles":{"parenchyma":[1],"tumor":[2]}}"#;
+        let s: LabelMapSummary = serde_json::from_str::<SummaryRecord>(stored)
+            .unwrap()
+            .into();
+        assert_eq!((s.dims, s.labels[&2], s.liver_ml), ([3, 4, 5], 7, 0.5));
+        let again = serde_json::to_string(&SummaryRecord::from(&s)).unwrap();
+        let back: LabelMapSummary = serde_json::from_str::<SummaryRecord>(&again)
+            .unwrap()
+            .into();
+        assert_eq!(back, s);
     }
 }
