@@ -15,6 +15,7 @@ mod recon;
 mod record;
 mod registry;
 mod service;
+mod sessions;
 mod state;
 mod support;
 mod volumes;

@@ -10,16 +10,17 @@
 //! cannot be stored rolls the edit back, and watchers get a snapshot of the plan as it was);
 //! restarting replays the log to the same plan.
 //!
-//! [`Service`] is the front: it holds the store, the configuration and the sessions, and each
-//! operation is written once in the part whose job it is: `registry` (sessions, quotas, expiry),
-//! `log` (records, blobs, replay, rollback: the storage format), `edits` (plan changes and
-//! imports), `volumes` (volumetry and its scheduling), `recon` (reconstruction); `state` is what
-//! a session holds in memory. This module keeps restoring, opening, upload and the read-only
-//! exports.
+//! [`Service`] is the front: it holds the store, the configuration and the session table, and
+//! each operation is written once in the part whose job it is: `registry` (the `Registry`: the
+//! sessions held, the session and memory quotas as reservations, idle selection; no store),
+//! `sessions` (creating, listing, deleting, expiring sessions over the store), `log` (records,
+//! blobs, replay, rollback: the storage format), `edits` (plan changes and imports), `volumes`
+//! (volumetry and its scheduling), `recon` (reconstruction); `state` is what a session holds in
+//! memory. This module keeps restoring, opening, upload and the read-only exports.
 
-use std::collections::{BTreeMap, HashMap};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::sync::atomic::AtomicUsize;
 
 use resecta_geom::RoleMap;
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
@@ -32,6 +33,7 @@ use crate::error::{Quota, Result, SessionError};
 use crate::labelmap;
 use crate::log;
 use crate::pools::{self, Priority};
+use crate::registry::Registry;
 use crate::state::{BYTES_PER_VOXEL, Loaded, Session, SetUp, State, loaded_mut, spawn_planner};
 use crate::support::{blocking, internal};
 use crate::watch::WatchStream;
@@ -41,7 +43,8 @@ use crate::watch::WatchStream;
 pub struct Service {
     pub(crate) store: Arc<dyn SessionStore>,
     pub(crate) config: ServiceConfig,
-    pub(crate) sessions: Mutex<HashMap<String, Arc<Session>>>,
+    /// The sessions held in memory and the quotas over them.
+    pub(crate) registry: Arc<Registry<Session>>,
     /// Sessions with a volume recomputation scheduled (editing now or just paused).
     pub(crate) volumes_scheduled: AtomicUsize,
 }
@@ -51,8 +54,8 @@ impl Service {
     pub fn new(store: Arc<dyn SessionStore>, config: ServiceConfig) -> Self {
         Self {
             store,
+            registry: Arc::new(Registry::new(config.max_sessions, config.max_memory_bytes)),
             config,
-            sessions: Mutex::new(HashMap::new()),
             volumes_scheduled: AtomicUsize::new(0),
         }
     }
@@ -119,10 +122,8 @@ impl Service {
         st.version = version;
         st.restored = true;
         if let Some((labels, summary, roles, history)) = loaded {
-            s.memory.store(
-                labels.data().len() as u64 * BYTES_PER_VOXEL,
-                Ordering::Relaxed,
-            );
+            self.registry
+                .set_memory(&s.id, labels.data().len() as u64 * BYTES_PER_VOXEL)?;
             let setup = SetUp {
                 labels: Arc::clone(&labels),
                 roles,
@@ -253,9 +254,8 @@ impl Service {
         let labels = blocking(move || labelmap::decode(&source, max_voxels)).await?;
         tracing::debug!(session = %s.id, ms = t0.elapsed().as_secs_f64() * 1e3, "label map decoded");
         let need = labels.data().len() as u64 * BYTES_PER_VOXEL;
-        let others = self.memory_in_use()? - s.memory.load(Ordering::Relaxed);
-        if others + need > self.config.max_memory_bytes {
-            return Err(SessionError::Quota(
+        let reserved = self.registry.reserve_memory(&s.id, need, |others| {
+            SessionError::Quota(
                 Quota::Memory,
                 format!(
                     "a label map of {} voxels needs about {need} bytes; {} of the server's {} are in use",
@@ -263,8 +263,8 @@ impl Service {
                     others,
                     self.config.max_memory_bytes
                 ),
-            ));
-        }
+            )
+        })?;
         let labels = Arc::new(labels);
         let summary = {
             let (labels, roles) = (Arc::clone(&labels), roles.clone());
@@ -298,7 +298,7 @@ impl Service {
             Ok((plan, version))
         })
         .await?;
-        s.memory.store(need, Ordering::Relaxed);
+        reserved.commit()?;
         st.version = version;
         st.generation += 1;
         st.models = None;

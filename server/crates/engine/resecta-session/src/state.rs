@@ -1,7 +1,7 @@
 //! What the operation layer holds per session in memory: the session handle with its watch hub,
 //! and behind its async mutex the label map, the planner (or its pending set-up) and the models.
 
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use resecta_geom::{LabelMap, RoleMap, TriMesh};
@@ -98,7 +98,6 @@ pub(crate) struct Session {
     pub(crate) volumes_scheduled: AtomicBool,
     /// When the last edit was acknowledged (volume recomputation waits for a pause).
     pub(crate) last_edit: Mutex<std::time::Instant>,
-    pub(crate) memory: AtomicU64,
     /// Set when the session is deleted: its planner set-up stops.
     pub(crate) deleted: Arc<AtomicBool>,
 }

@@ -723,6 +723,39 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn parallel_creations_never_pass_the_session_quota() {
+    let store: Arc<dyn SessionStore> = Arc::new(MemoryStore::new(StoreOptions::default()));
+    let limited = ServiceConfig {
+        max_sessions: 10,
+        ..config()
+    };
+    let service = Arc::new(Service::new(Arc::clone(&store), limited.clone()));
+    service.create_session("Before").await.unwrap();
+    let tasks: Vec<_> = (0..60)
+        .map(|i| {
+            let service = Arc::clone(&service);
+            tokio::spawn(async move { service.create_session(&format!("P{i}")).await })
+        })
+        .collect();
+    let mut created = 0;
+    for task in tasks {
+        match task.await.unwrap() {
+            Ok(_) => created += 1,
+            Err(e) => assert_eq!(e.code(), "SESSION_QUOTA", "{e}"),
+        }
+    }
+    assert_eq!(created, 9);
+    assert_eq!(store.usage().unwrap().sessions, 10);
+    // A deleted session frees its place; a restarted service counts the stored ones.
+    let first = service.list_sessions().await.unwrap()[0].id.clone();
+    service.delete_session(&first).await.unwrap();
+    let restarted = Service::new(Arc::clone(&store), limited);
+    restarted.create_session("After").await.unwrap();
+    let e = restarted.create_session("Over").await.unwrap_err();
+    assert_eq!(e.code(), "SESSION_QUOTA");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn nifti_uploads_are_read_like_raw_ones() {
     let labels = phantom();
     let bytes =
