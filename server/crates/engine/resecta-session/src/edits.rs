@@ -44,13 +44,10 @@ impl Service {
         let started = std::time::Instant::now();
         let _queued = InFlight::new("resecta_edits_in_flight");
         let (s, mut st) = self.open(id).await?;
-        if base_version != 0 && base_version != st.version {
+        if let Err(e) = check_base(base_version, st.version) {
             metrics::counter!("resecta_edits_rejected_total", "reason" => "stale_version")
                 .increment(1);
-            return Err(SessionError::StaleVersion {
-                base: base_version,
-                current: st.version,
-            });
+            return Err(e);
         }
         let version = st.version;
         let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
@@ -105,20 +102,7 @@ impl Service {
             }
         };
         debug_assert_eq!(new_version, version + 1, "one record appended");
-        let resections = change
-            .changed
-            .iter()
-            .filter_map(|name| {
-                let resection = planner.plan().resection(name).ok()?.clone();
-                let verdict = planner.state(name).ok().map(|s| s.verdict.clone());
-                Some(ResectionStatus { resection, verdict })
-            })
-            .collect();
-        let outcome = EditOutcome {
-            plan_version: new_version,
-            resections,
-            removed: change.removed,
-        };
+        let outcome = outcome(&planner, new_version, change);
         loaded.planner = Some(planner);
         st.version = new_version;
         drop(st);
@@ -131,12 +115,7 @@ impl Service {
     pub async fn import_plan(&self, id: &str, json: &str, base_version: u64) -> Result<u64> {
         let plan = Plan::from_json(json)?;
         let (s, mut st) = self.open(id).await?;
-        if base_version != 0 && base_version != st.version {
-            return Err(SessionError::StaleVersion {
-                base: base_version,
-                current: st.version,
-            });
-        }
+        check_base(base_version, st.version)?;
         let version = st.version;
         let loaded = loaded_mut(&mut st)?;
         if plan.roles != loaded.summary.roles {
@@ -161,6 +140,34 @@ impl Service {
         loaded.planner = Some(planner);
         st.version = new_version;
         Ok(new_version)
+    }
+}
+
+/// Refuses a change made against plan version `base` (0: unchecked) when the plan is at
+/// `current`: conflicting edits are never rebased.
+fn check_base(base: u64, current: u64) -> Result<()> {
+    if base != 0 && base != current {
+        return Err(SessionError::StaleVersion { base, current });
+    }
+    Ok(())
+}
+
+/// What the caller learns of `change`, acknowledged as `plan_version`: the resections it added
+/// or changed, each with its verdict, and those it removed.
+fn outcome(planner: &Planner, plan_version: u64, change: Change) -> EditOutcome {
+    let resections = change
+        .changed
+        .iter()
+        .filter_map(|name| {
+            let resection = planner.plan().resection(name).ok()?.clone();
+            let verdict = planner.state(name).ok().map(|s| s.verdict.clone());
+            Some(ResectionStatus { resection, verdict })
+        })
+        .collect();
+    EditOutcome {
+        plan_version,
+        resections,
+        removed: change.removed,
     }
 }
 
@@ -214,4 +221,90 @@ fn apply_edit(planner: &mut Planner, op: EditOp) -> Result<(Change, String)> {
     };
     let record = log::entry_record(&change.entry)?;
     Ok((change, record))
+}
+
+#[cfg(test)]
+mod tests {
+    use resecta_geom::RoleMap;
+    use resecta_phantom::{PhantomSpec, generate};
+    use resecta_plan::Anatomy;
+
+    use super::*;
+
+    fn planner() -> Planner {
+        let labels = generate(&PhantomSpec::small()).unwrap().labels;
+        let roles = RoleMap::default();
+        let anatomy = Arc::new(Anatomy::new(&labels, &roles).unwrap());
+        Planner::new(anatomy, Plan::new(roles)).unwrap()
+    }
+
+    fn init(name: &str) -> EditOp {
+        EditOp::InitFromEndPoint {
+            name: name.into(),
+            target: Default::default(),
+            end_point: [-30.0, 0.0, 0.0],
+            grid: [4, 4],
+        }
+    }
+
+    fn event(event: PlanEvent) -> EditOp {
+        EditOp::Event { event }
+    }
+
+    #[test]
+    fn only_the_current_version_or_none_is_a_valid_base() {
+        assert!(check_base(0, 7).is_ok());
+        assert!(check_base(7, 7).is_ok());
+        for base in [6, 8] {
+            assert!(matches!(
+                check_base(base, 7),
+                Err(SessionError::StaleVersion { base: b, current: 7 }) if b == base
+            ));
+        }
+    }
+
+    #[test]
+    fn outcomes_name_what_the_change_added_changed_and_removed() {
+        let mut planner = planner();
+        let (change, record) = apply_edit(&mut planner, init("r1")).unwrap();
+        assert!(!record.is_empty());
+        let added = outcome(&planner, 1, change);
+        assert_eq!(added.plan_version, 1);
+        assert_eq!(added.resections.len(), 1);
+        assert_eq!(added.resections[0].resection.name, "r1");
+        assert!(added.resections[0].verdict.is_some());
+        assert!(added.removed.is_empty());
+
+        let delete = event(PlanEvent::DeleteResection { name: "r1".into() });
+        let (change, _) = apply_edit(&mut planner, delete).unwrap();
+        let removed = outcome(&planner, 2, change);
+        assert!(removed.resections.is_empty());
+        assert_eq!(removed.removed, ["r1"]);
+
+        let (change, _) = apply_edit(&mut planner, EditOp::Undo).unwrap();
+        assert_eq!(outcome(&planner, 3, change).resections.len(), 1);
+    }
+
+    #[test]
+    fn small_reshaping_free_edits_are_quick() {
+        let mut planner = planner();
+        assert!(!is_quick(&planner, &init("r1")));
+        apply_edit(&mut planner, init("r1")).unwrap();
+        let translate = event(PlanEvent::Translate {
+            name: "r1".into(),
+            delta: [1.0, 0.0, 0.0],
+        });
+        let resolution = |resolution| {
+            event(PlanEvent::SetResolution {
+                name: "r1".into(),
+                resolution,
+            })
+        };
+        assert!(!is_quick(&planner, &resolution([50, 50])));
+        assert!(!is_quick(&planner, &EditOp::Undo));
+        apply_edit(&mut planner, resolution([100, 100])).unwrap();
+        assert!(is_quick(&planner, &translate), "10 000 samples");
+        apply_edit(&mut planner, resolution([101, 100])).unwrap();
+        assert!(!is_quick(&planner, &translate), "10 100 samples");
+    }
 }
