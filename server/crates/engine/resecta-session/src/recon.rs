@@ -30,48 +30,73 @@ fn surface_kind(role: Role) -> SurfaceKind {
     }
 }
 
-impl Service {
-    /// The model options of `options`, or [`SessionError::Invalid`] naming the field out of
-    /// range.
-    fn recon_params(&self, options: &ReconOptions) -> Result<ModelOptions> {
-        let depth = options.psr_depth.unwrap_or(self.config.psr_depth);
-        if !(1..=10).contains(&depth) {
-            return Err(SessionError::Invalid(format!(
-                "psr_depth {depth} is outside 1..=10"
-            )));
-        }
-        let defaults = McsdParams::default();
-        let smoothing = options.smoothing.unwrap_or(defaults.smoothing);
-        if !(0.0..=1.0).contains(&smoothing) {
-            return Err(SessionError::Invalid(format!(
-                "smoothing {smoothing} is outside [0, 1]"
-            )));
-        }
-        let decimation = options.decimation.unwrap_or(defaults.decimation);
-        if !(0.0..1.0).contains(&decimation) {
-            return Err(SessionError::Invalid(format!(
-                "decimation {decimation} is outside [0, 1)"
-            )));
-        }
-        let parenchyma = match options.method {
-            ReconMethod::Psr => ParenchymaMethod::Psr { depth },
-            ReconMethod::Mcsd => ParenchymaMethod::Mcsd,
-        };
-        let model_options = ModelOptions {
-            parenchyma,
-            mcsd: McsdParams {
-                smoothing,
-                decimation,
-            },
-            split_components: options.split_components,
-            min_component_mm3: options.min_component_mm3.unwrap_or(SPECK_MM3),
-        };
-        model_options
-            .check()
-            .map_err(|e| SessionError::Invalid(e.to_string()))?;
-        Ok(model_options)
+/// The model options of `options` (`default_depth`: the PSR depth when it names none), or
+/// [`SessionError::Invalid`] naming the field out of range.
+fn model_options(options: &ReconOptions, default_depth: u32) -> Result<ModelOptions> {
+    let depth = options.psr_depth.unwrap_or(default_depth);
+    if !(1..=10).contains(&depth) {
+        return Err(SessionError::Invalid(format!(
+            "psr_depth {depth} is outside 1..=10"
+        )));
     }
+    let defaults = McsdParams::default();
+    let smoothing = options.smoothing.unwrap_or(defaults.smoothing);
+    if !(0.0..=1.0).contains(&smoothing) {
+        return Err(SessionError::Invalid(format!(
+            "smoothing {smoothing} is outside [0, 1]"
+        )));
+    }
+    let decimation = options.decimation.unwrap_or(defaults.decimation);
+    if !(0.0..1.0).contains(&decimation) {
+        return Err(SessionError::Invalid(format!(
+            "decimation {decimation} is outside [0, 1)"
+        )));
+    }
+    let parenchyma = match options.method {
+        ReconMethod::Psr => ParenchymaMethod::Psr { depth },
+        ReconMethod::Mcsd => ParenchymaMethod::Mcsd,
+    };
+    let model_options = ModelOptions {
+        parenchyma,
+        mcsd: McsdParams {
+            smoothing,
+            decimation,
+        },
+        split_components: options.split_components,
+        min_component_mm3: options.min_component_mm3.unwrap_or(SPECK_MM3),
+    };
+    model_options
+        .check()
+        .map_err(|e| SessionError::Invalid(e.to_string()))?;
+    Ok(model_options)
+}
 
+/// A failed reconstruction as the operation's error: cancelled, or a precondition the label
+/// map does not meet.
+fn recon_error(e: ReconError) -> SessionError {
+    match e {
+        ReconError::Cancelled => SessionError::Cancelled,
+        e @ (ReconError::NoLabels
+        | ReconError::LabelsAbsent { .. }
+        | ReconError::EmptyMask
+        | ReconError::InvalidParameter { .. }
+        | ReconError::Poisson(_)
+        | ReconError::Filter(_)
+        | ReconError::Isosurface(_)
+        | ReconError::Metrics(_)
+        | ReconError::Geometry(_)) => {
+            SessionError::Precondition(Missing::Other, format!("reconstruction: {e}"))
+        }
+    }
+}
+
+/// The fraction reported once `done` models are built: the parenchyma (first, Poisson or the
+/// largest MCSD) dominates; the rest share what is left.
+fn progress_fraction(done: usize) -> Real {
+    1.0 - 0.4 / done as Real
+}
+
+impl Service {
     /// Builds the surface models (parenchyma by screened Poisson or, on request, MCSD; one MCSD
     /// model per vessel label and per tumour component, specks counted in `Done`) off the
     /// runtime with `options`, checked before anything starts.
@@ -81,7 +106,7 @@ impl Service {
         id: &str,
         options: ReconOptions,
     ) -> Result<mpsc::Receiver<Result<ReconstructEvent>>> {
-        let model_options = self.recon_params(&options)?;
+        let model_options = model_options(&options, self.config.psr_depth)?;
         let (s, st) = self.open(id).await?;
         let loaded = st.loaded.as_ref().ok_or_else(no_label_map)?;
         let labels = Arc::clone(&loaded.labels);
@@ -97,32 +122,13 @@ impl Service {
                 let mut done = 0usize;
                 let mut progress = |name: &str| {
                     done += 1;
-                    // The parenchyma (first, Poisson or the largest MCSD) dominates; the rest
-                    // share what is left.
-                    let fraction = 1.0 - 0.4 / done as Real;
                     let event = ReconstructEvent::Progress {
                         stage: format!("built {name}"),
-                        fraction,
+                        fraction: progress_fraction(done),
                     };
                     progress_tx.blocking_send(Ok(event)).is_ok()
                 };
-                patient_models(&labels, &roles, &model_options, &mut progress).map_err(
-                    |e| match e {
-                        ReconError::Cancelled => SessionError::Cancelled,
-                        e @ (ReconError::NoLabels
-                        | ReconError::LabelsAbsent { .. }
-                        | ReconError::EmptyMask
-                        | ReconError::InvalidParameter { .. }
-                        | ReconError::Poisson(_)
-                        | ReconError::Filter(_)
-                        | ReconError::Isosurface(_)
-                        | ReconError::Metrics(_)
-                        | ReconError::Geometry(_)) => SessionError::Precondition(
-                            Missing::Other,
-                            format!("reconstruction: {e}"),
-                        ),
-                    },
-                )
+                patient_models(&labels, &roles, &model_options, &mut progress).map_err(recon_error)
             })
             .await
             .and_then(|built| built);
@@ -213,6 +219,110 @@ impl Service {
         st.models = Some(Arc::new(models));
         Ok(infos)
     }
+}
 
-    // ---- plan edits -----------------------------------------------------------------------
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn invalid(options: ReconOptions) -> String {
+        match model_options(&options, 7) {
+            Err(SessionError::Invalid(m)) => m,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn defaults_are_poisson_at_the_configured_depth_and_mcsd_defaults() {
+        let o = model_options(&ReconOptions::default(), 6).unwrap();
+        assert_eq!(o.parenchyma, ParenchymaMethod::Psr { depth: 6 });
+        assert_eq!(o.mcsd, McsdParams::default());
+        assert_eq!(o.min_component_mm3, SPECK_MM3);
+        assert!(!o.split_components);
+    }
+
+    #[test]
+    fn named_options_are_taken() {
+        let o = model_options(
+            &ReconOptions {
+                method: ReconMethod::Mcsd,
+                psr_depth: Some(9),
+                smoothing: Some(0.0),
+                decimation: Some(0.5),
+                split_components: true,
+                min_component_mm3: Some(0.0),
+            },
+            7,
+        )
+        .unwrap();
+        assert_eq!(o.parenchyma, ParenchymaMethod::Mcsd);
+        assert_eq!((o.mcsd.smoothing, o.mcsd.decimation), (0.0, 0.5));
+        assert!(o.split_components);
+        assert_eq!(o.min_component_mm3, 0.0);
+    }
+
+    #[test]
+    fn out_of_range_options_are_refused_by_name() {
+        let base = ReconOptions::default();
+        for depth in [0, 11] {
+            let m = invalid(ReconOptions {
+                psr_depth: Some(depth),
+                ..base
+            });
+            assert!(m.contains("psr_depth"), "{m}");
+        }
+        // The configured depth is checked too, whatever the method.
+        assert!(matches!(
+            model_options(
+                &ReconOptions {
+                    method: ReconMethod::Mcsd,
+                    ..base
+                },
+                0
+            ),
+            Err(SessionError::Invalid(_))
+        ));
+        for smoothing in [-0.1, 1.1, Real::NAN] {
+            let m = invalid(ReconOptions {
+                smoothing: Some(smoothing),
+                ..base
+            });
+            assert!(m.contains("smoothing"), "{m}");
+        }
+        for decimation in [-0.1, 1.0] {
+            let m = invalid(ReconOptions {
+                decimation: Some(decimation),
+                ..base
+            });
+            assert!(m.contains("decimation"), "{m}");
+        }
+        assert!(matches!(
+            model_options(
+                &ReconOptions {
+                    min_component_mm3: Some(-1.0),
+                    ..base
+                },
+                7
+            ),
+            Err(SessionError::Invalid(_))
+        ));
+    }
+
+    #[test]
+    fn cancelled_reconstructions_are_cancelled_and_others_preconditions() {
+        assert!(matches!(
+            recon_error(ReconError::Cancelled),
+            SessionError::Cancelled
+        ));
+        let e = recon_error(ReconError::EmptyMask);
+        assert!(matches!(e, SessionError::Precondition(Missing::Other, _)));
+        assert!(e.to_string().contains("reconstruction"), "{e}");
+    }
+
+    #[test]
+    fn progress_grows_towards_one() {
+        assert_eq!(progress_fraction(1), 0.6);
+        let fractions: Vec<_> = (1..50).map(progress_fraction).collect();
+        assert!(fractions.windows(2).all(|w| w[0] < w[1] && w[1] < 1.0));
+    }
 }
