@@ -296,16 +296,11 @@ mod tests {
             });
             assert!(m.contains("decimation"), "{m}");
         }
-        assert!(matches!(
-            model_options(
-                &ReconOptions {
-                    min_component_mm3: Some(-1.0),
-                    ..base
-                },
-                7
-            ),
-            Err(SessionError::Invalid(_))
-        ));
+        // Checked by `ModelOptions::check`.
+        invalid(ReconOptions {
+            min_component_mm3: Some(-1.0),
+            ..base
+        });
     }
 
     #[test]

@@ -270,24 +270,16 @@ mod tests {
         SessionError::Quota(Quota::Memory, format!("{others} in use"))
     }
 
-    #[test]
-    fn parallel_reservations_never_pass_the_session_quota() {
-        const THREADS: usize = 60;
-        let registry = Registry::<Fake>::new(10, 0);
-        let barrier = Barrier::new(THREADS);
-        let granted = std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..THREADS)
-                .map(|_| {
-                    scope.spawn(|| {
+    /// How many of `threads` threads, started together, get `true` from `try_take(i)`.
+    fn granted_in_parallel(threads: usize, try_take: impl Fn(usize) -> bool + Sync) -> usize {
+        let barrier = Barrier::new(threads);
+        std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..threads)
+                .map(|i| {
+                    let (barrier, try_take) = (&barrier, &try_take);
+                    scope.spawn(move || {
                         barrier.wait();
-                        match registry.reserve_session(|| Ok(3)) {
-                            Ok(slot) => {
-                                slot.commit();
-                                true
-                            }
-                            Err(SessionError::Quota(Quota::Sessions, _)) => false,
-                            Err(e) => panic!("{e}"),
-                        }
+                        try_take(i)
                     })
                 })
                 .collect();
@@ -296,6 +288,19 @@ mod tests {
                 .map(|h| h.join().unwrap())
                 .filter(|&ok| ok)
                 .count()
+        })
+    }
+
+    #[test]
+    fn parallel_reservations_never_pass_the_session_quota() {
+        let registry = Registry::<Fake>::new(10, 0);
+        let granted = granted_in_parallel(60, |_| match registry.reserve_session(|| Ok(3)) {
+            Ok(slot) => {
+                slot.commit();
+                true
+            }
+            Err(SessionError::Quota(Quota::Sessions, _)) => false,
+            Err(e) => panic!("{e}"),
         });
         assert_eq!(granted, 7, "3 stored, limit 10");
         let e = registry.reserve_session(|| Ok(0)).unwrap_err();
@@ -342,25 +347,11 @@ mod tests {
         for i in 0..THREADS {
             registry.insert(&i.to_string(), fake(0)).unwrap();
         }
-        let barrier = Barrier::new(THREADS);
-        let granted = std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..THREADS)
-                .map(|i| {
-                    let (registry, barrier) = (&registry, &barrier);
-                    scope.spawn(move || {
-                        barrier.wait();
-                        registry
-                            .reserve_memory(&i.to_string(), 300, refused)
-                            .map(MemorySlot::commit)
-                            .is_ok()
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap())
-                .filter(|&ok| ok)
-                .count()
+        let granted = granted_in_parallel(THREADS, |i| {
+            registry
+                .reserve_memory(&i.to_string(), 300, refused)
+                .and_then(MemorySlot::commit)
+                .is_ok()
         });
         assert_eq!(granted, 3);
         assert_eq!(registry.memory_in_use().unwrap(), 900);
