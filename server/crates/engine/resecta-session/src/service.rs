@@ -15,8 +15,9 @@
 //! sessions held, the session and memory quotas as reservations, idle selection; no store),
 //! `sessions` (creating, listing, deleting, expiring sessions over the store), `log` (records,
 //! blobs, replay, rollback: the storage format), `edits` (plan changes and imports), `volumes`
-//! (volumetry and its scheduling), `recon` (reconstruction); `state` is what a session holds in
-//! memory. This module keeps restoring, opening, upload and the read-only exports.
+//! (volumetry; `VolumeTiming` says when it is recomputed), `recon` (reconstruction); `state`
+//! is what a session holds in memory. This module keeps restoring, opening, upload and the
+//! read-only exports.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
