@@ -45,4 +45,4 @@ def main(path: str) -> None:
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "docs/bench/foundation-2026-11-22.json")
+    main(sys.argv[1] if len(sys.argv) > 1 else "docs/bench/foundation-2026-11-26.json")
