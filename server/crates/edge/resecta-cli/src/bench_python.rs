@@ -332,16 +332,7 @@ async fn plan_session(
         token,
         &id,
         0,
-        edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
-            name: RESECTION.into(),
-            target: Some(pb::Target {
-                labels: Vec::new(),
-                points: vec![v3(case.target)],
-            }),
-            end_point: Some(v3(case.end_point)),
-            grid_m: 4,
-            grid_n: 4,
-        }),
+        bs::init_edit(case.target, case.end_point),
     )
     .await?;
     let mut stream = watch(&mut client, token, &id).await?;

@@ -9,8 +9,6 @@
 //!   on the large session (an edit, or in other runs a volumes request) is timed from the
 //!   spawn to its answer.
 
-use std::path::Path;
-use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use resecta_api::v1::planning_service_client::PlanningServiceClient;
@@ -19,8 +17,8 @@ use serde::Serialize;
 use tonic::transport::Channel;
 
 use crate::bench_server::{
-    Client, LabelMap, create_session, delete, demo_label_map, edit, failed, large_label_map,
-    percentile, request, upload, v3,
+    Client, LabelMap, create_session, delete, demo_label_map, edit, failed, init_edit,
+    large_label_map, percentile, request, spawn_server, upload,
 };
 use crate::error::CliError;
 
@@ -125,19 +123,6 @@ fn client(channel: &Channel) -> Client {
         .max_encoding_message_size(64 << 20)
 }
 
-fn init_edit(target: [f64; 3], end: [f64; 3]) -> edit_request::Edit {
-    edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
-        name: RESECTION.into(),
-        target: Some(pb::Target {
-            labels: Vec::new(),
-            points: vec![v3(target)],
-        }),
-        end_point: Some(v3(end)),
-        grid_m: 4,
-        grid_n: 4,
-    })
-}
-
 /// The first resection's answer must carry the resection and its verdict.
 fn check_first(answer: &pb::EditResponse) -> Result<(), CliError> {
     match answer.resections.first() {
@@ -198,47 +183,6 @@ pub async fn ready(channel: &Channel, token: Option<&str>, runs: usize) -> Resul
     })
 }
 
-/// A server process on a given data directory, killed (SIGKILL) on drop.
-struct Spawned {
-    child: Child,
-}
-
-impl Drop for Spawned {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
-}
-
-/// Spawns `resecta serve` on `dir` and returns it with its gRPC address once both faces are
-/// bound.
-fn spawn(dir: &Path) -> Result<(Spawned, String), CliError> {
-    let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
-    let mut child = Command::new(exe)
-        .args(["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"])
-        .arg("--data-dir")
-        .arg(dir)
-        .env("RUST_LOG", "warn")
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .map_err(|e| CliError::Failed(format!("starting the server: {e}")))?;
-    let stdout = child.stdout.take();
-    let server = Spawned { child };
-    let mut line = String::new();
-    if let Some(out) = stdout {
-        std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut line)
-            .map_err(|e| CliError::Failed(format!("reading the server's addresses: {e}")))?;
-    }
-    let bound: serde_json::Value = serde_json::from_str(line.trim())
-        .map_err(|e| CliError::Failed(format!("server start-up line {line:?}: {e}")))?;
-    let grpc = bound["grpc"]
-        .as_str()
-        .ok_or_else(|| CliError::Failed(format!("no gRPC address in {line:?}")))?;
-    Ok((server, format!("http://{grpc}")))
-}
-
 async fn connect(addr: &str) -> Result<Channel, CliError> {
     Channel::from_shared(addr.to_owned())
         .map_err(|e| CliError::Failed(format!("{addr}: {e}")))?
@@ -281,7 +225,7 @@ pub async fn restart(runs: usize, older: usize) -> Result<Restart, CliError> {
         .await
         .map_err(|e| CliError::Failed(e.to_string()))??;
     let (id, point) = {
-        let (server, addr) = spawn(dir.path())?;
+        let (server, addr) = spawn_server(dir.path(), None)?;
         let mut c = client(&connect(&addr).await?);
         for k in 0..older {
             // The demo patient's resection around its large tumour.
@@ -303,7 +247,7 @@ pub async fn restart(runs: usize, older: usize) -> Result<Restart, CliError> {
         (vec![], vec![], vec![], vec![]);
     for run in 0..2 * runs.max(1) {
         let t0 = Instant::now();
-        let (server, addr) = spawn(dir.path())?;
+        let (server, addr) = spawn_server(dir.path(), None)?;
         bound.push(t0.elapsed().as_secs_f64());
         let mut c = client(&connect(&addr).await?);
         if run % 2 == 0 {

@@ -128,10 +128,11 @@ struct Report {
 
 pub(crate) type Client = PlanningServiceClient<Channel>;
 
-/// A started server process, stopped on drop.
+/// A started server process, stopped (SIGKILL) on drop; with the temporary data directory it
+/// owns, if any.
 pub(crate) struct ServerProcess {
     child: Child,
-    _dir: tempfile::TempDir,
+    _dir: Option<tempfile::TempDir>,
 }
 
 impl ServerProcess {
@@ -147,13 +148,24 @@ impl Drop for ServerProcess {
     }
 }
 
+/// Starts `resecta serve` on a temporary data directory.
 pub(crate) fn start_server() -> Result<(ServerProcess, String), CliError> {
-    let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
     let dir = tempfile::tempdir().map_err(|e| CliError::Failed(format!("temp dir: {e}")))?;
+    let path = dir.path().to_owned();
+    spawn_server(&path, Some(dir))
+}
+
+/// Spawns `resecta serve` on `data_dir` (keeping `owned` until it stops) and returns it with its
+/// gRPC address once both faces are bound.
+pub(crate) fn spawn_server(
+    data_dir: &std::path::Path,
+    owned: Option<tempfile::TempDir>,
+) -> Result<(ServerProcess, String), CliError> {
+    let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
     let mut child = Command::new(exe)
         .args(["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"])
         .arg("--data-dir")
-        .arg(dir.path())
+        .arg(data_dir)
         .env("RUST_LOG", "warn")
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -161,7 +173,7 @@ pub(crate) fn start_server() -> Result<(ServerProcess, String), CliError> {
         .spawn()
         .map_err(|e| CliError::Failed(format!("starting the server: {e}")))?;
     let stdout = child.stdout.take();
-    let server = ServerProcess { child, _dir: dir };
+    let server = ServerProcess { child, _dir: owned };
     let mut line = String::new();
     if let Some(out) = stdout {
         std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut line)
@@ -173,6 +185,20 @@ pub(crate) fn start_server() -> Result<(ServerProcess, String), CliError> {
         .as_str()
         .ok_or_else(|| CliError::Failed(format!("no gRPC address in {line:?}")))?;
     Ok((server, format!("http://{grpc}")))
+}
+
+/// A new 4×4 resection named [`RESECTION`] from the tumour at `target` towards `end`.
+pub(crate) fn init_edit(target: [f64; 3], end: [f64; 3]) -> edit_request::Edit {
+    edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
+        name: RESECTION.into(),
+        target: Some(pb::Target {
+            labels: Vec::new(),
+            points: vec![v3(target)],
+        }),
+        end_point: Some(v3(end)),
+        grid_m: 4,
+        grid_n: 4,
+    })
 }
 
 fn rss_bytes(pid: u32) -> Option<f64> {
@@ -379,16 +405,7 @@ async fn planning_session(
         token,
         &id,
         1,
-        edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
-            name: RESECTION.into(),
-            target: Some(pb::Target {
-                labels: Vec::new(),
-                points: vec![v3([40.0, -10.0, 5.0])],
-            }),
-            end_point: Some(v3([-20.0, -10.0, 5.0])),
-            grid_m: 4,
-            grid_n: 4,
-        }),
+        init_edit([40.0, -10.0, 5.0], [-20.0, -10.0, 5.0]),
     )
     .await?;
     let set = edit(
