@@ -157,42 +157,6 @@ fn raw_map(labels: &resecta_geom::grid::LabelMap, roles: &RoleMap) -> LabelMap {
     }
 }
 
-/// The largest 6-connected component of `mask`: its voxels' linear indices.
-fn largest_component(mask: &[bool], dims: [usize; 3]) -> Vec<usize> {
-    let [nx, ny, nz] = dims;
-    let mut seen = vec![false; mask.len()];
-    let mut best = Vec::new();
-    for start in 0..mask.len() {
-        if !mask[start] || seen[start] {
-            continue;
-        }
-        seen[start] = true;
-        let (mut stack, mut part) = (vec![start], Vec::new());
-        while let Some(v) = stack.pop() {
-            part.push(v);
-            let (i, j, k) = (v % nx, v / nx % ny, v / (nx * ny));
-            let steps = [
-                (i > 0, v.wrapping_sub(1)),
-                (i + 1 < nx, v + 1),
-                (j > 0, v.wrapping_sub(nx)),
-                (j + 1 < ny, v + nx),
-                (k > 0, v.wrapping_sub(nx * ny)),
-                (k + 1 < nz, v + nx * ny),
-            ];
-            for (ok, w) in steps {
-                if ok && mask[w] && !seen[w] {
-                    seen[w] = true;
-                    stack.push(w);
-                }
-            }
-        }
-        if part.len() > best.len() {
-            best = part;
-        }
-    }
-    best
-}
-
 /// The target tumour (the largest component of the tumour labels), a point in it (the voxel
 /// nearest its centroid), its margin-surface triangles, and an end point 60 mm from it towards
 /// the liver's centroid (the initial cut halfway).
@@ -211,19 +175,19 @@ fn case_from_labels(
         ))
     };
     let tumour_labels = roles.labels(Role::Tumor);
-    let mask: Vec<bool> = labels
-        .data()
-        .iter()
-        .map(|l| tumour_labels.contains(l))
+    let mask = labels.map(|l| tumour_labels.contains(&l));
+    let no_tumour = || CliError::BadInput(format!("{name}: no tumour voxels"));
+    let parts = resecta_recon::mask::components(&mask).map_err(|_| no_tumour())?;
+    let largest = parts.first().ok_or_else(no_tumour)?;
+    let pg = largest.grid();
+    let part: Vec<Vec3> = (0..pg.len())
+        .filter(|&v| largest.data()[v])
+        .map(|v| pg.voxel_center(pg.ijk(v)))
         .collect();
-    let part = largest_component(&mask, dims);
-    if part.is_empty() {
-        return Err(CliError::BadInput(format!("{name}: no tumour voxels")));
-    }
-    let centroid = part.iter().map(|&v| at(v)).sum::<Vec3>() / part.len() as Real;
+    let centroid = part.iter().sum::<Vec3>() / part.len() as Real;
     let pick = part
         .iter()
-        .map(|&v| at(v))
+        .copied()
         .min_by(|a, b| (a - centroid).norm().total_cmp(&(b - centroid).norm()))
         .unwrap_or(centroid);
     let liver_labels: Vec<u16> = [Role::Parenchyma, Role::Portal, Role::Hepatic, Role::Vessel]
@@ -241,13 +205,8 @@ fn case_from_labels(
     let toward = (liver_centre - pick)
         .try_normalize(1e-9)
         .unwrap_or_else(Vec3::x);
-    let mut target_mask = vec![false; mask.len()];
-    for &v in &part {
-        target_mask[v] = true;
-    }
-    let margin =
-        resecta_plan::anatomy::tumour_model(&Volume::from_vec(g, target_mask).map_err(bad)?)
-            .map_err(bad)?;
+    // The cropped component keeps the grid's index → RAS map.
+    let margin = resecta_plan::anatomy::tumour_model(largest).map_err(bad)?;
     Ok(Case {
         name,
         map: raw_map(&labels, roles),
