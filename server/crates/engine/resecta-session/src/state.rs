@@ -283,20 +283,7 @@ mod tests {
         assert!(service.memory_in_use().unwrap() < both);
         open(&gate);
         // The other session plans as usual.
-        let done = service
-            .edit(
-                &kept,
-                0,
-                EditOp::InitFromEndPoint {
-                    name: "r1".into(),
-                    target: Default::default(),
-                    end_point: [-30.0, 0.0, 0.0],
-                    grid: [4, 4],
-                },
-            )
-            .await
-            .unwrap();
-        assert_eq!(done.resections.len(), 1);
+        assert_eq!(first_resection(&service, &kept).await, 1);
         // The deleted one's set-up stopped instead of finishing.
         let stopped = {
             let mut st = session.state.lock().await;
@@ -348,19 +335,17 @@ mod tests {
             "the first set-up is cancelled"
         );
         open(&gate);
-        let done = service
-            .edit(
-                &id,
-                0,
-                EditOp::InitFromEndPoint {
-                    name: "r1".into(),
-                    target: Default::default(),
-                    end_point: [-30.0, 0.0, 0.0],
-                    grid: [4, 4],
-                },
-            )
-            .await
-            .unwrap();
-        assert_eq!(done.resections.len(), 1);
+        assert_eq!(first_resection(&service, &id).await, 1);
+    }
+
+    /// Plans a first resection on the session `id`; the resections the edit answers.
+    async fn first_resection(service: &Arc<Service>, id: &str) -> usize {
+        let op = EditOp::InitFromEndPoint {
+            name: "r1".into(),
+            target: Default::default(),
+            end_point: [-30.0, 0.0, 0.0],
+            grid: [4, 4],
+        };
+        service.edit(id, 0, op).await.unwrap().resections.len()
     }
 }
