@@ -16,16 +16,14 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use resecta_api::v1::planning_service_client::PlanningServiceClient;
-use resecta_api::v1::{self as pb, WatchRequest, edit_request, resection_surface, watch_response};
+use resecta_api::v1::{self as pb, edit_request, resection_surface, watch_response};
 use resecta_geom::{Real, Role, RoleMap, Vec3, Volume, VoxelLimit};
 use resecta_phantom::{PhantomSpec, generate};
 use serde::Serialize;
 use tokio::sync::mpsc;
 use tonic::transport::Channel;
 
-use crate::bench_server::{
-    self as bs, LabelMap, Latency, Load, ServerArgs, Timed, failed, request, v3,
-};
+use crate::bench_server::{self as bs, LabelMap, Latency, Load, ServerArgs, Timed, failed, v3};
 use crate::error::CliError;
 use crate::output::{print_json, progress};
 
@@ -294,7 +292,7 @@ async fn plan_session(
         bs::init_edit(case.target, case.end_point),
     )
     .await?;
-    let mut stream = watch(&mut client, token, &id).await?;
+    let mut stream = bs::watch(&mut client, token, &id).await?;
     let first = stream.message().await.map_err(failed("watch"))?;
     let (cps, vertices) = match first.and_then(|m| m.event) {
         Some(watch_response::Event::Snapshot(s)) => s
@@ -333,26 +331,6 @@ async fn plan_session(
     })
 }
 
-async fn watch(
-    client: &mut bs::Client,
-    token: Option<&str>,
-    id: &str,
-) -> Result<tonic::Streaming<pb::WatchResponse>, CliError> {
-    Ok(client
-        .watch(request(
-            WatchRequest {
-                session_id: id.to_owned(),
-                since_seq: None,
-                allow_zstd: false,
-                allow_quantized: false,
-            },
-            token,
-        ))
-        .await
-        .map_err(failed("watch"))?
-        .into_inner())
-}
-
 impl Drag {
     /// Position `k` of the dragged point: swinging along the normal, one period per `rate`
     /// edits (the Python driver moves it the same way).
@@ -370,7 +348,7 @@ impl Drag {
         count: usize,
     ) -> Result<Vec<Timed>, CliError> {
         let token = self.token.clone();
-        let mut stream = watch(&mut self.client, token.as_deref(), &self.id).await?;
+        let mut stream = bs::watch(&mut self.client, token.as_deref(), &self.id).await?;
         stream.message().await.map_err(failed("watch"))?; // the snapshot
         let (tx, mut arrivals) = mpsc::unbounded_channel();
         let reader = tokio::spawn(async move {

@@ -187,6 +187,27 @@ pub(crate) fn spawn_server(
     Ok((server, format!("http://{grpc}")))
 }
 
+/// A watch of session `id` from its snapshot, plain frames.
+pub(crate) async fn watch(
+    client: &mut Client,
+    token: Option<&str>,
+    id: &str,
+) -> Result<tonic::Streaming<pb::WatchResponse>, CliError> {
+    Ok(client
+        .watch(request(
+            WatchRequest {
+                session_id: id.to_owned(),
+                since_seq: None,
+                allow_zstd: false,
+                allow_quantized: false,
+            },
+            token,
+        ))
+        .await
+        .map_err(failed("watch"))?
+        .into_inner())
+}
+
 /// A new 4×4 resection named [`RESECTION`] from the tumour at `target` towards `end`.
 pub(crate) fn init_edit(target: [f64; 3], end: [f64; 3]) -> edit_request::Edit {
     edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
@@ -420,19 +441,7 @@ async fn planning_session(
         }),
     )
     .await?;
-    let mut stream = client
-        .watch(request(
-            WatchRequest {
-                session_id: id.clone(),
-                since_seq: None,
-                allow_zstd: false,
-                allow_quantized: false,
-            },
-            token,
-        ))
-        .await
-        .map_err(failed("watch"))?
-        .into_inner();
+    let mut stream = watch(&mut client, token, &id).await?;
     // The snapshot names the control points; the benchmark moves an inner one.
     let first = stream.message().await.map_err(failed("watch"))?;
     let point = match first.and_then(|m| m.event) {
