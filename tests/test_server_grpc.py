@@ -161,6 +161,12 @@ def test_bad_input_leaves_state_unchanged(server, stubs, phantom):
     msgs = raw_upload(pb, sid, phantom)
     msgs[0].raw.dims[0] += 1
     err = expect(grpc.StatusCode.INVALID_ARGUMENT, stub.UploadLabelMap, iter(msgs), metadata=md())
+    # A finite but absurd voxel spacing is refused at the door, and listing still works.
+    msgs = raw_upload(pb, sid, phantom)
+    msgs[0].raw.spacing[1] = 1e150
+    err = expect(grpc.StatusCode.INVALID_ARGUMENT, stub.UploadLabelMap, iter(msgs), metadata=md())
+    assert "spacing" in err.details() and "axis 1" in err.details()
+    assert sid in [x.id for x in stub.ListSessions(pb.ListSessionsRequest(), metadata=md()).sessions]
     # A chunk over 4 MiB, and more data than announced.
     big = raw_upload(pb, sid, phantom, chunk=8 << 20, total=8 << 20)
     big[1:] = [pb.UploadLabelMapRequest(data=b"\0" * ((4 << 20) + 1))]

@@ -16,13 +16,52 @@ fn invalid(m: impl Into<String>) -> SessionError {
     SessionError::BadLabelMap(m.into())
 }
 
-/// The label map of an upload, checked against `max_voxels`.
+/// Voxel spacings a label map may have (mm): finer than a micrometre or coarser than 10 cm is
+/// no patient image, and would overflow volumes or distance fields downstream.
+pub const SPACING_MM: std::ops::RangeInclusive<Real> = 1e-3..=100.0;
+/// Longest side of a label map (mm).
+pub const MAX_EXTENT_MM: Real = 5000.0;
+/// Farthest a label map's origin may lie from the scanner's origin (mm).
+pub const MAX_ORIGIN_MM: Real = 1.0e5;
+
+/// The label map of an upload, checked against `max_voxels` and physical bounds.
 pub fn decode(source: &LabelMapSource, max_voxels: u64) -> Result<LabelMap> {
     let limit = VoxelLimit(max_voxels);
-    match source {
+    let labels = match source {
         LabelMapSource::Raw(raw) => from_raw(raw, limit),
         LabelMapSource::File { format, bytes } => from_file(*format, bytes, limit),
+    }?;
+    check_physical(labels.grid())?;
+    Ok(labels)
+}
+
+/// Refuses a geometry outside physical bounds ([`SPACING_MM`], [`MAX_EXTENT_MM`],
+/// [`MAX_ORIGIN_MM`]), naming the field and axis.
+pub fn check_physical(g: &Grid) -> Result<()> {
+    let (spacing, dims, origin) = (g.spacing(), g.dims(), g.origin());
+    for axis in 0..3 {
+        let s = spacing[axis];
+        if !SPACING_MM.contains(&s) {
+            return Err(invalid(format!(
+                "voxel spacing {s:e} mm along axis {axis} is outside {:e}..={} mm",
+                SPACING_MM.start(),
+                SPACING_MM.end()
+            )));
+        }
+        let extent = s * dims[axis] as Real;
+        if extent > MAX_EXTENT_MM {
+            return Err(invalid(format!(
+                "extent {extent:.0} mm along axis {axis} exceeds {MAX_EXTENT_MM} mm"
+            )));
+        }
+        if !(-MAX_ORIGIN_MM..=MAX_ORIGIN_MM).contains(&origin[axis]) {
+            return Err(invalid(format!(
+                "origin {:e} mm along axis {axis} is beyond ±{MAX_ORIGIN_MM:e} mm",
+                origin[axis]
+            )));
+        }
     }
+    Ok(())
 }
 
 fn grid(
@@ -323,4 +362,56 @@ pub fn from_blob(blob: &resecta_store::Blob, max_voxels: u64) -> Result<(LabelMa
         .collect();
     let labels = Volume::from_vec(g, labels).map_err(|e| invalid(format!("label map: {e}")))?;
     Ok((labels, h.roles))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn raw(dims: [usize; 3], spacing: [Real; 3], origin: [Real; 3]) -> LabelMapSource {
+        LabelMapSource::Raw(RawLabelMap {
+            dims,
+            spacing,
+            origin,
+            direction: [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            data_type: DataType::U8,
+            data: vec![1; dims.iter().product()],
+        })
+    }
+
+    fn refusal(source: &LabelMapSource) -> String {
+        match decode(source, 1 << 30) {
+            Err(SessionError::BadLabelMap(m)) => m,
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn geometry_outside_physical_bounds_is_refused_by_field_and_axis() {
+        assert!(
+            decode(
+                &raw([4, 4, 4], [0.8, 0.8, 2.5], [-200.0, 10.0, 0.0]),
+                1 << 30
+            )
+            .is_ok()
+        );
+        let m = refusal(&raw([4, 4, 4], [0.8, 1e150, 2.5], [0.0; 3]));
+        assert!(m.contains("spacing") && m.contains("axis 1"), "{m}");
+        let m = refusal(&raw([4, 4, 4], [0.8, 0.8, 1e-5], [0.0; 3]));
+        assert!(m.contains("spacing") && m.contains("axis 2"), "{m}");
+        // 1 001 voxels of 5 mm: 5 005 mm, just over the 5 m bound.
+        let m = refusal(&raw([1001, 1, 1], [5.0, 1.0, 1.0], [0.0; 3]));
+        assert!(m.contains("extent") && m.contains("axis 0"), "{m}");
+        let m = refusal(&raw([4, 4, 4], [1.0; 3], [0.0, 0.0, 2e5]));
+        assert!(m.contains("origin") && m.contains("axis 2"), "{m}");
+    }
+
+    #[test]
+    fn the_bounds_themselves_are_accepted() {
+        let lo = *SPACING_MM.start();
+        let hi = *SPACING_MM.end();
+        assert!(decode(&raw([2, 2, 2], [lo, hi, 1.0], [MAX_ORIGIN_MM; 3]), 1 << 30).is_ok());
+        // 50 voxels of 100 mm: exactly the 5 m bound.
+        assert!(decode(&raw([50, 1, 1], [hi, 1.0, 1.0], [0.0; 3]), 1 << 30).is_ok());
+    }
 }
