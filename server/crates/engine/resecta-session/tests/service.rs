@@ -1152,7 +1152,7 @@ async fn sessions_restored_in_the_background_plan_like_an_eager_planner() {
         serde_json::to_string(&volumes).unwrap(),
         serde_json::to_string(&eager.volumes().unwrap()).unwrap()
     );
-    // Restoring in the background records no access.
+    // It is listed with its restored plan version.
     let listed = service.list_sessions().await.unwrap();
     let older = listed.iter().find(|s| s.id == ids[0]).unwrap();
     assert_eq!(older.plan_version, 3);
