@@ -501,22 +501,9 @@ pub async fn run(args: &ServerArgs) -> Result<(), CliError> {
             .await
             .map_err(bad)??
     };
-    let (server, addr) = match &args.addr {
-        Some(a) => (None, a.clone()),
-        None => {
-            pb.set_message("starting the server");
-            let (s, a) = bs::start_server()?;
-            (Some(s), a)
-        }
-    };
+    let (server, addr, channel) = bs::server_and_channel(args.addr.as_deref(), &pb).await?;
     let pid = server.as_ref().map(bs::ServerProcess::pid);
     let token = args.token.as_deref();
-    let channel = Channel::from_shared(addr.clone())
-        .map_err(|e| CliError::BadInput(format!("--addr {addr:?}: {e}")))?
-        .tcp_nodelay(true)
-        .connect()
-        .await
-        .map_err(|e| CliError::Failed(format!("connecting to {addr}: {e}")))?;
     pb.set_message(format!("planning on the {}", case.name));
     let mut drag = plan_session(&channel, token, &case).await?;
     let (count, warmup, rounds) = if args.quick {

@@ -17,7 +17,7 @@ use serde::Serialize;
 use tonic::transport::Channel;
 
 use crate::bench_server::{
-    Client, LabelMap, create_session, delete, demo_label_map, edit, failed, init_edit,
+    Client, LabelMap, connect, create_session, delete, demo_label_map, edit, failed, init_edit,
     large_label_map, percentile, request, spawn_server, upload,
 };
 use crate::error::CliError;
@@ -181,15 +181,6 @@ pub async fn ready(channel: &Channel, token: Option<&str>, runs: usize) -> Resul
         first_resection_from_start: Figure::of(from_start),
         volumes_from_start: Figure::of(vols),
     })
-}
-
-async fn connect(addr: &str) -> Result<Channel, CliError> {
-    Channel::from_shared(addr.to_owned())
-        .map_err(|e| CliError::Failed(format!("{addr}: {e}")))?
-        .tcp_nodelay(true)
-        .connect()
-        .await
-        .map_err(|e| CliError::Failed(format!("connecting to {addr}: {e}")))
 }
 
 /// A session on `map` with one initial resection; returns its id and the resection's inner

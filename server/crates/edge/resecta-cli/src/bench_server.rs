@@ -208,6 +208,33 @@ pub(crate) async fn watch(
         .into_inner())
 }
 
+/// A channel to the gRPC server at `addr` (`http://HOST:PORT`).
+pub(crate) async fn connect(addr: &str) -> Result<Channel, CliError> {
+    Channel::from_shared(addr.to_owned())
+        .map_err(|e| CliError::BadInput(format!("server address {addr:?}: {e}")))?
+        .tcp_nodelay(true)
+        .connect()
+        .await
+        .map_err(|e| CliError::Failed(format!("connecting to {addr}: {e}")))
+}
+
+/// The server at `given` (`--addr`), or one started here; its address and a channel to it.
+pub(crate) async fn server_and_channel(
+    given: Option<&str>,
+    pb: &indicatif::ProgressBar,
+) -> Result<(Option<ServerProcess>, String, Channel), CliError> {
+    let (server, addr) = match given {
+        Some(a) => (None, a.to_owned()),
+        None => {
+            pb.set_message("starting the server");
+            let (s, a) = start_server()?;
+            (Some(s), a)
+        }
+    };
+    let channel = connect(&addr).await?;
+    Ok((server, addr, channel))
+}
+
 /// A new 4×4 resection named [`RESECTION`] from the tumour at `target` towards `end`.
 pub(crate) fn init_edit(target: [f64; 3], end: [f64; 3]) -> edit_request::Edit {
     edit_request::Edit::InitFromEndPoint(pb::InitFromEndPoint {
@@ -842,21 +869,8 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         return crate::bench_python::run(args).await;
     }
     let pb = progress(args.json);
-    let (server, addr) = match &args.addr {
-        Some(a) => (None, a.clone()),
-        None => {
-            pb.set_message("starting the server");
-            let (s, a) = start_server()?;
-            (Some(s), a)
-        }
-    };
+    let (server, _, channel) = server_and_channel(args.addr.as_deref(), &pb).await?;
     let token = args.token.as_deref();
-    let channel = Channel::from_shared(addr.clone())
-        .map_err(|e| CliError::BadInput(format!("--addr {addr:?}: {e}")))?
-        .tcp_nodelay(true)
-        .connect()
-        .await
-        .map_err(|e| CliError::Failed(format!("connecting to {addr}: {e}")))?;
     let map = tokio::task::spawn_blocking(demo_label_map)
         .await
         .map_err(|e| CliError::Failed(e.to_string()))??;
