@@ -92,7 +92,9 @@ impl Default for StoreOptions {
             // A 512×512×1000 u16 label map; also leaves the compressed worst case below SQLite's
             // 1e9-byte value limit.
             max_blob_bytes: 512 << 20,
-            max_record_bytes: 1 << 20,
+            // The record of the largest plan the plan limits allow (32 resections of 64×64
+            // control points, compact JSON: about 10 MiB) fits.
+            max_record_bytes: 16 << 20,
         }
     }
 }

@@ -13,6 +13,10 @@ pub const DEFAULT_MARGIN_MM: Real = 10.0;
 pub const DEFAULT_BAND_MM: Real = 5.0;
 /// Default interactive surface resolution (the thesis' 40×40).
 pub const DEFAULT_RESOLUTION: [usize; 2] = [40, 40];
+/// Most tumour labels one target names.
+pub const MAX_TARGET_LABELS: usize = 64;
+/// Most points one target picks components with.
+pub const MAX_TARGET_POINTS: usize = 32;
 /// Largest surface resolution per direction.
 pub const MAX_RESOLUTION: usize = 500;
 /// Largest margin or band (mm).
@@ -193,6 +197,13 @@ impl Resection {
         if !(2..=MAX_RESOLUTION).contains(&ru) || !(2..=MAX_RESOLUTION).contains(&rv) {
             return Err(bad(format!(
                 "resolution {ru}×{rv}: each side must be 2..={MAX_RESOLUTION}"
+            )));
+        }
+        if self.target.labels.len() > MAX_TARGET_LABELS
+            || self.target.points.len() > MAX_TARGET_POINTS
+        {
+            return Err(bad(format!(
+                "target: at most {MAX_TARGET_LABELS} labels and {MAX_TARGET_POINTS} points"
             )));
         }
         for (k, &p) in self.target.points.iter().enumerate() {
