@@ -60,12 +60,14 @@ class _Named(enum.StrEnum):
 
 
 class SessionState(_Named):
-    """What a session holds: nothing yet, a label map, or built models (ready to plan)."""
+    """What a session holds: nothing yet, a label map, or built models (ready to plan); or
+    damaged: stored but not restorable (only deleting it works)."""
 
     UNSPECIFIED = "unspecified"
     EMPTY = "empty"
     LABEL_MAP = "label_map"
     READY = "ready"
+    DAMAGED = "damaged"
 
     @classmethod
     def _pb(cls) -> tuple[Any, str]:

@@ -26,15 +26,15 @@ _sym_db = _symbol_database.Default()
 from . import label_map_pb2 as resecta_dot_v1_dot_label__map__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18resecta/v1/session.proto\x12\nresecta.v1\x1a\x1aresecta/v1/label_map.proto\"\xc6\x01\n\x07Session\x12\n\n\x02id\x18\x01 \x01(\t\x12\x14\n\x0c\x64isplay_name\x18\x02 \x01(\t\x12\x12\n\ncreated_ms\x18\x03 \x01(\x03\x12\x16\n\x0elast_access_ms\x18\x04 \x01(\x03\x12\'\n\x05state\x18\x05 \x01(\x0e\x32\x18.resecta.v1.SessionState\x12\x14\n\x0cplan_version\x18\x06 \x01(\x04\x12.\n\tlabel_map\x18\x07 \x01(\x0b\x32\x1b.resecta.v1.LabelMapSummary*|\n\x0cSessionState\x12\x1d\n\x19SESSION_STATE_UNSPECIFIED\x10\x00\x12\x17\n\x13SESSION_STATE_EMPTY\x10\x01\x12\x1b\n\x17SESSION_STATE_LABEL_MAP\x10\x02\x12\x17\n\x13SESSION_STATE_READY\x10\x03\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18resecta/v1/session.proto\x12\nresecta.v1\x1a\x1aresecta/v1/label_map.proto\"\xc6\x01\n\x07Session\x12\n\n\x02id\x18\x01 \x01(\t\x12\x14\n\x0c\x64isplay_name\x18\x02 \x01(\t\x12\x12\n\ncreated_ms\x18\x03 \x01(\x03\x12\x16\n\x0elast_access_ms\x18\x04 \x01(\x03\x12\'\n\x05state\x18\x05 \x01(\x0e\x32\x18.resecta.v1.SessionState\x12\x14\n\x0cplan_version\x18\x06 \x01(\x04\x12.\n\tlabel_map\x18\x07 \x01(\x0b\x32\x1b.resecta.v1.LabelMapSummary*\x97\x01\n\x0cSessionState\x12\x1d\n\x19SESSION_STATE_UNSPECIFIED\x10\x00\x12\x17\n\x13SESSION_STATE_EMPTY\x10\x01\x12\x1b\n\x17SESSION_STATE_LABEL_MAP\x10\x02\x12\x17\n\x13SESSION_STATE_READY\x10\x03\x12\x19\n\x15SESSION_STATE_DAMAGED\x10\x04\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'resecta.v1.session_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_SESSIONSTATE']._serialized_start=269
-  _globals['_SESSIONSTATE']._serialized_end=393
+  _globals['_SESSIONSTATE']._serialized_start=270
+  _globals['_SESSIONSTATE']._serialized_end=421
   _globals['_SESSION']._serialized_start=69
   _globals['_SESSION']._serialized_end=267
 # @@protoc_insertion_point(module_scope)

@@ -14,10 +14,12 @@ class SessionState(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     SESSION_STATE_EMPTY: _ClassVar[SessionState]
     SESSION_STATE_LABEL_MAP: _ClassVar[SessionState]
     SESSION_STATE_READY: _ClassVar[SessionState]
+    SESSION_STATE_DAMAGED: _ClassVar[SessionState]
 SESSION_STATE_UNSPECIFIED: SessionState
 SESSION_STATE_EMPTY: SessionState
 SESSION_STATE_LABEL_MAP: SessionState
 SESSION_STATE_READY: SessionState
+SESSION_STATE_DAMAGED: SessionState
 
 class Session(_message.Message):
     __slots__ = ("id", "display_name", "created_ms", "last_access_ms", "state", "plan_version", "label_map")

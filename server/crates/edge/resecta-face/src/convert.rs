@@ -477,6 +477,7 @@ pub fn session(s: &SessionInfo) -> pb::Session {
             SessionState::Empty => pb::SessionState::Empty,
             SessionState::LabelMap => pb::SessionState::LabelMap,
             SessionState::Ready => pb::SessionState::Ready,
+            SessionState::Damaged => pb::SessionState::Damaged,
         } as i32,
         plan_version: s.plan_version,
         label_map: s.label_map.as_ref().map(label_map),

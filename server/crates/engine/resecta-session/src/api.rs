@@ -34,6 +34,9 @@ pub enum SessionState {
     LabelMap,
     /// Surface models are built too.
     Ready,
+    /// Stored, but it cannot be restored (its stored data is unreadable or out of bounds);
+    /// only deleting it works.
+    Damaged,
 }
 
 #[derive(Debug, Clone)]

@@ -8,6 +8,7 @@ use resecta_geom::{Plane, Vec3};
 use resecta_plan::{Change, Plan, PlanEvent, Planner};
 
 use crate::api::{EditOp, EditOutcome, ResectionStatus};
+use crate::budget::{Charge, Use, added_resection_bytes, plan_bytes, plan_change_bytes};
 use crate::error::{Result, SessionError};
 use crate::log;
 use crate::pools::{self, Priority};
@@ -51,6 +52,16 @@ impl Service {
         }
         let version = st.version;
         let loaded = st.loaded.as_mut().ok_or_else(no_label_map)?;
+        // The memory a change that reshapes the plan needs is reserved before it is computed.
+        let reserved = match memory_need(loaded.ready().await?, &op)? {
+            Some(need) => {
+                Some(
+                    self.budget
+                        .reserve_replacing(Use::Plan, need, &s.id, Charge::Plan)?,
+                )
+            }
+            None => None,
+        };
         let mut planner = loaded.take_planner().await?;
         // Compute on a quick pool (a drag) or rayon's pool and show the result to watchers right
         // there; store on the blocking pool (a worker never waits for the disk while other sessions' edits queue
@@ -102,6 +113,9 @@ impl Service {
             }
         };
         debug_assert_eq!(new_version, version + 1, "one record appended");
+        if let Some(reserved) = reserved {
+            reserved.settle(&s.id, Charge::Plan, plan_bytes(planner.plan()))?;
+        }
         let outcome = outcome(&planner, new_version, change);
         loaded.planner = Some(planner);
         st.version = new_version;
@@ -127,15 +141,21 @@ impl Service {
             let planner = loaded.ready().await?;
             planner.anatomy_shared()
         };
+        // Refused before any surface is computed when the memory budget has no room for the
+        // new surfaces, which are computed beside the present ones. (The store takes the record
+        // of any plan the plan limits allow: `log` tests the largest.)
+        let record = log::reset_record(&plan)?;
+        let after = plan_bytes(&plan);
+        let reserved = self.budget.reserve(Use::Plan, after)?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let (planner, new_version) = blocking(move || {
-            let record = log::reset_record(&plan)?;
             let planner = Planner::new(anatomy, plan)?;
             let v = store.append(&key, version, &[record])?;
             Ok((planner, v))
         })
         .await?;
+        reserved.settle(&s.id, Charge::Plan, after)?;
         s.hub.reset(new_version, planner.plan(), planner.states())?;
         loaded.planner = Some(planner);
         st.version = new_version;
@@ -171,19 +191,43 @@ fn outcome(planner: &Planner, plan_version: u64, change: Change) -> EditOutcome 
     }
 }
 
+/// The memory a change that reshapes the plan (adds, removes or resamples surfaces) needs
+/// while computed: the plan's surfaces after it, with the changed ones twice; it replaces the
+/// plan's charge. `None` for a change of existing surfaces, whose recomputation the plan's
+/// charge leaves room for.
+fn memory_need(planner: &Planner, op: &EditOp) -> Result<Option<u64>> {
+    let history = planner.history();
+    let staged = match op {
+        EditOp::Event { event } if !reshapes(event) => return Ok(None),
+        EditOp::Event { event } => history.stage_edit(event.clone())?,
+        EditOp::Undo => history.stage_undo()?,
+        EditOp::Redo => history.stage_redo()?,
+        EditOp::InitFromEndPoint { .. } | EditOp::InitFromPlane { .. } => {
+            let added = added_resection_bytes(resecta_plan::resection::DEFAULT_RESOLUTION);
+            return Ok(Some(plan_bytes(planner.plan()) + added));
+        }
+    };
+    Ok(Some(plan_change_bytes(staged.plan(), staged.changed())))
+}
+
+/// Whether `event` adds, removes or resamples a surface.
+fn reshapes(event: &PlanEvent) -> bool {
+    matches!(
+        event,
+        PlanEvent::AddResection { .. }
+            | PlanEvent::DeleteResection { .. }
+            | PlanEvent::SetResolution { .. }
+            | PlanEvent::SetTarget { .. }
+    )
+}
+
 /// Whether `op` is a small edit for a quick pool: a change to existing resections (no new
 /// resection, resolution or target) while every surface has at most [`QUICK_SAMPLES`] samples.
 fn is_quick(planner: &Planner, op: &EditOp) -> bool {
     let EditOp::Event { event } = op else {
         return false;
     };
-    let reshapes = matches!(
-        event,
-        PlanEvent::AddResection { .. }
-            | PlanEvent::SetResolution { .. }
-            | PlanEvent::SetTarget { .. }
-    );
-    !reshapes
+    !reshapes(event)
         && planner
             .plan()
             .resections

@@ -5,6 +5,7 @@
 //! [`SessionError::kind`] to their status codes; no algorithm lives here.
 
 pub mod api;
+mod budget;
 mod config;
 mod edits;
 mod error;
@@ -21,6 +22,7 @@ mod support;
 mod volumes;
 mod watch;
 
+pub use budget::UploadMemory;
 pub use config::ServiceConfig;
 pub use error::{ErrorKind, Missing, Quota, Result, SessionError};
 pub use service::Service;

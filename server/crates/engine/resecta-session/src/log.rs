@@ -22,7 +22,9 @@ pub(crate) const MODELS_BLOB: &str = "models";
 
 /// The log record that starts a new base plan.
 pub(crate) fn reset_record(plan: &Plan) -> Result<String> {
-    record::encode_reset(plan.to_json()?)
+    // Compact: the largest plan the plan limits allow fits the store's record limit.
+    let json = serde_json::to_string(plan).map_err(internal)?;
+    record::encode_reset(json)
 }
 
 /// The log record of one edit.
@@ -227,6 +229,60 @@ mod tests {
         let (base, entries) = base_and_entries([reset.as_str(), reset.as_str()], &roles).unwrap();
         assert_eq!(base.to_json().unwrap(), plan.to_json().unwrap());
         assert!(entries.is_empty());
+    }
+
+    /// The plan limits and the store's record limit agree: the record of the largest plan the
+    /// limits allow (every count at its maximum, names of the longest UTF-8, coordinates of the
+    /// longest text) is stored by a store with default options.
+    #[test]
+    fn the_largest_plan_fits_a_log_record() {
+        use resecta_bezier::MAX_CONTROL_POINTS as M;
+        use resecta_plan::resection::{
+            MAX_NAME_LEN, MAX_RESOLUTION, MAX_TARGET_LABELS, MAX_TARGET_POINTS,
+        };
+        let longest = [
+            -12345.678901234567,
+            -2.2250738585072014e-308,
+            -99999.99999999999,
+        ];
+        let tumours: Vec<u16> = (u16::MAX - MAX_TARGET_LABELS as u16 + 1..=u16::MAX).collect();
+        let resections: Vec<_> = (0..resecta_plan::MAX_RESECTIONS)
+            .map(|k| {
+                let name = format!("{k:02}{}", "\u{10348}".repeat((MAX_NAME_LEN - 2) / 4));
+                serde_json::json!({
+                    "name": name, "grid": [M, M], "control_points": vec![longest; M * M],
+                    "margin_mm": 9.999999999999998, "band_mm": 9.999999999999998,
+                    "resolution": [MAX_RESOLUTION, MAX_RESOLUTION],
+                    "target": {
+                        "labels": tumours,
+                        "points": vec![longest; MAX_TARGET_POINTS],
+                    },
+                })
+            })
+            .collect();
+        let json = serde_json::json!({
+            "format": resecta_plan::FORMAT,
+            "roles": {"parenchyma": [1], "tumor": tumours},
+            "resections": resections,
+        });
+        let plan = Plan::from_json(&json.to_string()).unwrap();
+        let record = reset_record(&plan).unwrap();
+        let limit = resecta_store::StoreOptions::default().max_record_bytes;
+        assert!(
+            record.len() > 8 << 20,
+            "{} bytes: not the largest",
+            record.len()
+        );
+        assert!(record.len() <= limit, "{} > {limit}", record.len());
+        let store = resecta_store::MemoryStore::new(resecta_store::StoreOptions::default());
+        let rec = SessionRecord {
+            id: "s".into(),
+            display_name: "d".into(),
+            created_ms: 0,
+            last_access_ms: 0,
+        };
+        store.create_session(&rec).unwrap();
+        store.append("s", 0, &[record]).unwrap();
     }
 
     #[test]

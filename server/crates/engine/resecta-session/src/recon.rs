@@ -13,11 +13,12 @@ use tokio::sync::mpsc;
 use crate::api::{
     DroppedComponents, ModelInfo, ReconMethod, ReconOptions, ReconstructEvent, Surface, SurfaceKind,
 };
+use crate::budget::{Charge, Use, reconstruction_bytes};
 use crate::error::{Missing, Result, SessionError};
 use crate::log;
 use crate::pools::{self, Priority};
 use crate::service::Service;
-use crate::state::{Model, Session, no_label_map};
+use crate::state::{Model, Session, models_bytes, no_label_map};
 use crate::support::{blocking, internal};
 
 fn surface_kind(role: Role) -> SurfaceKind {
@@ -113,9 +114,18 @@ impl Service {
         let roles = loaded.summary.roles.clone();
         let generation = loaded.generation;
         drop(st);
+        let depth = match model_options.parenchyma {
+            ParenchymaMethod::Psr { depth } => depth,
+            ParenchymaMethod::Mcsd => 0,
+        };
+        let voxels = labels.data().len() as u64;
+        let memory = self
+            .budget
+            .reserve(Use::Reconstruction, reconstruction_bytes(voxels, depth))?;
         let (tx, rx) = mpsc::channel(64);
         let service = Arc::clone(self);
         tokio::spawn(async move {
+            let _memory = memory;
             let started = std::time::Instant::now();
             let progress_tx = tx.clone();
             let built = pools::run(Priority::Background, move || {
@@ -213,6 +223,8 @@ impl Service {
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         blocking(move || log::store_models(&*store, &key, &blob)).await?;
+        self.budget
+            .set(&s.id, Charge::Models, models_bytes(&models))?;
         let infos = models.iter().map(|m| m.info.clone()).collect();
         s.hub
             .publish_models(models.iter().map(|m| m.surface.clone()).collect())?;

@@ -1,7 +1,7 @@
-//! The session table: the sessions held in memory and the memory each uses, the session-count
-//! and memory quotas as reservations (checked and taken in one step, given back when what they
-//! were taken for fails), and which sessions are idle past the expiry. No store and no async:
-//! the session operations (`sessions`) and the upload call it with what the store says.
+//! The session table: the sessions held in memory, the session-count quota as reservations
+//! (checked and taken in one step, given back when the creation fails), and which sessions are
+//! idle past the expiry. No store and no async: the session operations (`sessions`) call it
+//! with what the store says. Memory is the [`Budget`](crate::budget::Budget)'s.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -10,39 +10,20 @@ use std::time::Duration;
 use crate::error::{Quota, Result, SessionError};
 use crate::support::internal;
 
-/// When a held session was last used (ms since the epoch).
+/// When a held session was last used (ms since the epoch), and whether a client watches it.
 pub(crate) trait LastAccess {
     fn last_access_ms(&self) -> i64;
+    fn watched(&self) -> bool;
 }
 
-/// The sessions held in memory with their memory, and the two quotas over all sessions.
+/// The sessions held in memory, and the session-count quota.
 #[derive(Debug)]
 pub(crate) struct Registry<T> {
     max_sessions: u64,
-    max_memory: u64,
-    table: Mutex<Table<T>>,
+    table: Mutex<HashMap<String, Arc<T>>>,
     /// Sessions stored plus those being created; `None` until the first reservation counts
     /// the stored ones.
     sessions: Mutex<Option<u64>>,
-}
-
-#[derive(Debug)]
-struct Table<T> {
-    held: HashMap<String, Held<T>>,
-    /// Bytes reserved by label maps being loaded.
-    reserved: u64,
-}
-
-#[derive(Debug)]
-struct Held<T> {
-    session: Arc<T>,
-    memory: u64,
-}
-
-impl<T> Table<T> {
-    fn memory(&self) -> u64 {
-        self.held.values().map(|h| h.memory).sum::<u64>() + self.reserved
-    }
 }
 
 /// A place in the session-count quota: kept by [`SessionSlot::commit`], given back when dropped.
@@ -71,50 +52,16 @@ impl Drop for SessionSlot<'_> {
     }
 }
 
-/// Bytes of the memory quota reserved for a session's label map: the session's memory once
-/// [`MemorySlot::commit`]ted, given back when dropped.
-#[must_use]
-#[derive(Debug)]
-pub(crate) struct MemorySlot<'a, T> {
-    registry: &'a Registry<T>,
-    id: String,
-    bytes: u64,
-}
-
-impl<T> MemorySlot<'_, T> {
-    /// The label map is loaded: its bytes become the session's memory (none if the session
-    /// was dropped meanwhile).
-    pub(crate) fn commit(self) -> Result<()> {
-        let mut table = self.registry.table()?;
-        if let Some(held) = table.held.get_mut(&self.id) {
-            held.memory = self.bytes;
-        }
-        Ok(())
-    }
-}
-
-impl<T> Drop for MemorySlot<'_, T> {
-    fn drop(&mut self) {
-        if let Ok(mut table) = self.registry.table.lock() {
-            table.reserved = table.reserved.saturating_sub(self.bytes);
-        }
-    }
-}
-
 impl<T> Registry<T> {
-    pub(crate) fn new(max_sessions: usize, max_memory: u64) -> Self {
+    pub(crate) fn new(max_sessions: usize) -> Self {
         Self {
             max_sessions: max_sessions as u64,
-            max_memory,
-            table: Mutex::new(Table {
-                held: HashMap::new(),
-                reserved: 0,
-            }),
+            table: Mutex::new(HashMap::new()),
             sessions: Mutex::new(None),
         }
     }
 
-    fn table(&self) -> Result<MutexGuard<'_, Table<T>>> {
+    fn table(&self) -> Result<MutexGuard<'_, HashMap<String, Arc<T>>>> {
         self.table
             .lock()
             .map_err(|_| internal("session table lock poisoned"))
@@ -127,31 +74,25 @@ impl<T> Registry<T> {
     }
 
     pub(crate) fn get(&self, id: &str) -> Result<Option<Arc<T>>> {
-        Ok(self.table()?.held.get(id).map(|h| Arc::clone(&h.session)))
+        Ok(self.table()?.get(id).map(Arc::clone))
     }
 
     /// The session `id` as held, or else `fresh`, held from now on.
     pub(crate) fn get_or_insert(&self, id: &str, fresh: Arc<T>) -> Result<Arc<T>> {
         let mut table = self.table()?;
-        let held = table.held.entry(id.to_owned()).or_insert(Held {
-            session: fresh,
-            memory: 0,
-        });
-        Ok(Arc::clone(&held.session))
+        Ok(Arc::clone(table.entry(id.to_owned()).or_insert(fresh)))
     }
 
     /// Holds `session` as `id`; returns how many sessions are held.
     pub(crate) fn insert(&self, id: &str, session: Arc<T>) -> Result<usize> {
         let mut table = self.table()?;
-        table
-            .held
-            .insert(id.to_owned(), Held { session, memory: 0 });
-        Ok(table.held.len())
+        table.insert(id.to_owned(), session);
+        Ok(table.len())
     }
 
-    /// Stops holding `id`, and frees its memory.
+    /// Stops holding `id`.
     pub(crate) fn remove(&self, id: &str) -> Result<Option<Arc<T>>> {
-        Ok(self.table()?.held.remove(id).map(|h| h.session))
+        Ok(self.table()?.remove(id))
     }
 
     /// Takes a place in the session-count quota, or refuses with [`Quota::Sessions`]: the check
@@ -190,54 +131,17 @@ impl<T> Registry<T> {
         }
         Ok(existed)
     }
-
-    /// Estimated memory of all held sessions, reservations included.
-    pub(crate) fn memory_in_use(&self) -> Result<u64> {
-        Ok(self.table()?.memory())
-    }
-
-    /// Sets the memory of a held session (a restored label map's; restoring checks the budget
-    /// itself, and never refuses a call's session).
-    pub(crate) fn set_memory(&self, id: &str, bytes: u64) -> Result<()> {
-        if let Some(held) = self.table()?.held.get_mut(id) {
-            held.memory = bytes;
-        }
-        Ok(())
-    }
-
-    /// Reserves `bytes` for a new label map of session `id`, which replaces its present one,
-    /// or refuses with `refused(bytes in use by the others)`: the check and the reservation
-    /// are one step, so parallel uploads never pass the limit together.
-    pub(crate) fn reserve_memory(
-        &self,
-        id: &str,
-        bytes: u64,
-        refused: impl FnOnce(u64) -> SessionError,
-    ) -> Result<MemorySlot<'_, T>> {
-        let mut table = self.table()?;
-        let own = table.held.get(id).map_or(0, |h| h.memory);
-        let others = table.memory() - own;
-        if others.saturating_add(bytes) > self.max_memory {
-            return Err(refused(others));
-        }
-        table.reserved += bytes;
-        Ok(MemorySlot {
-            registry: self,
-            id: id.to_owned(),
-            bytes,
-        })
-    }
 }
 
 impl<T: LastAccess> Registry<T> {
     /// Whether session `id`, which the store finds idle since `before`, is still idle: not
-    /// held, or held and not used since.
+    /// held, or held, not used since and not watched (a session on a surgeon's screen is in
+    /// use).
     pub(crate) fn still_idle(&self, id: &str, before: i64) -> Result<bool> {
         Ok(self
             .table()?
-            .held
             .get(id)
-            .is_none_or(|h| h.session.last_access_ms() < before))
+            .is_none_or(|s| s.last_access_ms() < before && !s.watched()))
     }
 }
 
@@ -248,52 +152,30 @@ pub(crate) fn idle_cutoff(now_ms: i64, expiry: Duration) -> i64 {
 
 #[cfg(test)]
 mod tests {
-    use std::sync::Barrier;
     use std::sync::atomic::{AtomicI64, Ordering};
 
     use super::*;
+    use crate::budget::tests::granted_in_parallel;
 
     #[derive(Debug, Default)]
-    struct Fake(AtomicI64);
+    struct Fake(AtomicI64, bool);
 
     impl LastAccess for Fake {
         fn last_access_ms(&self) -> i64 {
             self.0.load(Ordering::Relaxed)
         }
+        fn watched(&self) -> bool {
+            self.1
+        }
     }
 
     fn fake(last: i64) -> Arc<Fake> {
-        Arc::new(Fake(AtomicI64::new(last)))
-    }
-
-    fn refused(others: u64) -> SessionError {
-        SessionError::Quota(Quota::Memory, format!("{others} in use"))
-    }
-
-    /// How many of `threads` threads, started together, get `true` from `try_take(i)`.
-    fn granted_in_parallel(threads: usize, try_take: impl Fn(usize) -> bool + Sync) -> usize {
-        let barrier = Barrier::new(threads);
-        std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..threads)
-                .map(|i| {
-                    let (barrier, try_take) = (&barrier, &try_take);
-                    scope.spawn(move || {
-                        barrier.wait();
-                        try_take(i)
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().unwrap())
-                .filter(|&ok| ok)
-                .count()
-        })
+        Arc::new(Fake(AtomicI64::new(last), false))
     }
 
     #[test]
     fn parallel_reservations_never_pass_the_session_quota() {
-        let registry = Registry::<Fake>::new(10, 0);
+        let registry = Registry::<Fake>::new(10);
         let granted = granted_in_parallel(60, |_| match registry.reserve_session(|| Ok(3)) {
             Ok(slot) => {
                 slot.commit();
@@ -309,7 +191,7 @@ mod tests {
 
     #[test]
     fn a_session_place_is_given_back_when_the_creation_fails_and_on_delete() {
-        let registry = Registry::<Fake>::new(2, 0);
+        let registry = Registry::<Fake>::new(2);
         let mut counted = 0;
         let first = registry
             .reserve_session(|| {
@@ -332,7 +214,7 @@ mod tests {
 
     #[test]
     fn a_failing_count_takes_no_place() {
-        let registry = Registry::<Fake>::new(1, 0);
+        let registry = Registry::<Fake>::new(1);
         assert!(matches!(
             registry.reserve_session(|| Err(internal("store down"))),
             Err(SessionError::Internal(_))
@@ -341,54 +223,8 @@ mod tests {
     }
 
     #[test]
-    fn parallel_memory_reservations_never_pass_the_budget() {
-        const THREADS: usize = 32;
-        let registry = Registry::new(THREADS, 1000);
-        for i in 0..THREADS {
-            registry.insert(&i.to_string(), fake(0)).unwrap();
-        }
-        let granted = granted_in_parallel(THREADS, |i| {
-            registry
-                .reserve_memory(&i.to_string(), 300, refused)
-                .and_then(MemorySlot::commit)
-                .is_ok()
-        });
-        assert_eq!(granted, 3);
-        assert_eq!(registry.memory_in_use().unwrap(), 900);
-    }
-
-    #[test]
-    fn memory_is_accounted_per_session_and_freed_with_it() {
-        let registry = Registry::new(4, 1000);
-        registry.insert("a", fake(0)).unwrap();
-        registry.insert("b", fake(0)).unwrap();
-        registry.set_memory("a", 600).unwrap();
-        // A reservation counts while it is held, and is given back when dropped.
-        let slot = registry.reserve_memory("b", 400, refused).unwrap();
-        assert_eq!(registry.memory_in_use().unwrap(), 1000);
-        let e = registry.reserve_memory("c", 1, refused).unwrap_err();
-        assert!(e.to_string().contains("1000 in use"), "{e}");
-        drop(slot);
-        assert_eq!(registry.memory_in_use().unwrap(), 600);
-        // A new label map replaces the session's own: only the others' memory counts.
-        registry
-            .reserve_memory("a", 1000, refused)
-            .unwrap()
-            .commit()
-            .unwrap();
-        assert_eq!(registry.memory_in_use().unwrap(), 1000);
-        assert!(registry.reserve_memory("b", 1, refused).is_err());
-        // Committed to a session dropped meanwhile: nothing stays in use.
-        let slot = registry.reserve_memory("gone", 0, refused).unwrap();
-        slot.commit().unwrap();
-        assert!(registry.remove("a").unwrap().is_some());
-        assert_eq!(registry.memory_in_use().unwrap(), 0);
-        assert!(registry.remove("a").unwrap().is_none());
-    }
-
-    #[test]
     fn held_sessions_are_found_and_inserted_once() {
-        let registry = Registry::new(4, 0);
+        let registry = Registry::new(4);
         let first = fake(1);
         let held = registry.get_or_insert("a", Arc::clone(&first)).unwrap();
         assert!(Arc::ptr_eq(&held, &first));
@@ -405,10 +241,12 @@ mod tests {
         let before = idle_cutoff(now, Duration::from_secs(60));
         assert_eq!(before, now - 60_000);
         assert_eq!(idle_cutoff(now, Duration::MAX), now - i64::MAX);
-        let registry = Registry::new(4, 0);
+        let registry = Registry::new(4);
         registry.insert("used", fake(before)).unwrap();
         registry.insert("stale", fake(before - 1)).unwrap();
-        let idle: Vec<_> = ["used", "stale", "unloaded"]
+        let watched = Fake(AtomicI64::new(before - 1), true);
+        registry.insert("watched", Arc::new(watched)).unwrap();
+        let idle: Vec<_> = ["used", "stale", "watched", "unloaded"]
             .into_iter()
             .filter(|id| registry.still_idle(id, before).unwrap())
             .collect();

@@ -21,7 +21,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use std::sync::atomic::AtomicUsize;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 use resecta_geom::RoleMap;
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
@@ -29,13 +29,18 @@ use resecta_plan::{SlicePositions, SliceProjections, slice_projections};
 use resecta_store::SessionStore;
 
 use crate::api::{API_VERSION, LabelMapSource, LabelMapSummary, Limits, ServerInfo, Versioned};
+use crate::budget::{
+    Budget, Charge, UploadMemory, Use, label_map_bytes, plan_bytes, plan_samples, watcher_bytes,
+};
 use crate::config::ServiceConfig;
 use crate::error::{Quota, Result, SessionError};
 use crate::labelmap;
 use crate::log;
 use crate::pools::{self, Priority};
 use crate::registry::Registry;
-use crate::state::{BYTES_PER_VOXEL, Loaded, Session, SetUp, State, loaded_mut, spawn_planner};
+use crate::state::{
+    Loaded, Session, SetUp, State, damaged, loaded_mut, models_bytes, spawn_planner,
+};
 use crate::support::{blocking, internal};
 use crate::watch::WatchStream;
 
@@ -44,8 +49,10 @@ use crate::watch::WatchStream;
 pub struct Service {
     pub(crate) store: Arc<dyn SessionStore>,
     pub(crate) config: ServiceConfig,
-    /// The sessions held in memory and the quotas over them.
+    /// The sessions held in memory and the session quota.
     pub(crate) registry: Arc<Registry<Session>>,
+    /// The memory budget: what sessions hold and what work in flight reserves.
+    pub(crate) budget: Arc<Budget>,
     /// Sessions with a volume recomputation scheduled (editing now or just paused).
     pub(crate) volumes_scheduled: AtomicUsize,
 }
@@ -55,10 +62,16 @@ impl Service {
     pub fn new(store: Arc<dyn SessionStore>, config: ServiceConfig) -> Self {
         Self {
             store,
-            registry: Arc::new(Registry::new(config.max_sessions, config.max_memory_bytes)),
+            registry: Arc::new(Registry::new(config.max_sessions)),
+            budget: Budget::new(config.max_memory_bytes),
             config,
             volumes_scheduled: AtomicUsize::new(0),
         }
+    }
+
+    /// Bytes a session's replay ring may hold.
+    pub(crate) fn ring_bytes(&self) -> u64 {
+        self.config.ring.bytes as u64
     }
 
     pub fn config(&self) -> &ServiceConfig {
@@ -101,30 +114,71 @@ impl Service {
     /// start-up, or on first use): the label map and the plan at once, the planner's set-up
     /// (anatomy, then the plan's resections) on the set-up pool, where the next call
     /// that needs the planner waits for it; watchers see the resections once it is built.
-    pub(crate) async fn restore(&self, s: &Session, st: &mut State) -> Result<()> {
+    /// `admit`: the session comes back only if its label map, plan and models fit the memory
+    /// budget (the background restorer); a call's session always does.
+    pub(crate) async fn restore(&self, s: &Session, st: &mut State, admit: bool) -> Result<()> {
         if st.restored {
             return Ok(());
+        }
+        if s.damaged.load(Ordering::Acquire) {
+            return Err(damaged());
         }
         let store = Arc::clone(&self.store);
         let id = s.id.clone();
         let max_voxels = self.config.max_voxels;
         // The store on the blocking pool; decoding and replay on a worker pool.
         let stored = blocking(move || log::load(&*store, &id)).await?;
-        let restored =
-            pools::run(Priority::SetUp, move || log::rebuild(stored, max_voxels)).await??;
+        let restored = match pools::run(Priority::SetUp, move || log::rebuild(stored, max_voxels))
+            .await?
+        {
+            Ok(r) => r,
+            Err(e) => {
+                // Stored data that does not decode or replay within this build's bounds: the
+                // session is reported damaged (never retried, never breaking listings).
+                tracing::warn!(session = %s.id, error = %e, "stored session cannot be restored");
+                s.damaged.store(true, Ordering::Release);
+                return Err(damaged());
+            }
+        };
         let log::Restored {
             rec,
             version,
             loaded,
             models,
         } = restored;
+        let voxels = loaded.as_ref().map_or(0, |l| l.0.data().len() as u64);
+        let charges = [
+            (
+                Charge::LabelMap,
+                if loaded.is_some() {
+                    label_map_bytes(voxels, self.ring_bytes())
+                } else {
+                    0
+                },
+            ),
+            (
+                Charge::Plan,
+                loaded.as_ref().map_or(0, |l| plan_bytes(l.3.plan())),
+            ),
+            (Charge::Models, models.as_deref().map_or(0, models_bytes)),
+        ];
+        // Held until the charges are set, so parallel work cannot take the room meanwhile.
+        let _room = if admit {
+            Some(
+                self.budget
+                    .reserve(Use::LabelMap, charges.iter().map(|c| c.1).sum())?,
+            )
+        } else {
+            None
+        };
+        for (charge, bytes) in charges {
+            self.budget.set(&s.id, charge, bytes)?;
+        }
         st.display_name = rec.display_name;
         st.created_ms = rec.created_ms;
         st.version = version;
         st.restored = true;
         if let Some((labels, summary, roles, history)) = loaded {
-            self.registry
-                .set_memory(&s.id, labels.data().len() as u64 * BYTES_PER_VOXEL)?;
             let setup = SetUp {
                 labels: Arc::clone(&labels),
                 roles,
@@ -185,10 +239,11 @@ impl Service {
             else {
                 continue;
             };
-            let need = summary.map_or(0, |s| {
-                s.dims.iter().map(|&d| d as u64).product::<u64>() * BYTES_PER_VOXEL
-            });
-            if self.memory_in_use()? + need > self.config.max_memory_bytes {
+            // A first check before the log is read (the restore checks again, with the plan).
+            let voxels = summary.map_or(0, |s| s.dims.iter().map(|&d| d as u64).product::<u64>());
+            if self.budget.in_use()? + label_map_bytes(voxels, self.ring_bytes())
+                > self.budget.max()
+            {
                 tracing::info!(session = %rec.id, "not restored in the background: memory budget");
                 continue;
             }
@@ -199,7 +254,7 @@ impl Service {
             if st.restored {
                 continue;
             }
-            let restored = match self.restore(&s, &mut st).await {
+            let restored = match self.restore(&s, &mut st, true).await {
                 Ok(()) => match st.loaded.as_mut() {
                     Some(loaded) => loaded.ready().await.map(|_| ()),
                     None => Ok(()),
@@ -209,6 +264,9 @@ impl Service {
             match restored {
                 Ok(()) => n += 1,
                 Err(SessionError::Cancelled | SessionError::UnknownSession(_)) => {}
+                Err(SessionError::Quota(..)) => {
+                    tracing::info!(session = %rec.id, "not restored in the background: memory budget");
+                }
                 Err(e) => tracing::warn!(session = %rec.id, error = %e, "background restore"),
             }
         }
@@ -222,11 +280,17 @@ impl Service {
     ) -> Result<(Arc<Session>, tokio::sync::OwnedMutexGuard<State>)> {
         let s = self.session(id).await?;
         let mut st = Arc::clone(&s.state).lock_owned().await;
-        self.restore(&s, &mut st).await?;
+        self.restore(&s, &mut st, false).await?;
         Ok((s, st))
     }
 
     // ---- label maps and models --------------------------------------------------------------
+
+    /// Memory for an upload about to be received, grown by the face as its bytes arrive and
+    /// held until [`Self::upload_label_map`] returns.
+    pub fn admit_upload(&self) -> Result<UploadMemory> {
+        UploadMemory::new(&self.budget, self.config.max_upload_bytes)
+    }
 
     /// Loads a label map with its role map, replacing any earlier one (the plan starts anew:
     /// an empty plan on the new roles).
@@ -254,18 +318,10 @@ impl Service {
         let t0 = std::time::Instant::now();
         let labels = blocking(move || labelmap::decode(&source, max_voxels)).await?;
         tracing::debug!(session = %s.id, ms = t0.elapsed().as_secs_f64() * 1e3, "label map decoded");
-        let need = labels.data().len() as u64 * BYTES_PER_VOXEL;
-        let reserved = self.registry.reserve_memory(&s.id, need, |others| {
-            SessionError::Quota(
-                Quota::Memory,
-                format!(
-                    "a label map of {} voxels needs about {need} bytes; {} of the server's {} are in use",
-                    labels.data().len(),
-                    others,
-                    self.config.max_memory_bytes
-                ),
-            )
-        })?;
+        let need = label_map_bytes(labels.data().len() as u64, self.ring_bytes());
+        let reserved =
+            self.budget
+                .reserve_replacing(Use::LabelMap, need, &s.id, Charge::LabelMap)?;
         let labels = Arc::new(labels);
         let summary = {
             let (labels, roles) = (Arc::clone(&labels), roles.clone());
@@ -299,7 +355,10 @@ impl Service {
             Ok((plan, version))
         })
         .await?;
-        reserved.commit()?;
+        reserved.settle(&s.id, Charge::LabelMap, need)?;
+        // The plan starts anew (empty), and the models are gone.
+        self.budget.set(&s.id, Charge::Plan, 0)?;
+        self.budget.set(&s.id, Charge::Models, 0)?;
         st.version = version;
         st.generation += 1;
         st.models = None;
@@ -376,6 +435,12 @@ impl Service {
         {
             loaded.ready().await?;
         }
-        Ok(s.hub.subscribe(since))
+        let samples = st
+            .loaded
+            .as_ref()
+            .and_then(|l| l.planner.as_ref())
+            .map_or(0, |p| plan_samples(p.plan()));
+        let memory = self.budget.reserve(Use::Watcher, watcher_bytes(samples))?;
+        Ok(s.hub.subscribe(since, Some(memory)))
     }
 }

@@ -39,6 +39,9 @@ impl LastAccess for Session {
     fn last_access_ms(&self) -> i64 {
         self.last_touch_ms.load(Ordering::Relaxed)
     }
+    fn watched(&self) -> bool {
+        self.hub.watchers() > 0
+    }
 }
 
 impl Service {
@@ -59,6 +62,7 @@ impl Service {
             volumes_scheduled: AtomicBool::new(false),
             last_edit: Mutex::new(std::time::Instant::now()),
             deleted: Arc::new(AtomicBool::new(false)),
+            damaged: AtomicBool::new(false),
         })
     }
 
@@ -97,8 +101,9 @@ impl Service {
         Ok(session)
     }
 
+    #[cfg(test)]
     pub(crate) fn memory_in_use(&self) -> Result<u64> {
-        self.registry.memory_in_use()
+        self.budget.in_use()
     }
 
     pub async fn create_session(&self, display_name: &str) -> Result<SessionInfo> {
@@ -132,10 +137,19 @@ impl Service {
         let records = blocking(move || Ok(store.sessions()?)).await?;
         let mut out = Vec::with_capacity(records.len());
         for rec in records {
-            let loaded = self.registry.get(&rec.id)?;
-            match loaded {
-                Some(s) => out.push(self.describe(&s).await?),
-                None => out.push(self.describe_stored(rec).await?),
+            let described = match self.registry.get(&rec.id)? {
+                Some(s) => self.describe(&s).await,
+                None => self.describe_stored(rec.clone()).await,
+            };
+            match described {
+                Ok(info) => out.push(info),
+                // Deleted meanwhile.
+                Err(SessionError::UnknownSession(_)) => {}
+                // One unreadable session never breaks the listing.
+                Err(e) => {
+                    tracing::warn!(session = %rec.id, error = %e, "stored session unreadable");
+                    out.push(damaged_info(rec));
+                }
             }
         }
         Ok(out)
@@ -153,6 +167,7 @@ impl Service {
         let existed =
             blocking(move || registry.delete_stored(|| Ok(store.delete_session(&key)?))).await?;
         let dropped = self.registry.remove(id)?;
+        self.budget.release(id)?;
         if let Some(s) = &dropped {
             // Stops its planner set-up; what it holds is freed when the set-up returns.
             s.deleted.store(true, Ordering::Release);
@@ -184,6 +199,14 @@ impl Service {
     }
 
     async fn describe(&self, s: &Arc<Session>) -> Result<SessionInfo> {
+        if s.damaged.load(Ordering::Acquire) {
+            let store = Arc::clone(&self.store);
+            let key = s.id.clone();
+            let rec = blocking(move || Ok(store.session(&key)?))
+                .await?
+                .ok_or_else(|| SessionError::UnknownSession(s.id.clone()))?;
+            return Ok(damaged_info(rec));
+        }
         let st = s.state.lock().await;
         if !st.restored {
             drop(st);
@@ -228,6 +251,19 @@ impl Service {
             plan_version: version,
             label_map: summary,
         })
+    }
+}
+
+/// A stored session that cannot be restored, as listings show it.
+fn damaged_info(rec: SessionRecord) -> SessionInfo {
+    SessionInfo {
+        id: rec.id,
+        display_name: rec.display_name,
+        created_ms: rec.created_ms,
+        last_access_ms: rec.last_access_ms,
+        state: SessionState::Damaged,
+        plan_version: 0,
+        label_map: None,
     }
 }
 

@@ -15,8 +15,13 @@ use crate::pools::{self, Priority};
 use crate::support::internal;
 use crate::watch::Hub;
 
-/// Estimated resident bytes per voxel of a loaded session (label map, liver masks, volumetry).
-pub(crate) const BYTES_PER_VOXEL: u64 = 8;
+/// The error of every operation on a session that cannot be restored.
+pub(crate) fn damaged() -> SessionError {
+    SessionError::Precondition(
+        Missing::Other,
+        "the stored session is damaged and cannot be restored; only deleting it works".into(),
+    )
+}
 
 pub(crate) fn no_label_map() -> SessionError {
     SessionError::Precondition(Missing::LabelMap, "the session has no label map".into())
@@ -27,6 +32,17 @@ pub(crate) struct Model {
     pub(crate) info: ModelInfo,
     pub(crate) mesh: TriMesh,
     pub(crate) surface: Surface,
+}
+
+/// What reconstructed models hold: their meshes and encoded surfaces.
+pub(crate) fn models_bytes(models: &[Model]) -> u64 {
+    models
+        .iter()
+        .map(|m| {
+            (m.mesh.vertices().len() * 48 + m.mesh.triangles().len() * 12 + m.surface.mesh.len())
+                as u64
+        })
+        .sum()
 }
 
 /// What a planner set-up builds on: the label map, its roles, the plan history to resume
@@ -100,6 +116,8 @@ pub(crate) struct Session {
     pub(crate) last_edit: Mutex<std::time::Instant>,
     /// Set when the session is deleted: its planner set-up stops.
     pub(crate) deleted: Arc<AtomicBool>,
+    /// Set when the stored session cannot be restored.
+    pub(crate) damaged: AtomicBool,
 }
 
 impl Loaded {

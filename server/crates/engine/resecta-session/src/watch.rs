@@ -15,6 +15,7 @@ use resecta_plan::{Change, Plan, Resection, ResectionState, Verdict, VolumeRepor
 use tokio::sync::watch;
 
 use crate::api::{Surface, SurfaceKind, SurfaceUpdate, WatchBody, WatchEvent};
+use crate::budget::Reservation;
 use crate::error::{Result, SessionError};
 
 /// Replay ring bounds per session.
@@ -268,14 +269,25 @@ impl Hub {
 
     /// A stream for one client: from `since` if the ring still holds what follows it, else from
     /// a snapshot.
-    pub fn subscribe(self: &Arc<Self>, since: Option<u64>) -> WatchStream {
+    /// `memory` is what the stream's snapshot holds of the memory budget, given back with it.
+    pub(crate) fn subscribe(
+        self: &Arc<Self>,
+        since: Option<u64>,
+        memory: Option<Reservation>,
+    ) -> WatchStream {
         metrics::gauge!("resecta_watchers").increment(1.0);
         WatchStream {
             hub: Arc::clone(self),
             rx: self.notify.subscribe(),
             cursor: since,
             pending: VecDeque::new(),
+            _memory: memory,
         }
+    }
+
+    /// Streams open on this hub.
+    pub fn watchers(&self) -> usize {
+        self.notify.receiver_count()
     }
 
     /// Ends every stream (the session is gone).
@@ -292,6 +304,7 @@ pub struct WatchStream {
     /// Last sequence number delivered (`None`: a snapshot is due).
     cursor: Option<u64>,
     pending: VecDeque<Arc<WatchEvent>>,
+    _memory: Option<Reservation>,
 }
 
 impl Drop for WatchStream {

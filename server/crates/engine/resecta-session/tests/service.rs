@@ -7,50 +7,17 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use resecta_delta::{DecodeLimits, SurfaceFrame, apply_delta, decode_mesh};
-use resecta_geom::{LabelMap, RoleMap};
+use resecta_geom::RoleMap;
 use resecta_margin::FAR_TOLERANCE_MM;
-use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::PlanEvent;
 use resecta_session::api::{
-    DataType, EditOp, FileFormat, LabelMapSource, ModelInfo, RawLabelMap, ReconMethod,
-    ReconOptions, ReconstructEvent, SessionState, SurfaceKind, WatchBody, WatchEvent,
+    EditOp, FileFormat, LabelMapSource, ModelInfo, ReconMethod, ReconOptions, ReconstructEvent,
+    SessionState, SurfaceKind, WatchBody, WatchEvent,
 };
 use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
+mod common;
+use common::{config, init_op, loaded_session, phantom, raw};
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreError, StoreOptions};
-
-fn phantom() -> LabelMap {
-    generate(&PhantomSpec::small()).unwrap().labels
-}
-
-fn raw(labels: &LabelMap) -> RawLabelMap {
-    let g = labels.grid();
-    let d = g.direction();
-    RawLabelMap {
-        dims: g.dims(),
-        spacing: g.spacing(),
-        origin: g.origin().into(),
-        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
-        data_type: DataType::U8,
-        data: labels.data().iter().map(|&v| v as u8).collect(),
-    }
-}
-
-fn config() -> ServiceConfig {
-    ServiceConfig {
-        volumes_delay: Duration::from_millis(5),
-        psr_depth: 6,
-        ..ServiceConfig::default()
-    }
-}
-
-fn init_op() -> EditOp {
-    EditOp::InitFromEndPoint {
-        name: "r1".into(),
-        target: Default::default(),
-        end_point: [-30.0, 0.0, 0.0],
-        grid: [4, 4],
-    }
-}
 
 fn drag(point: [f64; 3]) -> EditOp {
     EditOp::Event {
@@ -61,20 +28,6 @@ fn drag(point: [f64; 3]) -> EditOp {
             point,
         },
     }
-}
-
-/// A new session of `service` named `name`, holding the phantom label map.
-async fn loaded_session(service: &Service, name: &str) -> String {
-    let id = service.create_session(name).await.unwrap().id;
-    service
-        .upload_label_map(
-            &id,
-            LabelMapSource::Raw(raw(&phantom())),
-            RoleMap::default(),
-        )
-        .await
-        .unwrap();
-    id
 }
 
 async fn next(w: &mut WatchStream) -> Arc<WatchEvent> {
