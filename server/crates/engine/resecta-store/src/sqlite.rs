@@ -208,8 +208,22 @@ fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
         return Err(StoreError::Corrupt {
             detail: format!("schema version {version}"),
         });
+    } else {
+        // A real write (the same version again), so that a store on a read-only file system
+        // or file is refused here rather than at the first acknowledged edit.
+        tx.pragma_update(None, "user_version", version)
+            .map_err(writable)?;
     }
-    tx.commit().map_err(db)
+    tx.commit().map_err(writable)
+}
+
+/// A failed write, named for what it usually means when the file is read-only.
+fn writable(e: rusqlite::Error) -> StoreError {
+    if e.sqlite_error_code() == Some(rusqlite::ErrorCode::ReadOnly) {
+        StoreError::Backend("the store cannot be written (read-only file or file system)".into())
+    } else {
+        db(e)
+    }
 }
 
 impl SqliteStore {
@@ -621,5 +635,26 @@ impl SessionStore for SqliteStore {
             sessions: to_u64("session count", sessions)?,
             stored_bytes: to_u64("stored bytes", blobs)? + to_u64("stored bytes", log)?,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Running as root, no permission makes a file read-only; a read-only connection to a
+    /// store's database gives the same SQLITE_READONLY as a read-only mount.
+    #[test]
+    fn a_store_that_cannot_be_written_is_refused_at_open() {
+        let dir = tempfile::tempdir().unwrap();
+        drop(SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
+        let path = dir.path().join(DB_FILE);
+        let mut read_only = open_connection(&path, OpenFlags::SQLITE_OPEN_READ_ONLY).unwrap();
+        let e = migrate(&mut read_only).unwrap_err();
+        assert!(e.to_string().contains("cannot be written"), "{e}");
+        // A writable one passes, again and again.
+        let mut writer = open_connection(&path, OpenFlags::SQLITE_OPEN_READ_WRITE).unwrap();
+        migrate(&mut writer).unwrap();
+        migrate(&mut writer).unwrap();
     }
 }
