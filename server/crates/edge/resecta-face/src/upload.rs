@@ -87,8 +87,26 @@ impl Upload {
         self.append(&msg.data)
     }
 
-    /// Appends data of any length (the HTTP face's body, already bounded by the upload limit).
+    /// Appends data of any length.
     pub fn append(&mut self, data: &[u8]) -> Result<(), WireError> {
+        self.check(data)?;
+        self.data.extend_from_slice(data);
+        Ok(())
+    }
+
+    /// Appends data of any length, without a copy when it is the first (the HTTP face's body,
+    /// already bounded by the upload limit).
+    pub fn append_owned(&mut self, data: Vec<u8>) -> Result<(), WireError> {
+        self.check(&data)?;
+        if self.data.is_empty() {
+            self.data = data;
+        } else {
+            self.data.extend_from_slice(&data);
+        }
+        Ok(())
+    }
+
+    fn check(&self, data: &[u8]) -> Result<(), WireError> {
         let received = self.data.len() as u64 + data.len() as u64;
         if received > self.total_bytes {
             return Err(WireError::bad_chunk(
@@ -109,7 +127,6 @@ impl Upload {
                 "INT8 data holds negative labels",
             ));
         }
-        self.data.extend_from_slice(data);
         Ok(())
     }
 

@@ -135,8 +135,13 @@ impl PlanningService for Planning {
             .get_session(&upload.session_id)
             .await
             .or_status()?;
+        // The upload holds the memory budget as its bytes arrive, until the label map is
+        // decoded and loaded.
+        let mut memory = self.service.admit_upload().or_status()?;
+        memory.grow(first.data.len() as u64).or_status()?;
         upload.push(first, true).or_status()?;
         while let Some(chunk) = chunks.message().await? {
+            memory.grow(chunk.data.len() as u64).or_status()?;
             upload.push(chunk, false).or_status()?;
         }
         let (id, source, roles) = upload.finish().or_status()?;

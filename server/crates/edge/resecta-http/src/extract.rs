@@ -9,13 +9,19 @@ use serde::de::DeserializeOwned;
 
 use crate::App;
 use crate::problem::Problem;
+use resecta_session::UploadMemory;
 
 /// Bytes reserved up front for a body, at most (the rest grows as it arrives).
 const MAX_PREALLOC: u64 = 8 << 20;
 
 /// Reads a body of at most `limit` bytes: refuses a larger `Content-Length` before reading
 /// anything, and a longer (e.g. chunked) body as soon as it passes the limit.
-pub async fn read_body(headers: &HeaderMap, body: Body, limit: u64) -> Result<Bytes, Problem> {
+pub async fn read_body(
+    headers: &HeaderMap,
+    body: Body,
+    limit: u64,
+    mut memory: Option<&mut UploadMemory>,
+) -> Result<Bytes, Problem> {
     let declared = headers
         .get(header::CONTENT_LENGTH)
         .and_then(|v| v.to_str().ok())
@@ -30,6 +36,10 @@ pub async fn read_body(headers: &HeaderMap, body: Body, limit: u64) -> Result<By
         let chunk = chunk.map_err(|e| Problem::invalid(format!("request body: {e}")))?;
         if (out.len() + chunk.len()) as u64 > limit {
             return Err(Problem::too_large(limit));
+        }
+        // An upload holds the memory budget as its bytes arrive.
+        if let Some(memory) = memory.as_deref_mut() {
+            memory.grow(chunk.len() as u64)?;
         }
         out.extend_from_slice(&chunk);
     }
@@ -46,7 +56,7 @@ impl<T: DeserializeOwned + Default> FromRequest<App> for ProtoJson<T> {
 
     async fn from_request(req: Request, app: &App) -> Result<Self, Problem> {
         let (parts, body) = req.into_parts();
-        let bytes = read_body(&parts.headers, body, app.max_json_bytes).await?;
+        let bytes = read_body(&parts.headers, body, app.max_json_bytes, None).await?;
         if bytes.iter().all(u8::is_ascii_whitespace) {
             return Ok(Self(T::default()));
         }

@@ -161,7 +161,9 @@ pub async fn upload_label_map(
     app.service.get_session(&id).await?;
     let (parts, body) = req.into_parts();
     let limit = app.service.config().max_upload_bytes;
-    let bytes = read_body(&parts.headers, body, limit).await?;
+    // Held until the label map is decoded and loaded.
+    let mut memory = app.service.admit_upload()?;
+    let bytes = read_body(&parts.headers, body, limit, Some(&mut memory)).await?;
     let (session, total) = match &mut header {
         Header::Raw(h) => (&mut h.session_id, &mut h.total_bytes),
         Header::File(h) => (&mut h.session_id, &mut h.total_bytes),
@@ -171,7 +173,7 @@ pub async fn upload_label_map(
         *total = bytes.len() as u64;
     }
     let mut upload = Upload::start(Some(&header), limit)?;
-    upload.append(&bytes)?;
+    upload.append_owned(bytes.into())?;
     let (id, source, roles) = upload.finish()?;
     let summary = app.service.upload_label_map(&id, source, roles).await?;
     Ok(axum::Json(pb::UploadLabelMapResponse {

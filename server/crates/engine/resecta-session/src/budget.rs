@@ -25,7 +25,7 @@ pub(crate) const BYTES_PER_SAMPLE: u64 = 256;
 /// Fixed bytes of one resection (control net, verdict, names, caches).
 const BYTES_PER_RESECTION: u64 = 64 << 10;
 /// A watcher's snapshot (the encoded surfaces) and its copy on the wire, per surface sample.
-const WATCH_BYTES_PER_SAMPLE: u64 = 96;
+const WATCH_BYTES_PER_SAMPLE: u64 = 128;
 /// A watcher's fixed bytes (stream state, models' encoded meshes are shared).
 const WATCH_BYTES: u64 = 256 << 10;
 /// Bytes per node of the screened Poisson reconstruction's finest grid (multigrid levels,
