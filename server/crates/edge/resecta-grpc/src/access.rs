@@ -1,7 +1,8 @@
 //! The access check in front of `PlanningService`: [`AccessPolicy`] on the `authorization` and
 //! `resecta-api-version` metadata of every call, before the request body is read. A tower
 //! wrapper rather than a tonic interceptor because `GetServerInfo` must skip the version check,
-//! and an interceptor cannot see the method.
+//! and an interceptor cannot see the method. A call that passes marks its connection
+//! authenticated ([`resecta_conn::Conn`], when the server put one into the extensions).
 
 use std::convert::Infallible;
 use std::sync::Arc;
@@ -70,11 +71,68 @@ where
 
     fn call(&mut self, req: http::Request<B>) -> Self::Future {
         match check(&self.policy, &req) {
-            Ok(()) => Either::Left(self.inner.call(req)),
+            Ok(()) => {
+                // The connection carried an authenticated call: no longer subject to the
+                // handshake timeout nor evicted as unauthenticated (resecta-conn).
+                if let Some(conn) = req.extensions().get::<resecta_conn::Conn>() {
+                    conn.mark_authenticated();
+                }
+                Either::Left(self.inner.call(req))
+            }
             Err(e) => {
                 tracing::debug!(path = req.uri().path(), reason = e.code(), "call refused");
                 Either::Right(ready(Ok(access_status(&e).into_http())))
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use resecta_conn::{Admission, AdmitOn, ConnLimits};
+    use tower::{Service, ServiceExt};
+
+    use super::*;
+
+    const TOKEN: &str = "unit-test-token-0123456789";
+
+    fn call(auth: Option<&str>, conn: &resecta_conn::Conn) -> http::Request<()> {
+        let mut req = http::Request::builder()
+            .uri("/resecta.v1.PlanningService/ListSessions")
+            .header(API_VERSION_HEADER, "v1");
+        if let Some(a) = auth {
+            req = req.header("authorization", a);
+        }
+        let mut req = req.body(()).unwrap();
+        req.extensions_mut().insert(conn.clone());
+        req
+    }
+
+    #[tokio::test]
+    async fn only_an_authenticated_call_marks_its_connection() {
+        let admission = Admission::new(ConnLimits::default(), AdmitOn::Authenticated);
+        let conn = admission
+            .admit("grpc", "127.0.0.1:40000".parse().unwrap())
+            .unwrap();
+        let inner = tower::service_fn(|_req: http::Request<()>| async {
+            Ok::<_, Infallible>(http::Response::new(tonic::body::Body::empty()))
+        });
+        let mut access = Access::new(inner, AccessPolicy::with_token(TOKEN).unwrap());
+        for refused in [None, Some("Bearer not-the-token-0123456789")] {
+            let res = access.ready().await.unwrap().call(call(refused, &conn));
+            let res = res.await.unwrap();
+            assert_eq!(res.headers()["grpc-status"], "16");
+            assert!(!conn.is_admitted());
+        }
+        assert_eq!(admission.unauthenticated(), 1);
+        let bearer = format!("Bearer {TOKEN}");
+        let res = access
+            .ready()
+            .await
+            .unwrap()
+            .call(call(Some(&bearer), &conn));
+        assert!(res.await.unwrap().headers().get("grpc-status").is_none());
+        assert!(conn.is_admitted());
+        assert_eq!(admission.unauthenticated(), 0);
     }
 }

@@ -313,7 +313,10 @@ pub fn router(service: Arc<Service>, policy: AccessPolicy, options: HttpOptions)
         )
 }
 
-/// Applies the access policy to the `authorization` and `resecta-api-version` headers.
+/// Applies the access policy to the `authorization` and `resecta-api-version` headers. A request
+/// that passes marks its connection authenticated ([`resecta_conn::Conn`], when the server put
+/// one into the extensions): no longer subject to the handshake timeout nor evicted as
+/// unauthenticated.
 async fn access(State(policy): State<Arc<AccessPolicy>>, req: Request, next: Next) -> Response {
     let verdict = {
         let header = |name: &str| {
@@ -327,7 +330,12 @@ async fn access(State(policy): State<Arc<AccessPolicy>>, req: Request, next: Nex
         )
     };
     match verdict {
-        Ok(()) => next.run(req).await,
+        Ok(()) => {
+            if let Some(conn) = req.extensions().get::<resecta_conn::Conn>() {
+                conn.mark_authenticated();
+            }
+            next.run(req).await
+        }
         Err(e) => Problem::from(e).into_response(),
     }
 }
