@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use resecta_auth::AccessPolicy;
+use resecta_conn::ConnLimits;
 use resecta_session::ServiceConfig;
 use serde::Deserialize;
 
@@ -59,6 +60,14 @@ pub struct ServeArgs {
     /// TOML configuration file (limits live here).
     #[arg(long, env = "RESECTA_CONFIG")]
     pub config: Option<PathBuf>,
+    /// Seconds a new connection has to carry an admitted (authenticated, with a token) request
+    /// before it is closed [default: 10; TOML `[connections] handshake_timeout_s`].
+    #[arg(long, value_name = "SECONDS", env = "RESECTA_HANDSHAKE_TIMEOUT")]
+    pub handshake_timeout: Option<u64>,
+    /// Seconds without a request in flight nor a byte either way after which a connection is
+    /// closed [default: 60; TOML `[connections] idle_timeout_s`].
+    #[arg(long, value_name = "SECONDS", env = "RESECTA_IDLE_TIMEOUT")]
+    pub idle_timeout: Option<u64>,
 }
 
 /// The TOML file.
@@ -74,6 +83,57 @@ struct FileConfig {
     tls: Option<TlsFiles>,
     #[serde(default)]
     limits: FileLimits,
+    #[serde(default)]
+    connections: FileConnections,
+}
+
+/// `[connections]`: see `resecta_conn::ConnLimits` (docs/connections.md).
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FileConnections {
+    handshake_timeout_s: Option<u64>,
+    idle_timeout_s: Option<u64>,
+    max_connections: Option<usize>,
+    max_per_ip: Option<usize>,
+    max_unauthenticated: Option<usize>,
+    http2_max_concurrent_streams: Option<u32>,
+    http2_max_header_list_bytes: Option<u32>,
+    http2_max_pending_accept_reset_streams: Option<usize>,
+}
+
+impl FileConnections {
+    /// The defaults overridden by the file, then by the flags.
+    fn resolve(&self, args: &ServeArgs) -> Result<ConnLimits, ServerError> {
+        let mut l = ConnLimits::default();
+        let secs = Duration::from_secs;
+        if let Some(s) = args.handshake_timeout.or(self.handshake_timeout_s) {
+            l.handshake_timeout = secs(s);
+        }
+        if let Some(s) = args.idle_timeout.or(self.idle_timeout_s) {
+            l.idle_timeout = secs(s);
+        }
+        if let Some(v) = self.max_connections {
+            l.max_connections = v;
+        }
+        if let Some(v) = self.max_per_ip {
+            l.max_per_ip = v;
+        }
+        if let Some(v) = self.max_unauthenticated {
+            l.max_unauthenticated = v;
+        }
+        if let Some(v) = self.http2_max_concurrent_streams {
+            l.http2_max_concurrent_streams = v;
+        }
+        if let Some(v) = self.http2_max_header_list_bytes {
+            l.http2_max_header_list_bytes = v;
+        }
+        if let Some(v) = self.http2_max_pending_accept_reset_streams {
+            l.http2_max_pending_accept_reset_streams = v;
+        }
+        l.validate()
+            .map_err(|e| ServerError::Config(format!("[connections] {e}")))?;
+        Ok(l)
+    }
 }
 
 #[derive(Debug, Default, Deserialize)]
@@ -106,6 +166,8 @@ pub struct ServerConfig {
     pub demo: bool,
     pub log_json: bool,
     pub service: ServiceConfig,
+    /// Timeouts and caps of both faces' connections.
+    pub connections: ConnLimits,
 }
 
 fn read_small(path: &Path, what: &str) -> Result<String, ServerError> {
@@ -176,6 +238,7 @@ impl ServerConfig {
             }),
             _ => file.tls,
         };
+        let connections = file.connections.resolve(args)?;
         let mut service = ServiceConfig::default();
         let l = &file.limits;
         if let Some(v) = l.max_sessions {
@@ -208,6 +271,7 @@ impl ServerConfig {
             demo: args.demo || file.demo.unwrap_or(false),
             log_json: args.log_json,
             service,
+            connections,
         })
     }
 }
@@ -280,6 +344,56 @@ mod tests {
         );
         assert_eq!(c.service.max_sessions, 3);
         assert_eq!(c.service.idle_expiry, None);
+    }
+
+    #[test]
+    fn connection_limits_from_file_and_flags_are_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = write(
+            dir.path(),
+            "c.toml",
+            "[connections]\nhandshake_timeout_s = 3\nidle_timeout_s = 20\nmax_unauthenticated = 8\n\
+             max_per_ip = 16\nhttp2_max_concurrent_streams = 50\n",
+        );
+        let mut args = ServeArgs {
+            config: Some(cfg),
+            ..ServeArgs::default()
+        };
+        let c = ServerConfig::resolve(&args).unwrap().connections;
+        assert_eq!(c.handshake_timeout, Duration::from_secs(3));
+        assert_eq!(c.idle_timeout, Duration::from_secs(20));
+        assert_eq!((c.max_unauthenticated, c.max_per_ip), (8, 16));
+        assert_eq!(c.http2_max_concurrent_streams, 50);
+        assert_eq!(c.max_connections, ConnLimits::default().max_connections);
+        args.idle_timeout = Some(90);
+        let c = ServerConfig::resolve(&args).unwrap().connections;
+        assert_eq!(c.idle_timeout, Duration::from_secs(90));
+        assert_eq!(c.handshake_timeout, Duration::from_secs(3));
+        args.handshake_timeout = Some(0);
+        let e = ServerConfig::resolve(&args).unwrap_err().to_string();
+        assert!(
+            e.contains("[connections] handshake_timeout_s must be more than 0"),
+            "{e}"
+        );
+        // Defaults without a file.
+        let d = ServerConfig::resolve(&ServeArgs::default())
+            .unwrap()
+            .connections;
+        assert_eq!(d, ConnLimits::default());
+        for (text, key) in [
+            (
+                "[connections]\nmax_per_ip = 0\n",
+                "max_per_ip must be at least 1",
+            ),
+            ("[connections]\nidle_timout_s = 5\n", "idle_timout_s"),
+        ] {
+            let args = ServeArgs {
+                config: Some(write(dir.path(), "bad.toml", text)),
+                ..ServeArgs::default()
+            };
+            let e = ServerConfig::resolve(&args).unwrap_err().to_string();
+            assert!(e.contains(key), "{e}");
+        }
     }
 
     #[test]

@@ -1,8 +1,9 @@
 //! The planning server process (`resecta serve`): one [`resecta_session::Service`] over the
 //! configured store, served on two faces — gRPC ([`resecta_grpc`]) and HTTP/JSON
 //! ([`resecta_http`]) — with the same access policy, optional TLS on both, Prometheus metrics,
-//! request tracing, idle-session expiry and, on request, the demo patient. No algorithm lives
-//! here: this crate wires listeners to the operation layer.
+//! request tracing, idle-session expiry, connection hygiene ([`resecta_conn`]: handshake and idle
+//! timeouts, connection caps, HTTP/2 limits) and, on request, the demo patient. No algorithm
+//! lives here: this crate wires listeners to the operation layer.
 
 mod config;
 mod demo;
@@ -14,7 +15,8 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::time::Duration;
 
-use axum_server::accept::NoDelayAcceptor;
+use axum_server::accept::DefaultAcceptor;
+use resecta_conn::{Admission, AdmitOn, ConnAcceptor, ConnIncoming, ConnLayer, ConnLimits};
 use resecta_session::Service;
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
 use serde::Serialize;
@@ -85,17 +87,32 @@ pub async fn run(
         tls: tls.is_some(),
     };
 
+    // Connections of both faces: admitted by an authenticated request (any request without a
+    // token), timed out and capped together.
+    let limits = &config.connections;
+    let admit_on = if config.access.requires_token() {
+        AdmitOn::Authenticated
+    } else {
+        AdmitOn::AnyRequest
+    };
+    let admission = Admission::start(limits.clone(), admit_on);
+
     let (stop_tx, stop_rx) = watch::channel(false);
     let stopped = move |mut rx: watch::Receiver<bool>| async move {
         let _ = rx.wait_for(|s| *s).await;
     };
 
-    // gRPC face.
-    let mut builder =
-        tonic::transport::Server::builder().http2_keepalive_interval(Some(Duration::from_secs(30)));
+    // gRPC face. Keep-alive pings keep live connections from looking idle (they are bytes);
+    // without a stream limit tonic would leave HTTP/2 streams per connection unbounded.
+    let mut builder = tonic::transport::Server::builder()
+        .http2_keepalive_interval(Some(limits.http2_keepalive_interval()))
+        .max_concurrent_streams(limits.http2_max_concurrent_streams)
+        .http2_max_header_list_size(limits.http2_max_header_list_bytes)
+        .http2_max_pending_accept_reset_streams(Some(limits.http2_max_pending_accept_reset_streams))
+        .http2_max_local_error_reset_streams(Some(MAX_LOCAL_ERROR_RESET_STREAMS));
     if let Some(t) = &tls {
         builder = builder
-            .tls_config(t.grpc.clone())
+            .tls_config(t.grpc.clone().timeout(limits.handshake_timeout))
             .map_err(|e| ServerError::Tls(e.to_string()))?;
     }
     // Watch and Reconstruct streams end with UNAVAILABLE on shutdown: tonic's graceful
@@ -107,11 +124,16 @@ pub async fn run(
     );
     // Small messages (edit answers, deltas of small surfaces) must not wait for Nagle's delayed
     // ACK: 40 ms per edit otherwise.
-    let incoming =
-        tonic::transport::server::TcpIncoming::from(grpc_listener).with_nodelay(Some(true));
+    let incoming = ConnIncoming::new(
+        tonic::transport::server::TcpIncoming::from(grpc_listener).with_nodelay(Some(true)),
+        Arc::clone(&admission),
+        "grpc",
+    );
     // Request ids: the client's `x-request-id` (if sane) or a new one, echoed in the response
     // metadata and carried by the call's log span, as on the HTTP face.
     let layers = tower::ServiceBuilder::new()
+        // Each call counts in flight on its connection (and admits it when there is no token).
+        .layer(ConnLayer)
         .map_request(telemetry::sane_request_id)
         .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
         .layer(PropagateRequestIdLayer::x_request_id())
@@ -140,6 +162,8 @@ pub async fn run(
         resecta_http::HttpOptions {
             metrics: render,
             shutdown: Some(stop_rx.clone()),
+            // Keep-alive comments keep open event streams from looking idle.
+            keep_alive: limits.sse_keepalive_interval(),
             ..resecta_http::HttpOptions::default()
         },
     );
@@ -151,27 +175,28 @@ pub async fn run(
             source,
         })?;
     let app = router.into_make_service();
+    let server = axum_server::from_tcp(std_listener).map_err(|source| ServerError::Bind {
+        addr: bound.http,
+        source,
+    })?;
+    // The connection acceptor sets TCP_NODELAY, below TLS when there is TLS.
     let http = match &tls {
         Some(t) => {
             let tls = axum_server::tls_rustls::RustlsAcceptor::new(t.http.clone())
-                .acceptor(NoDelayAcceptor::new());
-            let server = axum_server::from_tcp(std_listener)
-                .map_err(|source| ServerError::Bind {
-                    addr: bound.http,
-                    source,
-                })?
-                .acceptor(tls)
+                .handshake_timeout(limits.handshake_timeout)
+                .acceptor(DefaultAcceptor::new());
+            let mut server = server
+                .acceptor(ConnAcceptor::new(tls, Arc::clone(&admission), "http"))
                 .handle(handle.clone());
+            http_limits(server.http_builder(), limits);
             tokio::spawn(async move { server.serve(app).await })
         }
         None => {
-            let server = axum_server::from_tcp(std_listener)
-                .map_err(|source| ServerError::Bind {
-                    addr: bound.http,
-                    source,
-                })?
-                .acceptor(NoDelayAcceptor::new())
+            let acceptor = DefaultAcceptor::new();
+            let mut server = server
+                .acceptor(ConnAcceptor::new(acceptor, Arc::clone(&admission), "http"))
                 .handle(handle.clone());
+            http_limits(server.http_builder(), limits);
             tokio::spawn(async move { server.serve(app).await })
         }
     };
@@ -188,7 +213,9 @@ pub async fn run(
         });
     }
     tracing::info!(grpc = %bound.grpc, http = %bound.http, tls = bound.tls,
-        auth = config.access.requires_token(), durable = config.data_dir.is_some(), "listening");
+        auth = config.access.requires_token(), durable = config.data_dir.is_some(),
+        handshake_timeout_s = limits.handshake_timeout.as_secs_f64(),
+        idle_timeout_s = limits.idle_timeout.as_secs_f64(), "listening");
     on_bound(bound);
 
     shutdown.await;
@@ -208,6 +235,27 @@ pub async fn run(
     }
     tracing::info!("stopped");
     Ok(())
+}
+
+/// HTTP/2 streams a client may make the server reset (malformed frames) before the connection
+/// is closed: hyper's default, which tonic leaves unset (unbounded).
+const MAX_LOCAL_ERROR_RESET_STREAMS: usize = 1024;
+
+/// The HTTP face's protocol limits: HTTP/2 streams and headers as on the gRPC face, and every
+/// HTTP/1 request head must be complete within the idle timeout of the connection being ready
+/// for it (the first one also within the handshake timeout), however slowly its bytes trickle.
+fn http_limits(
+    builder: &mut hyper_util::server::conn::auto::Builder<hyper_util::rt::TokioExecutor>,
+    limits: &ConnLimits,
+) {
+    builder
+        .http1()
+        .header_read_timeout(limits.idle_timeout)
+        .http2()
+        .max_concurrent_streams(limits.http2_max_concurrent_streams)
+        .max_header_list_size(limits.http2_max_header_list_bytes)
+        .max_pending_accept_reset_streams(limits.http2_max_pending_accept_reset_streams)
+        .max_local_error_reset_streams(MAX_LOCAL_ERROR_RESET_STREAMS);
 }
 
 /// How long graceful shutdown waits for in-flight calls once streams have been ended.
