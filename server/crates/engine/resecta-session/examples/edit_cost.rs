@@ -14,24 +14,11 @@ use std::time::Duration;
 use resecta_geom::{LabelMap, RoleMap, Vec3};
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::{Anatomy, Plan, PlanEvent, Planner, Target};
-use resecta_session::api::{DataType, EditOp, LabelMapSource, RawLabelMap};
+use resecta_session::api::{EditOp, LabelMapSource, RawLabelMap};
 use resecta_session::{Service, ServiceConfig};
 use resecta_store::{MemoryStore, StoreOptions};
 
 const END_POINT: [f64; 3] = [-30.0, 0.0, 0.0];
-
-fn raw(labels: &LabelMap) -> RawLabelMap {
-    let g = labels.grid();
-    let d = g.direction();
-    RawLabelMap {
-        dims: g.dims(),
-        spacing: g.spacing(),
-        origin: g.origin().into(),
-        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
-        data_type: DataType::U8,
-        data: labels.data().iter().map(|&v| v as u8).collect(),
-    }
-}
 
 /// The k-th drag: an inner control point back and forth, as a surgeon drags it.
 fn drag(k: usize) -> PlanEvent {
@@ -75,7 +62,11 @@ fn service(labels: &LabelMap, undo_redo: bool, edits: usize) {
         let service = Arc::new(Service::new(store, config));
         let id = service.create_session("edit cost").await.unwrap().id;
         service
-            .upload_label_map(&id, LabelMapSource::Raw(raw(labels)), RoleMap::default())
+            .upload_label_map(
+                &id,
+                LabelMapSource::Raw(RawLabelMap::of(labels)),
+                RoleMap::default(),
+            )
             .await
             .unwrap();
         let init = EditOp::InitFromEndPoint {

@@ -99,6 +99,22 @@ pub struct RawLabelMap {
     pub data: Vec<u8>,
 }
 
+impl RawLabelMap {
+    /// A label map as an upload of its voxels (u16, little-endian) with its geometry.
+    pub fn of(labels: &resecta_geom::LabelMap) -> Self {
+        let g = labels.grid();
+        let d = g.direction();
+        Self {
+            dims: g.dims(),
+            spacing: g.spacing(),
+            origin: g.origin().into(),
+            direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
+            data_type: DataType::U16,
+            data: labels.data().iter().flat_map(|v| v.to_le_bytes()).collect(),
+        }
+    }
+}
+
 /// Image file formats accepted as label-map uploads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FileFormat {

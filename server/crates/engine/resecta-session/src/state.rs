@@ -237,21 +237,12 @@ mod tests {
 
     use super::*;
     use crate::ServiceConfig;
-    use crate::api::{DataType, EditOp, LabelMapSource, RawLabelMap};
+    use crate::api::{EditOp, LabelMapSource, RawLabelMap};
     use crate::service::Service;
 
     fn small() -> LabelMapSource {
         let labels = generate(&PhantomSpec::small()).unwrap().labels;
-        let g = labels.grid();
-        let d = g.direction();
-        LabelMapSource::Raw(RawLabelMap {
-            dims: g.dims(),
-            spacing: g.spacing(),
-            origin: g.origin().into(),
-            direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
-            data_type: DataType::U8,
-            data: labels.data().iter().map(|&v| v as u8).collect(),
-        })
+        LabelMapSource::Raw(RawLabelMap::of(&labels))
     }
 
     /// Occupies every set-up worker until the returned gate opens.

@@ -11,12 +11,12 @@ use resecta_geom::RoleMap;
 use resecta_margin::FAR_TOLERANCE_MM;
 use resecta_plan::PlanEvent;
 use resecta_session::api::{
-    EditOp, FileFormat, LabelMapSource, ModelInfo, ReconMethod, ReconOptions, ReconstructEvent,
-    SessionState, SurfaceKind, WatchBody, WatchEvent,
+    EditOp, FileFormat, LabelMapSource, ModelInfo, RawLabelMap, ReconMethod, ReconOptions,
+    ReconstructEvent, SessionState, SurfaceKind, WatchBody, WatchEvent,
 };
 use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
 mod common;
-use common::{config, init_op, loaded_session, phantom, raw};
+use common::{config, init_op, loaded_session, phantom};
 use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreError, StoreOptions};
 
 fn drag(point: [f64; 3]) -> EditOp {
@@ -69,7 +69,11 @@ async fn workflow(store: Arc<dyn SessionStore>) {
     let id = info.id.clone();
 
     let summary = service
-        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(RawLabelMap::of(&labels)),
+            RoleMap::default(),
+        )
         .await
         .unwrap();
     let counts = labels.value_counts();
@@ -363,7 +367,11 @@ async fn reconstruction_streams_progress_and_models_and_can_be_exported() {
     assert_eq!(early.kind(), ErrorKind::FailedPrecondition);
     let labels = phantom();
     service
-        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(RawLabelMap::of(&labels)),
+            RoleMap::default(),
+        )
         .await
         .unwrap();
     let mut rx = service
@@ -620,7 +628,7 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
     assert!(!third.is_payload_too_large());
 
     let labels = phantom();
-    let mut short = raw(&labels);
+    let mut short = RawLabelMap::of(&labels);
     short.data.pop();
     let e = service
         .upload_label_map(&id, LabelMapSource::Raw(short), RoleMap::default())
@@ -629,7 +637,7 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
     assert_eq!(e.kind(), ErrorKind::InvalidArgument);
     assert_eq!(e.code(), "BAD_LABEL_MAP");
     assert!(e.to_string().contains("bytes"), "{e}");
-    let mut big = raw(&labels);
+    let mut big = RawLabelMap::of(&labels);
     big.dims = [100, 100, 11];
     big.data = vec![0; 110_000];
     let e = service
@@ -639,7 +647,7 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
     assert_eq!(e.kind(), ErrorKind::ResourceExhausted);
     assert_eq!(e.code(), "VOXEL_QUOTA");
     assert!(e.is_payload_too_large());
-    let mut nan = raw(&labels);
+    let mut nan = RawLabelMap::of(&labels);
     nan.spacing[1] = f64::NAN;
     let e = service
         .upload_label_map(&id, LabelMapSource::Raw(nan), RoleMap::default())
@@ -648,7 +656,11 @@ async fn bad_uploads_and_quotas_are_refused_with_the_right_kind() {
     assert_eq!(e.kind(), ErrorKind::InvalidArgument);
     let no_tumour: RoleMap = serde_json::from_str(r#"{"parenchyma":[1],"tumor":[9]}"#).unwrap();
     let e = service
-        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), no_tumour)
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(RawLabelMap::of(&labels)),
+            no_tumour,
+        )
         .await
         .unwrap_err();
     assert_eq!(e.kind(), ErrorKind::InvalidArgument);
@@ -750,7 +762,11 @@ async fn volumes_wait_for_a_pause_but_not_forever() {
     let id = service.create_session("Volumes").await.unwrap().id;
     let labels = phantom();
     service
-        .upload_label_map(&id, LabelMapSource::Raw(raw(&labels)), RoleMap::default())
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(RawLabelMap::of(&labels)),
+            RoleMap::default(),
+        )
         .await
         .unwrap();
     service.edit(&id, 0, init_op()).await.unwrap();

@@ -6,24 +6,11 @@ use std::time::Duration;
 
 use resecta_geom::{LabelMap, RoleMap};
 use resecta_phantom::{PhantomSpec, generate};
-use resecta_session::api::{DataType, EditOp, LabelMapSource, RawLabelMap};
+use resecta_session::api::{EditOp, LabelMapSource, RawLabelMap};
 use resecta_session::{Service, ServiceConfig};
 
 pub fn phantom() -> LabelMap {
     generate(&PhantomSpec::small()).unwrap().labels
-}
-
-pub fn raw(labels: &LabelMap) -> RawLabelMap {
-    let g = labels.grid();
-    let d = g.direction();
-    RawLabelMap {
-        dims: g.dims(),
-        spacing: g.spacing(),
-        origin: g.origin().into(),
-        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
-        data_type: DataType::U8,
-        data: labels.data().iter().map(|&v| v as u8).collect(),
-    }
 }
 
 pub fn config() -> ServiceConfig {
@@ -49,7 +36,7 @@ pub async fn loaded_session(service: &Service, name: &str) -> String {
     service
         .upload_label_map(
             &id,
-            LabelMapSource::Raw(raw(&phantom())),
+            LabelMapSource::Raw(RawLabelMap::of(&phantom())),
             RoleMap::default(),
         )
         .await
