@@ -206,6 +206,7 @@ fn from_file(format: FileFormat, bytes: &[u8], limit: VoxelLimit) -> Result<Labe
             | K::Header(_)
             | K::DataSize { .. }
             | K::Unsupported { .. }
+            | K::UnknownValue { .. }
             | K::MissingField(_)
             | K::UnsafePath(_)
             | K::NotLabels(_)

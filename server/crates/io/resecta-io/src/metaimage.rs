@@ -129,14 +129,16 @@ fn scalar_type(name: &str) -> Result<ScalarType, ErrorKind> {
         "MET_FLOAT" => ScalarType::F32,
         "MET_DOUBLE" => ScalarType::F64,
         _ => {
-            return Err(ErrorKind::Unsupported {
-                what: "MetaImage ElementType",
-                value: name.to_string(),
+            return Err(ErrorKind::UnknownValue {
+                key: "MetaImage ElementType",
+                known: "MET_CHAR, MET_UCHAR, MET_SHORT, MET_USHORT, MET_INT, MET_UINT, \
+                        MET_FLOAT, MET_DOUBLE",
             });
         }
     })
 }
 
+/// `count` finite numbers: the value of `key` (named in the error, the value is not).
 fn numbers(key: &str, value: &str, count: usize) -> Result<Vec<f64>, ErrorKind> {
     let v: Option<Vec<f64>> = value
         .split_whitespace()
@@ -145,7 +147,7 @@ fn numbers(key: &str, value: &str, count: usize) -> Result<Vec<f64>, ErrorKind> 
     match v {
         Some(v) if v.len() == count => Ok(v),
         _ => Err(ErrorKind::Header(format!(
-            "{key} = {value:?} (expected {count} finite numbers)"
+            "{key}: expected {count} finite numbers"
         ))),
     }
 }
@@ -154,7 +156,7 @@ fn boolean(key: &str, value: &str) -> Result<bool, ErrorKind> {
     match value.to_ascii_lowercase().as_str() {
         "true" | "1" => Ok(true),
         "false" | "0" => Ok(false),
-        _ => Err(ErrorKind::Header(format!("{key} = {value:?}"))),
+        _ => Err(ErrorKind::Header(format!("{key}: expected True or False"))),
     }
 }
 
@@ -163,7 +165,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
     let mut fields: Vec<(String, String)> = Vec::new();
     let mut pos = bytes.len();
     let mut data_file = None;
-    for (line, next) in header_lines(bytes, 0) {
+    for (k, (line, next)) in header_lines(bytes, 0).enumerate() {
         pos = next;
         let line = line.trim();
         if line.is_empty() {
@@ -173,7 +175,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
             return Err(if fields.is_empty() {
                 ErrorKind::BadMagic("MetaImage")
             } else {
-                ErrorKind::Header(format!("unparsable line {line:?}"))
+                ErrorKind::Header(format!("line {} is not `Key = Value`", k + 1))
             });
         };
         let (k, v) = (k.trim().to_ascii_lowercase(), v.trim().to_string());
@@ -188,41 +190,48 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
     }
     let field = |k: &str| fields.iter().find(|(f, _)| f == k).map(|(_, v)| v.as_str());
     let first = |ks: &[&'static str]| ks.iter().find_map(|&k| field(k).map(|v| (k, v)));
-    let need = |k: &'static str| field(k).ok_or_else(|| ErrorKind::MissingField(k.into()));
-    let data_file = data_file.ok_or_else(|| ErrorKind::MissingField("ElementDataFile".into()))?;
+    let need = |k: &'static str| field(k).ok_or(ErrorKind::MissingField(k));
+    let data_file = data_file.ok_or(ErrorKind::MissingField("ElementDataFile"))?;
 
     if let Some(o) = field("objecttype")
         && !o.eq_ignore_ascii_case("image")
     {
-        return Err(ErrorKind::Unsupported {
-            what: "MetaImage ObjectType",
-            value: o.to_string(),
+        return Err(ErrorKind::UnknownValue {
+            key: "MetaImage ObjectType",
+            known: "Image",
         });
     }
     let ndims = need("ndims")?;
     if ndims != "3" {
-        return Err(ErrorKind::Unsupported {
-            what: "MetaImage NDims",
-            value: ndims.to_string(),
+        return Err(match ndims.parse::<u32>() {
+            Ok(n) => ErrorKind::Unsupported {
+                what: "MetaImage NDims",
+                value: format!("{n} (only 3)"),
+            },
+            Err(_) => ErrorKind::Header("NDims is not a whole number".into()),
         });
     }
     let dims: Vec<usize> = need("dimsize")?
         .split_whitespace()
         .map(str::parse)
         .collect::<Result<_, _>>()
-        .map_err(|_| ErrorKind::Header(format!("DimSize {:?}", field("dimsize"))))?;
+        .map_err(|_| ErrorKind::Header("DimSize: expected 3 whole numbers".into()))?;
     let [nx, ny, nz] = dims[..] else {
         return Err(ErrorKind::Header(format!(
-            "DimSize {dims:?} is not 3 sizes"
+            "DimSize has {} sizes, expected 3",
+            dims.len()
         )));
     };
     let ty = scalar_type(need("elementtype")?)?;
     if let Some(c) = field("elementnumberofchannels")
         && c != "1"
     {
-        return Err(ErrorKind::Unsupported {
-            what: "MetaImage ElementNumberOfChannels",
-            value: c.to_string(),
+        return Err(match c.parse::<u32>() {
+            Ok(n) => ErrorKind::Unsupported {
+                what: "MetaImage ElementNumberOfChannels",
+                value: format!("{n} (only 1)"),
+            },
+            Err(_) => ErrorKind::Header("ElementNumberOfChannels is not a whole number".into()),
         });
     }
     if let Some(b) = field("binarydata")
@@ -279,17 +288,20 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
     } else {
         if data_file.starts_with("LIST") || data_file.contains('%') || data_file.contains(' ') {
             return Err(ErrorKind::Unsupported {
-                what: "MetaImage data file list",
-                value: data_file,
+                what: "MetaImage ElementDataFile",
+                value: "a list or pattern of data files".into(),
             });
         }
         let Some(hp) = header_path else {
             return Err(ErrorKind::Unsupported {
-                what: "detached MetaImage data from memory",
-                value: data_file,
+                what: "MetaImage ElementDataFile",
+                value: "detached data without the header's folder (attach the data: \
+                        ElementDataFile = LOCAL, .mha)"
+                    .into(),
             });
         };
-        file_bytes = read_data_file(&data_file_path(hp, &data_file)?)?;
+        const KEY: &str = "ElementDataFile";
+        file_bytes = read_data_file(&data_file_path(hp, &data_file, KEY)?, KEY)?;
         &file_bytes
     };
     let short = |got: u64| ErrorKind::DataSize {
@@ -300,9 +312,9 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
     let body: &[u8] = if compressed {
         let input = match field("compresseddatasize") {
             Some(s) => {
-                let k: u64 = s
-                    .parse()
-                    .map_err(|_| ErrorKind::Header(format!("CompressedDataSize {s:?}")))?;
+                let k: u64 = s.parse().map_err(|_| {
+                    ErrorKind::Header("CompressedDataSize is not a whole number".into())
+                })?;
                 if k > payload.len() as u64 {
                     return Err(ErrorKind::DataSize {
                         expected: k,
@@ -324,7 +336,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
             Some("-1") => len.checked_sub(nbytes).ok_or_else(|| short(len))?,
             Some(s) => s
                 .parse::<u64>()
-                .map_err(|_| ErrorKind::Header(format!("HeaderSize {s:?}")))?,
+                .map_err(|_| ErrorKind::Header("HeaderSize is not a whole number or -1".into()))?,
             None => 0,
         };
         if skip.saturating_add(nbytes) > len {

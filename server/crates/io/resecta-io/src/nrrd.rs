@@ -248,8 +248,8 @@ pub fn seg_nrrd_bytes(seg: &Segmentation) -> Result<Vec<u8>, ErrorKind> {
     for (n, s) in seg.segments.iter().enumerate() {
         if s.layer >= nl || s.label_value == 0 {
             return Err(bad(format!(
-                "segment {:?}: layer {} / label value {} is invalid",
-                s.name, s.layer, s.label_value
+                "segment {n}: layer {} / label value {} is invalid",
+                s.layer, s.label_value
             )));
         }
         let e = extent(&seg.layers[s.layer], s.label_value);
@@ -471,7 +471,7 @@ impl Raw {
                 Some(s) => s
                     .trim()
                     .parse::<usize>()
-                    .map_err(|_| bad(format!("Segment{num}_Layer {s:?}")))?,
+                    .map_err(|_| bad(format!("Segment{num}_Layer is not a layer number")))?,
                 None if one_per_layer => k,
                 None => 0,
             };
@@ -486,13 +486,17 @@ impl Raw {
                     .parse::<u16>()
                     .ok()
                     .filter(|&v| v != 0)
-                    .ok_or_else(|| bad(format!("Segment{num}_LabelValue {s:?}")))?,
+                    .ok_or_else(|| {
+                        bad(format!(
+                            "Segment{num}_LabelValue is not a label value in 1..=65535"
+                        ))
+                    })?,
                 None => 1,
             };
             let color = match f.remove("Color") {
                 Some(s) => {
                     let c = parse_numbers::<f64>(&s, 3)
-                        .ok_or_else(|| bad(format!("Segment{num}_Color {s:?}")))?;
+                        .ok_or_else(|| bad(format!("Segment{num}_Color is not 3 numbers")))?;
                     [c[0], c[1], c[2]]
                 }
                 None => PALETTE[k % PALETTE.len()],
@@ -500,7 +504,7 @@ impl Raw {
             let extent = match f.remove("Extent") {
                 Some(s) => {
                     let e = parse_numbers::<i64>(&s, 6)
-                        .ok_or_else(|| bad(format!("Segment{num}_Extent {s:?}")))?;
+                        .ok_or_else(|| bad(format!("Segment{num}_Extent is not 6 integers")))?;
                     Some([e[0], e[1], e[2], e[3], e[4], e[5]])
                 }
                 None => None,
@@ -557,9 +561,9 @@ fn scalar_type(name: &str) -> Result<ScalarType, ErrorKind> {
         "float" => ScalarType::F32,
         "double" => ScalarType::F64,
         _ => {
-            return Err(ErrorKind::Unsupported {
-                what: "NRRD type",
-                value: name.to_string(),
+            return Err(ErrorKind::UnknownValue {
+                key: "NRRD field `type`",
+                known: "the 8-, 16- and 32-bit integer types, float, double",
             });
         }
     })
@@ -575,17 +579,21 @@ fn space_flip(space: Option<&str>) -> Result<[f64; 3], ErrorKind> {
         "left-anterior-superior" | "las" => [-1.0, 1.0, 1.0],
         "left-posterior-superior" | "lps" => [-1.0, -1.0, 1.0],
         _ => {
-            return Err(ErrorKind::Unsupported {
-                what: "NRRD space",
-                value: space.to_string(),
+            return Err(ErrorKind::UnknownValue {
+                key: "NRRD field `space`",
+                known: "right-anterior-superior, left-anterior-superior, left-posterior-superior",
             });
         }
     })
 }
 
-/// `(x,y,z)` vectors and `none`s.
-fn parse_vectors(s: &str) -> Result<Vec<Option<Vec3>>, ErrorKind> {
-    let bad = || ErrorKind::Header(format!("bad vector list {s:?}"));
+/// `(x,y,z)` vectors and `none`s: the value of the field `key`.
+fn parse_vectors(s: &str, key: &str) -> Result<Vec<Option<Vec3>>, ErrorKind> {
+    let bad = || {
+        ErrorKind::Header(format!(
+            "{key}: not a list of (x,y,z) vectors of finite numbers and `none`s"
+        ))
+    };
     let mut out = Vec::new();
     let mut rest = s.trim_start();
     while !rest.is_empty() {
@@ -626,7 +634,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
         .position(|&b| b == b'\n')
         .map_or(bytes.len(), |e| e + 1);
     let mut data_start = None;
-    for (line, next) in header_lines(bytes, magic_end) {
+    for (k, (line, next)) in header_lines(bytes, magic_end).enumerate() {
         if line.is_empty() {
             data_start = Some(next);
             break;
@@ -639,16 +647,20 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
         } else if let Some((k, v)) = line.split_once(": ") {
             fields.insert(k.trim().to_ascii_lowercase(), v.trim().to_string());
         } else {
-            return Err(ErrorKind::Header(format!("unparsable line {line:?}")));
+            // Line 1 is the magic.
+            return Err(ErrorKind::Header(format!(
+                "line {} is neither `field: value` nor `key:=value`",
+                k + 2
+            )));
         }
     }
     let field = |k: &str| fields.get(k).map(String::as_str);
-    let need = |k: &'static str| field(k).ok_or_else(|| ErrorKind::MissingField(k.into()));
+    let need = |k: &'static str| field(k).ok_or(ErrorKind::MissingField(k));
 
     let ty = scalar_type(need("type")?)?;
     let dimension: usize = need("dimension")?
         .parse()
-        .map_err(|_| ErrorKind::Header(format!("dimension {:?}", field("dimension"))))?;
+        .map_err(|_| ErrorKind::Header("dimension is not a whole number".into()))?;
     if !(3..=4).contains(&dimension) {
         return Err(ErrorKind::Unsupported {
             what: "NRRD dimension",
@@ -657,17 +669,16 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
     }
     let sizes = parse_numbers::<usize>(need("sizes")?, dimension).ok_or_else(|| {
         ErrorKind::Header(format!(
-            "sizes {:?} for dimension {dimension}",
-            field("sizes")
+            "sizes: expected {dimension} whole numbers (the dimension)"
         ))
     })?;
     let encoding = match need("encoding")?.to_ascii_lowercase().as_str() {
         "raw" => Encoding::Raw,
         "gzip" | "gz" => Encoding::Gzip,
-        other => {
-            return Err(ErrorKind::Unsupported {
-                what: "NRRD encoding",
-                value: other.to_string(),
+        _ => {
+            return Err(ErrorKind::UnknownValue {
+                key: "NRRD field `encoding`",
+                known: "raw, gzip",
             });
         }
     };
@@ -675,15 +686,20 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
         Some("big") => true,
         Some("little") => false,
         None if ty.size() == 1 => false,
-        None => return Err(ErrorKind::MissingField("endian".into())),
-        Some(o) => return Err(ErrorKind::Header(format!("endian {o:?}"))),
+        None => return Err(ErrorKind::MissingField("endian")),
+        Some(_) => {
+            return Err(ErrorKind::UnknownValue {
+                key: "NRRD field `endian`",
+                known: "little, big",
+            });
+        }
     };
 
     // Geometry.
     let flip = Vec3::from(space_flip(field("space"))?);
     let dirs = match field("space directions") {
         Some(s) => {
-            let d = parse_vectors(s)?;
+            let d = parse_vectors(s, "space directions")?;
             if d.len() != dimension {
                 return Err(ErrorKind::Header(format!(
                     "{} space directions for dimension {dimension}",
@@ -715,13 +731,16 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
             let mut sp = [1.0; 3];
             if let Some(s) = field("spacings") {
                 let toks: Vec<&str> = s.split_whitespace().collect();
+                let bad = || {
+                    ErrorKind::Header(format!(
+                        "spacings: expected {dimension} numbers (the dimension)"
+                    ))
+                };
                 if toks.len() != dimension {
-                    return Err(ErrorKind::Header(format!("spacings {s:?}")));
+                    return Err(bad());
                 }
                 for (a, t) in toks[lead..].iter().enumerate() {
-                    let v: f64 = t
-                        .parse()
-                        .map_err(|_| ErrorKind::Header(format!("spacings {s:?}")))?;
+                    let v: f64 = t.parse().map_err(|_| bad())?;
                     if !(v > 0.0 && v.is_finite()) {
                         return Err(resecta_geom::GeomError::BadSpacing([v; 3]).into());
                     }
@@ -732,9 +751,13 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
         }
     };
     let origin = match field("space origin") {
-        Some(s) => match parse_vectors(s)?.as_slice() {
+        Some(s) => match parse_vectors(s, "space origin")?.as_slice() {
             [Some(o)] => o.component_mul(&flip),
-            _ => return Err(ErrorKind::Header(format!("space origin {s:?}"))),
+            _ => {
+                return Err(ErrorKind::Header(
+                    "space origin: expected one (x,y,z) vector".into(),
+                ));
+            }
         },
         None => Vec3::zeros(),
     };
@@ -753,35 +776,40 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
 
     // Data.
     let file_bytes;
-    let mut payload: &[u8] = match field("data file").or(field("datafile")) {
+    let data_file = match field("data file") {
+        Some(name) => Some(("data file", name)),
+        None => field("datafile").map(|name| ("datafile", name)),
+    };
+    let mut payload: &[u8] = match data_file {
         None => {
             let start = data_start.ok_or_else(|| {
                 ErrorKind::Header("no blank line before the attached data".into())
             })?;
             &bytes[start..]
         }
-        Some(name) => {
+        Some((key, name)) => {
             if name.starts_with("LIST") || name.contains('%') || name.contains(' ') {
                 return Err(ErrorKind::Unsupported {
-                    what: "NRRD data file list",
-                    value: name.to_string(),
+                    what: "NRRD data file",
+                    value: "a list or pattern of data files".into(),
                 });
             }
             let Some(hp) = header_path else {
                 return Err(ErrorKind::Unsupported {
-                    what: "detached NRRD data from memory",
-                    value: name.to_string(),
+                    what: "NRRD data file",
+                    value: "detached data without the header's folder (attach the data: .nrrd)"
+                        .into(),
                 });
             };
-            let p = data_file_path(hp, name)?;
-            file_bytes = read_data_file(&p)?;
+            let p = data_file_path(hp, name, key)?;
+            file_bytes = read_data_file(&p, key)?;
             &file_bytes
         }
     };
     if let Some(s) = field("line skip").or(field("lineskip")) {
         let k: usize = s
             .parse()
-            .map_err(|_| ErrorKind::Header(format!("line skip {s:?}")))?;
+            .map_err(|_| ErrorKind::Header("line skip is not a whole number".into()))?;
         for _ in 0..k {
             let e = payload
                 .iter()
@@ -798,7 +826,7 @@ fn parse(bytes: &[u8], header_path: Option<&Path>, limit: VoxelLimit) -> Result<
             .parse()
             .ok()
             .filter(|&v| v >= -1)
-            .ok_or_else(|| ErrorKind::Header(format!("byte skip {s:?}")))?,
+            .ok_or_else(|| ErrorKind::Header("byte skip is not a whole number ≥ -1".into()))?,
         None => 0,
     };
     let short = |got: usize| ErrorKind::DataSize {

@@ -110,13 +110,13 @@ pub(crate) fn write_file(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     std::fs::write(path, bytes).map_err(|e| IoError::new(path, e))
 }
 
-/// Reads a detached data file; the error (reported against the header) names it.
-pub(crate) fn read_data_file(path: &Path) -> Result<Vec<u8>, ErrorKind> {
+/// Reads a detached data file. The error (reported against the header) says that the file
+/// named by `key` failed, not its name: the name is header text, often a patient's name.
+pub(crate) fn read_data_file(path: &Path, key: &'static str) -> Result<Vec<u8>, ErrorKind> {
     std::fs::read(path).map_err(|e| {
-        let name = path.file_name().unwrap_or_default().to_string_lossy();
         ErrorKind::Io(std::io::Error::new(
             e.kind(),
-            format!("data file {name}: {e}"),
+            format!("the data file named by the header's `{key}`: {e}"),
         ))
     })
 }
@@ -149,16 +149,20 @@ pub(crate) fn is_gzip(data: &[u8]) -> bool {
     data.starts_with(&[0x1f, 0x8b])
 }
 
-/// The detached data file `name`, relative to the header's folder; absolute paths and `..`
-/// are refused so a header cannot reach outside its folder.
-pub(crate) fn data_file_path(header: &Path, name: &str) -> Result<PathBuf, ErrorKind> {
+/// The detached data file `name` (the value of the header's `key`), relative to the header's
+/// folder; absolute paths and `..` are refused so a header cannot reach outside its folder.
+pub(crate) fn data_file_path(
+    header: &Path,
+    name: &str,
+    key: &'static str,
+) -> Result<PathBuf, ErrorKind> {
     let rel = Path::new(name);
     let safe = !name.is_empty()
         && rel
             .components()
             .all(|c| matches!(c, Component::Normal(_) | Component::CurDir));
     if !safe {
-        return Err(ErrorKind::UnsafePath(name.to_string()));
+        return Err(ErrorKind::UnsafePath(key));
     }
     Ok(header.parent().unwrap_or(Path::new("")).join(rel))
 }

@@ -254,7 +254,15 @@ impl RawMesh {
             }
             mesh = mesh.with_normals(normals)?;
         }
-        for (name, values) in self.scalars {
+        for (k, (name, values)) in self.scalars.into_iter().enumerate() {
+            // Checked here, not by `with_scalars`, whose error names the array: the name is
+            // the file's text, so the error numbers the array instead.
+            let (got, expected) = (values.len(), mesh.vertices().len());
+            if got != expected {
+                return Err(ErrorKind::Mesh(format!(
+                    "point-data array {k} has {got} values but the mesh has {expected} vertices"
+                )));
+            }
             mesh = mesh.with_scalars(&name, values)?;
         }
         Ok(mesh)
@@ -474,7 +482,8 @@ impl<'a> Cursor<'a> {
         Ok(s)
     }
 
-    /// `count` text numbers, parsed with `parse`; `what` names them in errors. The capacity
+    /// `count` text numbers, parsed with `parse`; `what` names them in errors (this crate's
+    /// words: never a name from the file, and the token is not repeated). The capacity
     /// reserved up front is capped by the bytes left (every number takes at least two).
     pub fn numbers<T>(
         &mut self,
@@ -492,8 +501,8 @@ impl<'a> Cursor<'a> {
             let value = std::str::from_utf8(tok).ok().and_then(&parse);
             out.push(value.ok_or_else(|| {
                 ErrorKind::Mesh(format!(
-                    "{what}: {:?} is not a number",
-                    String::from_utf8_lossy(&tok[..tok.len().min(40)])
+                    "{what}: value {} of {count} is not a number",
+                    got + 1
                 ))
             })?);
         }
@@ -509,10 +518,14 @@ impl<'a> Cursor<'a> {
     }
 }
 
-/// Parses a count or size from a header word.
+/// Parses a count or size from a header word (`what` names it; the word is not repeated).
 pub(crate) fn parse_count(word: Option<&str>, what: &str) -> Result<usize, ErrorKind> {
-    word.and_then(|w| w.parse::<usize>().ok())
-        .ok_or_else(|| ErrorKind::Header(format!("{what}: expected a count, got {word:?}")))
+    match word {
+        None => Err(ErrorKind::Header(format!("{what}: a count is missing"))),
+        Some(w) => w
+            .parse::<usize>()
+            .map_err(|_| ErrorKind::Header(format!("{what}: expected a count"))),
+    }
 }
 
 /// `n * m`, refusing overflow.

@@ -14,28 +14,32 @@ use resecta_geom::{TriMesh, Vec3};
 use super::{Cursor, RawMesh, SPACE_TAG, fmt_f64, says_lps};
 use crate::error::ErrorKind;
 
-/// Resolves a 1-based (or negative, relative) OBJ index against `len` elements so far.
-fn resolve(word: &str, len: usize, what: &str) -> Result<i64, ErrorKind> {
+/// Resolves a 1-based (or negative, relative) OBJ index against `len` elements so far; errors
+/// name the line, not the word (the file's text).
+fn resolve(word: &str, len: usize, what: &str, line: usize) -> Result<i64, ErrorKind> {
     let i: i64 = word
         .parse()
-        .map_err(|_| ErrorKind::Mesh(format!("{what} index {word:?} is not an integer")))?;
+        .map_err(|_| ErrorKind::Mesh(format!("line {line}: a {what} index is not an integer")))?;
     let r = match i {
         0 => None,
         i if i > 0 => Some(i - 1),
         i => Some(len as i64 + i).filter(|&r| r >= 0),
     };
-    r.ok_or_else(|| ErrorKind::Mesh(format!("{what} index {i} is out of range")))
+    r.ok_or_else(|| ErrorKind::Mesh(format!("line {line}: {what} index {i} is out of range")))
 }
 
-fn floats3(words: &[&str], what: &str) -> Result<Vec3, ErrorKind> {
+fn floats3(words: &[&str], what: &str, line: usize) -> Result<Vec3, ErrorKind> {
     let mut c = [0.0; 3];
     for (k, slot) in c.iter_mut().enumerate() {
         let w = words
             .get(k + 1)
-            .ok_or_else(|| ErrorKind::Mesh(format!("`{what}` needs 3 numbers")))?;
-        *slot = w
-            .parse()
-            .map_err(|_| ErrorKind::Mesh(format!("`{what}`: {w:?} is not a number")))?;
+            .ok_or_else(|| ErrorKind::Mesh(format!("line {line}: `{what}` needs 3 numbers")))?;
+        *slot = w.parse().map_err(|_| {
+            ErrorKind::Mesh(format!(
+                "line {line}: `{what}` value {} is not a number",
+                k + 1
+            ))
+        })?;
     }
     Ok(Vec3::from(c))
 }
@@ -48,7 +52,9 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     let mut corners: Vec<(i64, usize)> = Vec::new();
     let mut all_corners_have_normals = true;
     let mut ids: Vec<i64> = Vec::new();
+    let mut number = 0;
     while let Some(line) = c.line() {
+        number += 1;
         let line = line.trim_ascii();
         if line.first() == Some(&b'#') {
             raw.lps |= says_lps(line);
@@ -57,23 +63,28 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
         let text = String::from_utf8_lossy(line);
         let words: Vec<&str> = text.split_ascii_whitespace().collect();
         match words.first().copied() {
-            Some("v") => raw.vertices.push(floats3(&words, "v")?),
-            Some("vn") => vn.push(floats3(&words, "vn")?),
+            Some("v") => raw.vertices.push(floats3(&words, "v", number)?),
+            Some("vn") => vn.push(floats3(&words, "vn", number)?),
             Some("f") => {
                 ids.clear();
                 for corner in &words[1..] {
                     let mut parts = corner.split('/');
-                    let v = resolve(parts.next().unwrap_or(""), raw.vertices.len(), "vertex")?;
+                    let v = resolve(
+                        parts.next().unwrap_or(""),
+                        raw.vertices.len(),
+                        "vertex",
+                        number,
+                    )?;
                     ids.push(v);
                     match parts.nth(1).filter(|s| !s.is_empty()) {
                         Some(n) => {
-                            let n = resolve(n, vn.len(), "normal")?;
+                            let n = resolve(n, vn.len(), "normal", number)?;
                             let n = usize::try_from(n)
                                 .ok()
                                 .filter(|&n| n < vn.len())
                                 .ok_or_else(|| {
                                     ErrorKind::Mesh(format!(
-                                        "normal index {} is out of range",
+                                        "line {number}: normal index {} is out of range",
                                         n + 1
                                     ))
                                 })?;
@@ -83,7 +94,10 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                     }
                 }
                 if ids.len() < 3 {
-                    return Err(ErrorKind::Mesh(format!("face with {} vertices", ids.len())));
+                    return Err(ErrorKind::Mesh(format!(
+                        "line {number}: face with {} vertices",
+                        ids.len()
+                    )));
                 }
                 raw.push_polygon(&ids)?;
             }

@@ -28,9 +28,9 @@ fn ply_type(word: &str) -> Result<Num, ErrorKind> {
         "float" | "float32" => Num::F32,
         "double" | "float64" => Num::F64,
         _ => {
-            return Err(ErrorKind::Unsupported {
-                what: "PLY property type",
-                value: word.chars().take(40).collect(),
+            return Err(ErrorKind::UnknownValue {
+                key: "PLY property type",
+                known: "char, uchar, short, ushort, int, uint, float, double (and int8 … float64)",
             });
         }
     })
@@ -112,7 +112,8 @@ fn header(c: &mut Cursor<'_>, raw: &mut RawMesh) -> Result<(Storage, Vec<Element
     }
     let mut storage = None;
     let mut elements: Vec<Element> = Vec::new();
-    loop {
+    // Line 1 is the magic.
+    for number in 2.. {
         let line = c
             .line()
             .ok_or_else(|| ErrorKind::Header("file ends before end_header".into()))?;
@@ -127,7 +128,12 @@ fn header(c: &mut Cursor<'_>, raw: &mut RawMesh) -> Result<(Storage, Vec<Element
                     "ascii" => Storage::Ascii,
                     "binary_little_endian" => Storage::Binary { big: false },
                     "binary_big_endian" => Storage::Binary { big: true },
-                    _ => return Err(ErrorKind::Header(format!("format {f:?}"))),
+                    _ => {
+                        return Err(ErrorKind::UnknownValue {
+                            key: "PLY format",
+                            known: "ascii, binary_little_endian, binary_big_endian",
+                        });
+                    }
                 });
             }
             ["element", name, count] => elements.push(Element {
@@ -141,7 +147,9 @@ fn header(c: &mut Cursor<'_>, raw: &mut RawMesh) -> Result<(Storage, Vec<Element
                     .ok_or_else(|| ErrorKind::Header("property before element".into()))?;
                 let count_ty = ply_type(count_ty)?;
                 if count_ty.is_float() {
-                    return Err(ErrorKind::Header(format!("list count type {count_ty:?}")));
+                    return Err(ErrorKind::Header(format!(
+                        "line {number}: a list count type must be an integer type"
+                    )));
                 }
                 e.props.push(Property {
                     name: (*name).to_owned(),
@@ -161,8 +169,7 @@ fn header(c: &mut Cursor<'_>, raw: &mut RawMesh) -> Result<(Storage, Vec<Element
             }
             _ => {
                 return Err(ErrorKind::Header(format!(
-                    "bad header line {:?}",
-                    text.chars().take(60).collect::<String>()
+                    "line {number} is no PLY header line"
                 )));
             }
         }

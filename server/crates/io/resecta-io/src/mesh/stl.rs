@@ -126,9 +126,10 @@ fn read_ascii(text: &[u8]) -> Result<RawMesh, ErrorKind> {
             }
             b"endfacet" => {}
             _ => {
+                // The word is the file's text: give its place, not the word.
                 return Err(ErrorKind::Mesh(format!(
-                    "unexpected {:?} in ASCII STL",
-                    String::from_utf8_lossy(&tok[..tok.len().min(40)])
+                    "unexpected word at byte {} of the ASCII STL",
+                    c.pos - tok.len()
                 )));
             }
         }

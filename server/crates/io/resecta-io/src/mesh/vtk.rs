@@ -17,6 +17,9 @@ use super::{
 };
 use crate::error::ErrorKind;
 
+const VTK_TYPES: &str = "unsigned_char, char, unsigned_short, short, unsigned_int, int, \
+                         unsigned_long, long, float, double (and their vtkType names)";
+
 fn num_type(word: Option<&str>) -> Result<Num, ErrorKind> {
     let w = word.unwrap_or("").to_ascii_lowercase();
     Ok(match w.as_str() {
@@ -32,9 +35,9 @@ fn num_type(word: Option<&str>) -> Result<Num, ErrorKind> {
         "float" | "vtktypefloat32" => Num::F32,
         "double" | "vtktypefloat64" => Num::F64,
         _ => {
-            return Err(ErrorKind::Unsupported {
-                what: "VTK data type",
-                value: w,
+            return Err(ErrorKind::UnknownValue {
+                key: "VTK data type",
+                known: VTK_TYPES,
             });
         }
     })
@@ -112,7 +115,8 @@ impl Reader<'_> {
         new_form: bool,
         mut f: impl FnMut(&[i64]) -> Result<(), ErrorKind>,
     ) -> Result<(), ErrorKind> {
-        let kw = &words[0];
+        // One of the cell keywords (matched case-insensitively by the caller).
+        let kw = &words[0].to_ascii_uppercase();
         let a = parse_count(words.get(1).map(String::as_str), kw)?;
         let b = parse_count(words.get(2).map(String::as_str), kw)?;
         if new_form {
@@ -197,17 +201,17 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     r.binary = match enc.first().map(|w| w.to_ascii_uppercase()).as_deref() {
         Some("ASCII") => false,
         Some("BINARY") => true,
-        other => {
-            return Err(ErrorKind::Header(format!(
-                "expected ASCII or BINARY, got {other:?}"
-            )));
+        _ => {
+            return Err(ErrorKind::Header(
+                "the encoding line is not ASCII or BINARY".into(),
+            ));
         }
     };
     let ds = r.words().unwrap_or_default().join(" ").to_ascii_uppercase();
     if ds != "DATASET POLYDATA" {
-        return Err(ErrorKind::Unsupported {
-            what: "VTK dataset (only POLYDATA)",
-            value: ds,
+        return Err(ErrorKind::UnknownValue {
+            key: "VTK DATASET",
+            known: "POLYDATA",
         });
     }
 
@@ -318,9 +322,10 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
             }
             "METADATA" => r.skip_metadata(),
             _ => {
+                // The word is the file's text: the error gives its place, not the word.
                 return Err(ErrorKind::Header(format!(
-                    "unknown keyword {:?}",
-                    kw.chars().take(40).collect::<String>()
+                    "unknown keyword at byte {}",
+                    r.c.pos
                 )));
             }
         }

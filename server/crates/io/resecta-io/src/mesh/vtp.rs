@@ -45,6 +45,9 @@ enum Format {
 
 #[derive(Debug)]
 struct Array {
+    /// Its place among the file's `DataArray` elements (from 0): errors name an array by this
+    /// and its section, never by its `Name` (the file's text).
+    index: usize,
     section: Section,
     name: String,
     /// `None` for `String` arrays.
@@ -72,13 +75,24 @@ struct Doc<'a> {
     offsets: Vec<usize>,
 }
 
+impl Array {
+    /// How errors name the array.
+    fn label(&self) -> String {
+        format!("DataArray {} ({:?})", self.index, self.section)
+    }
+}
+
+/// The value of attribute `key` (this reader's word). Errors name the key, never the file's
+/// text (quick-xml's own messages may quote it).
 fn attr(e: &BytesStart<'_>, key: &str) -> Result<Option<String>, ErrorKind> {
     for a in e.attributes() {
-        let a = a.map_err(|err| ErrorKind::Header(format!("XML attribute: {err}")))?;
+        let a = a.map_err(|_| ErrorKind::Header("XML: malformed attributes".into()))?;
         if a.key.as_ref() == key {
             let v = a
                 .normalized_value(quick_xml::XmlVersion::Implicit1_0)
-                .map_err(|err| ErrorKind::Header(format!("XML attribute {key}: {err}")))?;
+                .map_err(|_| {
+                    ErrorKind::Header(format!("XML attribute {key}: bad escape or entity"))
+                })?;
             return Ok(Some(v.trim().to_owned()));
         }
     }
@@ -90,7 +104,7 @@ fn attr_count(e: &BytesStart<'_>, key: &str) -> Result<usize, ErrorKind> {
         None => Ok(0),
         Some(v) => v
             .parse()
-            .map_err(|_| ErrorKind::Header(format!("{key}={v:?} is not a count"))),
+            .map_err(|_| ErrorKind::Header(format!("attribute {key} is not a count"))),
     }
 }
 
@@ -108,9 +122,10 @@ fn xml_type(v: &str) -> Result<Option<Num>, ErrorKind> {
         "Float64" => Num::F64,
         "String" => return Ok(None),
         _ => {
-            return Err(ErrorKind::Unsupported {
-                what: "VTK XML data type",
-                value: v.to_owned(),
+            return Err(ErrorKind::UnknownValue {
+                key: "VTK XML DataArray type",
+                known: "Int8, UInt8, Int16, UInt16, Int32, UInt32, Int64, UInt64, IdType, \
+                        Float32, Float64, String",
             });
         }
     }))
@@ -157,11 +172,16 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
     let mut arrays: Vec<Array> = Vec::new();
     let mut current: Option<Array> = None;
     let mut appended_encoding: Option<String> = None;
+    let mut array_count = 0usize;
 
     loop {
-        let event = reader
-            .read_event()
-            .map_err(|e| ErrorKind::Header(format!("XML: {e}")))?;
+        // quick-xml's messages quote the document (tag names, entities): give the place only.
+        let event = reader.read_event().map_err(|_| {
+            ErrorKind::Header(format!(
+                "XML syntax error at byte {}",
+                reader.error_position()
+            ))
+        })?;
         let (e, empty) = match event {
             Event::Eof => break,
             Event::Start(e) => (e, false),
@@ -201,33 +221,38 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
             seen_root = true;
             let ty = attr(&e, "type")?.unwrap_or_default();
             if ty != "PolyData" {
-                return Err(ErrorKind::Unsupported {
-                    what: "VTK XML file type (only PolyData)",
-                    value: ty,
+                return Err(ErrorKind::UnknownValue {
+                    key: "VTKFile type",
+                    known: "PolyData",
                 });
             }
             doc.big = match attr(&e, "byte_order")?.as_deref() {
                 Some("BigEndian") => true,
                 Some("LittleEndian") | None => false,
-                Some(o) => return Err(ErrorKind::Header(format!("byte_order {o:?}"))),
+                Some(_) => {
+                    return Err(ErrorKind::UnknownValue {
+                        key: "VTKFile byte_order",
+                        known: "LittleEndian, BigEndian",
+                    });
+                }
             };
             doc.header_u64 = match attr(&e, "header_type")?.as_deref() {
                 Some("UInt64") => true,
                 Some("UInt32") | None => false,
-                Some(h) => {
-                    return Err(ErrorKind::Unsupported {
-                        what: "header_type",
-                        value: h.to_owned(),
+                Some(_) => {
+                    return Err(ErrorKind::UnknownValue {
+                        key: "VTKFile header_type",
+                        known: "UInt32, UInt64",
                     });
                 }
             };
             doc.zlib = match attr(&e, "compressor")?.as_deref() {
                 Some("vtkZLibDataCompressor") => true,
                 Some("") | None => false,
-                Some(c) => {
-                    return Err(ErrorKind::Unsupported {
-                        what: "compressor",
-                        value: c.to_owned(),
+                Some(_) => {
+                    return Err(ErrorKind::UnknownValue {
+                        key: "VTKFile compressor",
+                        known: "vtkZLibDataCompressor",
                     });
                 }
             };
@@ -263,7 +288,13 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                     Some("ascii") => Format::Ascii,
                     Some("binary") => Format::Binary,
                     Some("appended") => Format::Appended,
-                    other => return Err(ErrorKind::Header(format!("DataArray format {other:?}"))),
+                    Some(_) => {
+                        return Err(ErrorKind::UnknownValue {
+                            key: "DataArray format",
+                            known: "ascii, binary, appended",
+                        });
+                    }
+                    None => return Err(ErrorKind::MissingField("DataArray format")),
                 };
                 let offset = attr_count(&e, "offset")?;
                 if format == Format::Appended {
@@ -274,6 +305,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                     None => 1,
                 };
                 let array = Array {
+                    index: array_count,
                     section,
                     name: attr(&e, "Name")?.unwrap_or_default(),
                     ty: xml_type(&attr(&e, "type")?.unwrap_or_default())?,
@@ -282,6 +314,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                     offset,
                     text: String::new(),
                 };
+                array_count += 1;
                 if empty {
                     arrays.push(array);
                 } else {
@@ -316,10 +349,10 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                 let end = text.iter().position(|&b| b == b'<').unwrap_or(text.len());
                 Appended::Base64(&text[..end])
             }
-            other => {
-                return Err(ErrorKind::Unsupported {
-                    what: "AppendedData encoding",
-                    value: other.to_owned(),
+            _ => {
+                return Err(ErrorKind::UnknownValue {
+                    key: "AppendedData encoding",
+                    known: "raw, base64",
                 });
             }
         };
@@ -431,8 +464,18 @@ fn base64_runs(text: &[u8]) -> Result<Vec<u8>, ErrorKind> {
                 j += 1;
             }
             if j > start {
-                B64.decode_vec(&clean[start..j], &mut out)
-                    .map_err(|e| ErrorKind::Decompress(format!("bad base64: {e}")))?;
+                B64.decode_vec(&clean[start..j], &mut out).map_err(|e| {
+                    // The decoder's message quotes the offending byte: give its place only.
+                    let at = match e {
+                        base64::DecodeError::InvalidByte(k, _)
+                        | base64::DecodeError::InvalidLastSymbol(k, _) => {
+                            format!(" at offset {}", start + k)
+                        }
+                        base64::DecodeError::InvalidLength(_)
+                        | base64::DecodeError::InvalidPadding => String::new(),
+                    };
+                    ErrorKind::Decompress(format!("bad base64{at}"))
+                })?;
             }
             start = j;
             i = j + usize::from(at_end);
@@ -486,8 +529,8 @@ impl Doc<'_> {
             }
             (Format::Appended, Appended::None) => {
                 return Err(ErrorKind::Header(format!(
-                    "array {:?} is appended but there is no AppendedData",
-                    a.name
+                    "{} is appended but there is no AppendedData",
+                    a.label()
                 )));
             }
             (Format::Ascii, _) => return Ok(Vec::new()),
@@ -575,8 +618,8 @@ impl Doc<'_> {
         let expected = mul(count, ty.size())?;
         if bytes.len() != expected {
             return Err(ErrorKind::Mesh(format!(
-                "array {:?} has {} bytes, {count} values need {expected}",
-                a.name,
+                "{} has {} bytes, {count} values need {expected}",
+                a.label(),
                 bytes.len()
             )));
         }
@@ -587,18 +630,18 @@ impl Doc<'_> {
         match c.token() {
             None => Ok(()),
             Some(_) => Err(ErrorKind::Mesh(format!(
-                "array {:?} has more values than expected",
-                a.name
+                "{} has more values than expected",
+                a.label()
             ))),
         }
     }
 
     fn floats(&self, a: &Array, count: usize) -> Result<Vec<f64>, ErrorKind> {
         let ty =
-            a.ty.ok_or_else(|| ErrorKind::Mesh(format!("array {:?} is a string array", a.name)))?;
+            a.ty.ok_or_else(|| ErrorKind::Mesh(format!("{} is a string array", a.label())))?;
         if a.format == Format::Ascii {
             let mut c = Cursor::new(a.text.as_bytes());
-            let v = c.floats(count, &a.name)?;
+            let v = c.floats(count, &a.label())?;
             Self::ascii_end(a, &mut c)?;
             return Ok(v);
         }
@@ -610,11 +653,11 @@ impl Doc<'_> {
     /// Integers; without `count`, as many as the data holds.
     fn ints(&self, a: &Array, count: Option<usize>) -> Result<Vec<i64>, ErrorKind> {
         let ty =
-            a.ty.ok_or_else(|| ErrorKind::Mesh(format!("array {:?} is a string array", a.name)))?;
+            a.ty.ok_or_else(|| ErrorKind::Mesh(format!("{} is a string array", a.label())))?;
         if a.format == Format::Ascii {
             let mut c = Cursor::new(a.text.as_bytes());
             let n = count.unwrap_or_else(|| a.text.split_ascii_whitespace().count());
-            let v = c.ints(n, &a.name)?;
+            let v = c.ints(n, &a.label())?;
             Self::ascii_end(a, &mut c)?;
             return Ok(v);
         }
@@ -629,7 +672,7 @@ impl Doc<'_> {
         if a.format == Format::Ascii {
             let mut c = Cursor::new(a.text.as_bytes());
             let n = a.text.split_ascii_whitespace().count();
-            let codes = c.ints(n, &a.name)?;
+            let codes = c.ints(n, &a.label())?;
             return Ok(codes.into_iter().map(|v| v as u8).collect());
         }
         self.payload(a)
