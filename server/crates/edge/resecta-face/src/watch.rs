@@ -183,7 +183,7 @@ impl State {
         let event = match self.events.next().await {
             Some(e) => e?,
             // The hub closes when the session is deleted or expires.
-            None => return Err(SessionError::UnknownSession(self.id.clone()).into()),
+            None => return Err(SessionError::UnknownSession(self.id.as_str().into()).into()),
         };
         let session = match event.body {
             WatchBody::Snapshot { .. } => {

@@ -24,6 +24,9 @@ mod watch;
 
 pub use budget::UploadMemory;
 pub use config::ServiceConfig;
-pub use error::{ErrorKind, Missing, Quota, Result, SessionError};
+pub use error::{
+    ErrorKind, ID_PREFIX_CHARS, IdPrefix, Missing, Quota, Result, SessionError, is_id_char,
+    redact_quoted,
+};
 pub use service::Service;
 pub use watch::{RingBounds, WatchStream};

@@ -63,7 +63,7 @@ pub(crate) struct Stored {
 /// Reads the session `id` (store I/O: run it on the blocking pool).
 pub(crate) fn load(store: &dyn SessionStore, id: &str) -> Result<Stored> {
     let Some(rec) = store.session(id)? else {
-        return Err(SessionError::UnknownSession(id.to_owned()));
+        return Err(SessionError::UnknownSession(id.into()));
     };
     let version = store.log_len(id)?;
     let labels = match store.blob(id, LABELMAP_BLOB)? {
@@ -169,7 +169,7 @@ pub(crate) fn roll_back(planner: &mut Planner, id: &str) {
     match restored {
         Ok(p) => *planner = p,
         Err(r) => {
-            tracing::error!(session = %id, error = %r, "rollback after a storage failure failed")
+            tracing::error!(session = %id, error = %SessionError::Plan(r), "rollback after a storage failure failed")
         }
     }
 }

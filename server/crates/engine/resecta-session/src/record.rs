@@ -55,7 +55,15 @@ fn encode(body: &Body) -> Result<String> {
 
 /// Reads one record of any version.
 pub(crate) fn decode(text: &str) -> Result<Step> {
-    let corrupt = |e: serde_json::Error| internal(format!("unreadable log record: {e}"));
+    // serde's message quotes the record (resection names): give the place only.
+    let corrupt = |e: serde_json::Error| {
+        internal(format!(
+            "unreadable log record ({:?} error at line {} column {})",
+            e.classify(),
+            e.line(),
+            e.column()
+        ))
+    };
     let body = match serde_json::from_str::<Version>(text).map_err(corrupt)?.v {
         None => match serde_json::from_str::<V1>(text).map_err(corrupt)? {
             V1::Reset { plan } => Body::Reset { plan },

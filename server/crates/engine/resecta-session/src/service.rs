@@ -401,7 +401,7 @@ impl Service {
                 let planner = loaded.ready().await?;
                 planner
                     .state(name)
-                    .map_err(|_| SessionError::ModelNotFound(name.to_owned()))?
+                    .map_err(|_| SessionError::ModelNotFound)?
                     .mesh()?
             }
         };

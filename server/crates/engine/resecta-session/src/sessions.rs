@@ -75,7 +75,7 @@ impl Service {
                 let store = Arc::clone(&self.store);
                 let key = id.to_owned();
                 let rec = blocking(move || Ok(store.session(&key)?)).await?;
-                let rec = rec.ok_or_else(|| SessionError::UnknownSession(id.to_owned()))?;
+                let rec = rec.ok_or_else(|| SessionError::UnknownSession(id.into()))?;
                 let fresh = self.new_session(&rec, false);
                 self.registry.get_or_insert(id, fresh)?
             }
@@ -174,7 +174,7 @@ impl Service {
             s.hub.close();
         }
         if !existed && dropped.is_none() {
-            return Err(SessionError::UnknownSession(id.to_owned()));
+            return Err(SessionError::UnknownSession(id.into()));
         }
         tracing::info!(session = %id, "session deleted");
         Ok(())
@@ -214,7 +214,7 @@ impl Service {
             let key = s.id.clone();
             let rec = blocking(move || Ok(store.session(&key)?))
                 .await?
-                .ok_or_else(|| SessionError::UnknownSession(s.id.clone()))?;
+                .ok_or_else(|| SessionError::UnknownSession(s.id.as_str().into()))?;
             return self.describe_stored(rec).await;
         }
         Ok(SessionInfo {
