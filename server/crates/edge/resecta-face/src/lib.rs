@@ -19,7 +19,7 @@ pub mod shutdown;
 pub mod upload;
 pub mod watch;
 
-pub use error::{FaceError, WireError};
+pub use error::{FaceError, MAX_ERROR_MESSAGE_BYTES, WireError, bounded_message};
 pub use shutdown::{SHUTTING_DOWN, ShutdownSignal, until_shutdown};
 
 /// Largest message the server sends (`ServerLimits.max_message_bytes`): one snapshot part
