@@ -3,13 +3,22 @@
 //! from `resecta-face`).
 //! Each status carries a `google.rpc.Status` in its details (the `grpc-status-details-bin`
 //! trailer) whose one `Any` is a `resecta.v1.ErrorInfo`, as proto/README.md prescribes.
+//!
+//! Status messages, details and `ErrorInfo` never carry client text (issue #19): the messages of
+//! the errors mapped here name no value the client sent (ids appear as a
+//! [`resecta_session::IdPrefix`] at most), and every message is bounded
+//! ([`resecta_face::bounded_message`]) because it travels in metadata twice, whose size the
+//! client limits: an echoed 10 KB id made a client see RESOURCE_EXHAUSTED for a NOT_FOUND.
+
+use std::collections::HashSet;
+use std::sync::OnceLock;
 
 use prost::Message;
-use resecta_api::ERROR_INFO_TYPE_URL;
 use resecta_api::v1::ErrorInfo;
+use resecta_api::{ERROR_INFO_TYPE_URL, FILE_DESCRIPTOR_SET};
 use resecta_auth::AccessError;
-use resecta_face::{FaceError, WireError};
-use resecta_session::{ErrorKind, SessionError};
+use resecta_face::{FaceError, WireError, bounded_message};
+use resecta_session::{ErrorKind, IdPrefix, SessionError};
 use tonic::{Code, Status};
 
 /// `google.rpc.Status`, the payload of a status' details.
@@ -26,8 +35,9 @@ pub struct RpcStatus {
     pub details: Vec<prost_types::Any>,
 }
 
-/// A status with `info` in its details.
+/// A status with `info` in its details; `message` is bounded here.
 fn status(code: Code, message: String, info: ErrorInfo) -> Status {
+    let message = bounded_message(message);
     let details = RpcStatus {
         code: code as i32,
         message: message.clone(),
@@ -80,7 +90,54 @@ pub fn access_status(e: &AccessError) -> Status {
             resecta_api::API_VERSION_HEADER,
         )
     };
-    status(code, e.to_string(), info(name, field))
+    status(code, access_message(e), info(name, field))
+}
+
+/// An access refusal's message: the version a client sent is shown as an id prefix at most.
+fn access_message(e: &AccessError) -> String {
+    match e {
+        AccessError::VersionMismatch { client, server } => format!(
+            "the client speaks API version {} but this server speaks {server:?} (resecta.v1); \
+             upgrade the client or the server",
+            IdPrefix::of(client)
+        ),
+        AccessError::MissingToken | AccessError::MalformedToken | AccessError::WrongToken => {
+            e.to_string()
+        }
+    }
+}
+
+/// The method of a call as logs may show it: the path when it names a method this server
+/// serves (`/resecta.v1.PlanningService/Edit`, health, reflection), else `"unknown"` (a
+/// path is the client's text).
+pub fn method_for_logs(path: &str) -> &'static str {
+    static KNOWN: OnceLock<HashSet<String>> = OnceLock::new();
+    let known = KNOWN.get_or_init(|| {
+        let mut known: HashSet<String> = [
+            "/grpc.health.v1.Health/Check",
+            "/grpc.health.v1.Health/Watch",
+            "/grpc.reflection.v1.ServerReflection/ServerReflectionInfo",
+            "/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+        ]
+        .map(str::to_owned)
+        .into();
+        if let Ok(set) = prost_types::FileDescriptorSet::decode(FILE_DESCRIPTOR_SET) {
+            for file in &set.file {
+                for service in &file.service {
+                    for method in &service.method {
+                        known.insert(format!(
+                            "/{}.{}/{}",
+                            file.package(),
+                            service.name(),
+                            method.name()
+                        ));
+                    }
+                }
+            }
+        }
+        known
+    });
+    known.get(path).map_or("unknown", String::as_str)
 }
 
 /// The status of malformed wire input.
@@ -128,4 +185,54 @@ pub fn error_info(status: &Status) -> Option<ErrorInfo> {
         .iter()
         .find(|any| any.type_url == ERROR_INFO_TYPE_URL)
         .and_then(|any| ErrorInfo::decode(any.value.as_slice()).ok())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MARKER: &str = "PATIENTMARKER";
+
+    #[test]
+    fn only_the_server_s_methods_are_logged_by_name() {
+        for m in [
+            "/resecta.v1.PlanningService/Edit",
+            "/resecta.v1.PlanningService/UploadLabelMap",
+            "/grpc.health.v1.Health/Check",
+        ] {
+            assert_eq!(method_for_logs(m), m);
+        }
+        for path in [
+            format!("/resecta.v1.PlanningService/{MARKER}"),
+            format!("/{MARKER}/Edit"),
+            "/".repeat(10_000),
+        ] {
+            assert_eq!(method_for_logs(&path), "unknown");
+        }
+    }
+
+    #[test]
+    fn statuses_are_bounded_and_show_versions_as_prefixes() {
+        let long = format!("{MARKER}{}", "x".repeat(10_000));
+        let s = session_status(&SessionError::UnknownSession(long.as_str().into()));
+        assert_eq!(s.code(), Code::NotFound);
+        assert!(!s.message().contains(MARKER) && s.message().len() < 100);
+        assert!(
+            s.details().len() < 200,
+            "{} bytes of details",
+            s.details().len()
+        );
+        let s = wire_status(&WireError::invalid("x", "y".repeat(100_000)));
+        assert!(s.message().len() <= resecta_face::MAX_ERROR_MESSAGE_BYTES + 3);
+        let s = access_status(&AccessError::VersionMismatch {
+            client: format!("v2 {MARKER}"),
+            server: "v1",
+        });
+        assert!(!s.message().contains(MARKER), "{}", s.message());
+        let s = access_status(&AccessError::VersionMismatch {
+            client: "v2".into(),
+            server: "v1",
+        });
+        assert!(s.message().contains("\"v2\""), "{}", s.message());
+    }
 }
