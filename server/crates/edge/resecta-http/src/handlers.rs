@@ -367,7 +367,11 @@ pub async fn no_route(req: Request) -> Problem {
     Problem::new(
         StatusCode::NOT_FOUND,
         "NO_ROUTE",
-        format!("no route {} {}", req.method(), req.uri().path()),
+        format!(
+            "no route {} {}",
+            req.method(),
+            crate::problem::path_for_messages(req.uri().path())
+        ),
     )
 }
 
@@ -375,6 +379,10 @@ pub async fn method_not_allowed(req: Request) -> Problem {
     Problem::new(
         StatusCode::METHOD_NOT_ALLOWED,
         "METHOD_NOT_ALLOWED",
-        format!("{} is not allowed on {}", req.method(), req.uri().path()),
+        format!(
+            "{} is not allowed on {}",
+            req.method(),
+            crate::problem::path_for_messages(req.uri().path())
+        ),
     )
 }

@@ -1,11 +1,20 @@
 //! Every error of the HTTP face as an RFC 9457 `application/problem+json` document, mapped once
 //! from [`SessionError`], [`WireError`] and [`AccessError`].
+//!
+//! A problem's `detail` never carries client text (issue #19). The errors mapped here name no
+//! value the client sent; the messages of the parsers of bodies, queries and paths (serde,
+//! axum), which quote what they were given, go through [`Problem::invalid`], which cuts what
+//! they quote; a path in a message is shown by [`path_for_messages`]; and every detail is
+//! bounded ([`bounded_message`]).
+
+use std::collections::HashSet;
+use std::sync::OnceLock;
 
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use resecta_auth::AccessError;
-use resecta_face::{FaceError, WireError};
-use resecta_session::{ErrorKind, SessionError};
+use resecta_face::{FaceError, WireError, bounded_message};
+use resecta_session::{ErrorKind, IdPrefix, SessionError};
 use serde::Serialize;
 
 /// Media type of problem documents.
@@ -33,6 +42,7 @@ pub struct Problem {
 }
 
 impl Problem {
+    /// A problem; `detail` (this crate's words) is bounded.
     pub fn new(status: StatusCode, code: &'static str, detail: impl Into<String>) -> Self {
         Self {
             type_uri: format!("urn:resecta:problem:{code}"),
@@ -41,16 +51,21 @@ impl Problem {
                 .unwrap_or("Client Closed Request")
                 .to_owned(),
             status: status.as_u16(),
-            detail: detail.into(),
+            detail: bounded_message(detail.into()),
             code,
             current_version: None,
             challenge: false,
         }
     }
 
-    /// 400 `invalid_argument`.
+    /// 400 `invalid_argument`. `detail` may be a parser's message about the request (serde,
+    /// axum's extractors): what it quotes is cut ([`redact_quotes`]).
     pub fn invalid(detail: impl Into<String>) -> Self {
-        Self::new(StatusCode::BAD_REQUEST, "INVALID_ARGUMENT", detail)
+        Self::new(
+            StatusCode::BAD_REQUEST,
+            "INVALID_ARGUMENT",
+            redact_quotes(&detail.into()),
+        )
     }
 
     /// 413 `payload_too_large`.
@@ -126,7 +141,18 @@ impl From<AccessError> for Problem {
         } else {
             StatusCode::BAD_REQUEST
         };
-        let mut p = Self::new(status, e.code(), e.to_string());
+        // The version a client sent is its text: shown as an id prefix at most.
+        let detail = match &e {
+            AccessError::VersionMismatch { client, server } => format!(
+                "the client speaks API version {} but this server speaks {server:?} \
+                 (resecta.v1); upgrade the client or the server",
+                IdPrefix::of(client)
+            ),
+            AccessError::MissingToken | AccessError::MalformedToken | AccessError::WrongToken => {
+                e.to_string()
+            }
+        };
+        let mut p = Self::new(status, e.code(), detail);
         p.challenge = e.is_auth();
         p
     }
@@ -149,5 +175,127 @@ impl IntoResponse for Problem {
             );
         }
         res
+    }
+}
+
+/// A parser's message about a request without what it quotes of the request. serde and axum
+/// quote the input they were given in backticks or double quotes (escaped or not), before the
+/// schema's words, which follow the last `, expected`: everything from the first quote to the
+/// last quote before that point becomes `…`. A message that quotes nothing is kept.
+pub fn redact_quotes(message: &str) -> String {
+    let cut = message.rfind(", expected").unwrap_or(message.len());
+    let (head, tail) = message.split_at(cut);
+    let quote = |c: char| c == '`' || c == '"';
+    match (head.find(quote), head.rfind(quote)) {
+        (Some(first), Some(last)) => format!("{}…{}{tail}", &head[..first], &head[last + 1..]),
+        _ => message.to_owned(),
+    }
+}
+
+/// A request path as messages may show it: the segments of the API's routes (`v1`,
+/// `sessions`, `label-map`, ...) as they are, any other segment (an id, a name, whatever a
+/// client typed) as an [`IdPrefix`].
+pub fn path_for_messages(path: &str) -> String {
+    static LITERALS: OnceLock<HashSet<&'static str>> = OnceLock::new();
+    let literals = LITERALS.get_or_init(|| {
+        crate::routes()
+            .into_iter()
+            .flat_map(|r| r.path.split('/'))
+            .filter(|s| !s.starts_with('{'))
+            .collect()
+    });
+    path.split('/')
+        .map(|segment| {
+            if literals.contains(segment) {
+                segment.to_owned()
+            } else {
+                IdPrefix::of(segment).to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("/")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MARKER: &str = "PATIENTMARKER";
+
+    #[test]
+    fn parser_messages_lose_what_they_quote_but_keep_the_schema() {
+        let cases = [
+            (
+                format!(
+                    "request body: unknown field `{MARKER}`, expected one of `displayName` at line 1 column 17"
+                ),
+                "request body: unknown field …, expected one of `displayName` at line 1 column 17",
+            ),
+            (
+                format!(
+                    "request body: unknown variant `a`{MARKER}`, expected one of `X`, `Y` at line 1 column 9"
+                ),
+                "request body: unknown variant …, expected one of `X`, `Y` at line 1 column 9",
+            ),
+            (
+                format!(
+                    "request body: invalid type: string \"a\\\", expected {MARKER}\", expected u64 at line 1 column 40"
+                ),
+                "request body: invalid type: string …, expected u64 at line 1 column 40",
+            ),
+            (
+                format!(
+                    "Failed to deserialize query string: unknown field `{MARKER}`, expected `raw` or `file`"
+                ),
+                "Failed to deserialize query string: unknown field …, expected `raw` or `file`",
+            ),
+            (
+                format!("query: unknown parameter {MARKER:?}"),
+                "query: unknown parameter …",
+            ),
+            (
+                format!("Cannot parse `{MARKER}` to a `u64`"),
+                "Cannot parse …",
+            ),
+            (
+                "request body: EOF while parsing a value at line 1 column 0".to_owned(),
+                "request body: EOF while parsing a value at line 1 column 0",
+            ),
+        ];
+        for (message, expected) in cases {
+            let p = Problem::invalid(message);
+            assert!(!p.detail.contains(MARKER), "{}", p.detail);
+            assert_eq!(p.detail, expected);
+        }
+    }
+
+    #[test]
+    fn paths_show_route_words_and_id_prefixes() {
+        let id = "3f2a9c1b0d4e5f60718293a4b5c6d7e8";
+        assert_eq!(
+            path_for_messages(&format!("/v1/sessions/{id}/label-map")),
+            "/v1/sessions/\"3f2a9c1b…\"/label-map"
+        );
+        let p = path_for_messages(&format!("/v1/sessions/x/models/{MARKER}%20liver/{MARKER}"));
+        assert!(!p.contains(MARKER), "{p}");
+        assert!(p.starts_with("/v1/sessions/\"x\"/models/<an id of"), "{p}");
+    }
+
+    #[test]
+    fn details_are_bounded_and_versions_are_prefixes() {
+        let long = format!("{MARKER}{}", "x".repeat(10_000));
+        let p = Problem::from(SessionError::UnknownSession(long.as_str().into()));
+        assert!(
+            !p.detail.contains(MARKER) && p.detail.len() < 100,
+            "{}",
+            p.detail
+        );
+        let p = Problem::new(StatusCode::BAD_REQUEST, "X", "y".repeat(100_000));
+        assert!(p.detail.len() <= resecta_face::MAX_ERROR_MESSAGE_BYTES + 3);
+        let p = Problem::from(AccessError::VersionMismatch {
+            client: format!("v2 {MARKER}"),
+            server: "v1",
+        });
+        assert!(!p.detail.contains(MARKER), "{}", p.detail);
     }
 }

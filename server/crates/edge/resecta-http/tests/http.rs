@@ -393,8 +393,23 @@ async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
     let s = open_server().await;
     let id = loaded_session(s.addr).await;
     let url = format!("/v1/sessions/{id}/reconstruct");
-    for (body, needle) in [
+    // What is wrong is named, and what the client sent is not repeated (issue #19): an unknown
+    // enum value or field name is the client's text.
+    for (body, unsaid) in [
         (json!({"method": "marching"}), "marching"),
+        (json!({"smoothness": 0.5}), "smoothness"),
+    ] {
+        let p = post_json(s.addr, &url, &body)
+            .await
+            .problem(400, "INVALID_ARGUMENT");
+        let detail = p["detail"].as_str().unwrap();
+        assert!(!detail.contains(unsaid), "{body}: {p}");
+        assert!(
+            detail.contains("unknown") && detail.contains("expected one of `"),
+            "{body}: {p}"
+        );
+    }
+    for (body, needle) in [
         (json!({"options": {"psrDepth": 0}}), "psr_depth"),
         (json!({"options": {"psrDepth": 11}}), "psr_depth"),
         (
@@ -402,7 +417,6 @@ async fn reconstruction_options_in_the_body_are_honoured_or_refused() {
             "smoothing",
         ),
         (json!({"options": {"decimation": 1.0}}), "decimation"),
-        (json!({"smoothness": 0.5}), "smoothness"),
         (
             json!({"options": {"minComponentMm3": -1}}),
             "min_component_mm3",
