@@ -80,7 +80,8 @@ where
                 Either::Left(self.inner.call(req))
             }
             Err(e) => {
-                tracing::debug!(path = req.uri().path(), reason = e.code(), "call refused");
+                let method = crate::error::method_for_logs(req.uri().path());
+                tracing::debug!(method, reason = e.code(), "call refused");
                 Either::Right(ready(Ok(access_status(&e).into_http())))
             }
         }

@@ -45,14 +45,16 @@ pub fn metrics_handle() -> Option<&'static PrometheusHandle> {
 }
 
 /// The tracing span of one gRPC call: method and request id (set by the request-id layer from
-/// the client's `x-request-id`, or new). Never request contents.
+/// the client's `x-request-id`, or new). Never request contents, and a path only when it names
+/// a method the server serves (a path is the client's text).
 pub fn grpc_span<B>(req: &http::Request<B>) -> tracing::Span {
     let id = req
         .headers()
         .get("x-request-id")
         .and_then(|v| v.to_str().ok())
         .unwrap_or("-");
-    tracing::info_span!("grpc", method = %req.uri().path(), request_id = %id)
+    let method = resecta_grpc::error::method_for_logs(req.uri().path());
+    tracing::info_span!("grpc", method, request_id = %id)
 }
 
 /// Logs the end of a gRPC call's response head: its status (`ok` when it comes in the
