@@ -178,11 +178,41 @@ impl IntoResponse for Problem {
     }
 }
 
+/// axum's query-string rejection: the message after it starts with the path of the offending
+/// key (serde_path_to_error), which is the client's key, unquoted.
+const QUERY_REJECTION: &str = "Failed to deserialize query string: ";
+
+/// How serde's messages begin (`serde::de::Error`'s constructors).
+const SERDE_MESSAGES: [&str; 7] = [
+    "unknown field",
+    "unknown variant",
+    "invalid type",
+    "invalid value",
+    "invalid length",
+    "missing field",
+    "duplicate field",
+];
+
 /// A parser's message about a request without what it quotes of the request. serde and axum
 /// quote the input they were given in backticks or double quotes (escaped or not), before the
 /// schema's words, which follow the last `, expected`: everything from the first quote to the
-/// last quote before that point becomes `…`. A message that quotes nothing is kept.
+/// last quote before that point becomes `…`. The key path axum puts before a query string's
+/// serde message is dropped. A message that quotes nothing is kept.
 pub fn redact_quotes(message: &str) -> String {
+    if let Some(rest) = message.strip_prefix(QUERY_REJECTION) {
+        // The message is the last one to begin before the first quote (a key the path shows
+        // may hold such words too, and what follows the first quote is quoted input).
+        let first_quote = rest.find(['`', '"']).unwrap_or(rest.len());
+        let serde = SERDE_MESSAGES
+            .iter()
+            .filter_map(|m| rest[..first_quote].rfind(m))
+            .max()
+            .or_else(|| SERDE_MESSAGES.iter().filter_map(|m| rest.find(m)).min());
+        return match serde {
+            Some(at) => format!("{QUERY_REJECTION}{}", redact_quotes(&rest[at..])),
+            None => format!("{QUERY_REJECTION}a parameter is malformed"),
+        };
+    }
     let cut = message.rfind(", expected").unwrap_or(message.len());
     let (head, tail) = message.split_at(cut);
     let quote = |c: char| c == '`' || c == '"';
@@ -245,9 +275,25 @@ mod tests {
             ),
             (
                 format!(
-                    "Failed to deserialize query string: unknown field `{MARKER}`, expected `raw` or `file`"
+                    "Failed to deserialize query string: {MARKER}: unknown field `{MARKER}`, expected `raw` or `file`"
                 ),
                 "Failed to deserialize query string: unknown field …, expected `raw` or `file`",
+            ),
+            (
+                format!(
+                    "Failed to deserialize query string: a {MARKER}: b: unknown field `a {MARKER}: b`, expected `raw` or `file`"
+                ),
+                "Failed to deserialize query string: unknown field …, expected `raw` or `file`",
+            ),
+            (
+                format!(
+                    "Failed to deserialize query string: {MARKER} unknown field: unknown field `{MARKER} unknown field`, expected `raw` or `file`"
+                ),
+                "Failed to deserialize query string: unknown field …, expected `raw` or `file`",
+            ),
+            (
+                format!("Failed to deserialize query string: {MARKER}: something else"),
+                "Failed to deserialize query string: a parameter is malformed",
             ),
             (
                 format!("query: unknown parameter {MARKER:?}"),
