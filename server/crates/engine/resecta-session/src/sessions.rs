@@ -204,7 +204,7 @@ impl Service {
             let key = s.id.clone();
             let rec = blocking(move || Ok(store.session(&key)?))
                 .await?
-                .ok_or_else(|| SessionError::UnknownSession(s.id.clone()))?;
+                .ok_or_else(|| SessionError::UnknownSession(s.id.as_str().into()))?;
             return Ok(damaged_info(rec));
         }
         let st = s.state.lock().await;
