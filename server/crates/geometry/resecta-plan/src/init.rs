@@ -6,7 +6,7 @@ use resecta_geom::{Mat3, Plane, Polyline, Real, TriMesh, Vec3, slice};
 use serde::Serialize;
 
 use crate::error::PlanError;
-use crate::resection::{MAX_COORDINATE_MM, arr, check_point};
+use crate::resection::{MAX_COORDINATE_MM, MIN_CONTROL_POINTS, arr, check_point};
 
 /// Contours shorter than this (mm) do not define a resection.
 const MIN_CONTOUR_MM: Real = 1.0;
@@ -66,11 +66,10 @@ pub fn initialise(
     grid: [usize; 2],
 ) -> Result<Initialisation, PlanError> {
     let [m, n] = grid;
-    if !(2..=resecta_bezier::MAX_CONTROL_POINTS).contains(&m)
-        || !(2..=resecta_bezier::MAX_CONTROL_POINTS).contains(&n)
-    {
+    let sides = MIN_CONTROL_POINTS..=resecta_bezier::MAX_CONTROL_POINTS;
+    if !sides.contains(&m) || !sides.contains(&n) {
         return Err(PlanError::InvalidArgument(format!(
-            "grid {m}×{n}: each side must be 2..={}",
+            "grid {m}×{n}: each side must be {MIN_CONTROL_POINTS}..={}",
             resecta_bezier::MAX_CONTROL_POINTS
         )));
     }

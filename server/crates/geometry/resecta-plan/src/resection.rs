@@ -17,8 +17,14 @@ pub const DEFAULT_RESOLUTION: [usize; 2] = [40, 40];
 pub const MAX_TARGET_LABELS: usize = 64;
 /// Most points one target picks components with.
 pub const MAX_TARGET_POINTS: usize = 32;
+/// Smallest surface resolution per direction.
+pub const MIN_RESOLUTION: usize = 2;
 /// Largest surface resolution per direction.
 pub const MAX_RESOLUTION: usize = 500;
+/// Fewest control points per grid direction (the most is [`MAX_CONTROL_POINTS`]).
+pub const MIN_CONTROL_POINTS: usize = 2;
+/// Largest absolute angle of one rotation (degrees): ten turns.
+pub const MAX_ANGLE_DEG: Real = 3600.0;
 /// Largest margin or band (mm).
 pub const MAX_MARGIN_MM: Real = 100.0;
 /// Coordinates beyond ±this (mm) are refused (no patient is a kilometre wide).
@@ -173,9 +179,10 @@ impl Resection {
             )));
         }
         let [m, n] = self.grid;
-        if !(2..=MAX_CONTROL_POINTS).contains(&m) || !(2..=MAX_CONTROL_POINTS).contains(&n) {
+        let sides = MIN_CONTROL_POINTS..=MAX_CONTROL_POINTS;
+        if !sides.contains(&m) || !sides.contains(&n) {
             return Err(bad(format!(
-                "grid {m}×{n}: each side must be 2..={MAX_CONTROL_POINTS}"
+                "grid {m}×{n}: each side must be {MIN_CONTROL_POINTS}..={MAX_CONTROL_POINTS}"
             )));
         }
         if self.control_points.len() != m * n {
@@ -194,9 +201,10 @@ impl Resection {
         check_length("margin_mm", self.margin_mm, true).map_err(bad)?;
         check_length("band_mm", self.band_mm, false).map_err(bad)?;
         let [ru, rv] = self.resolution;
-        if !(2..=MAX_RESOLUTION).contains(&ru) || !(2..=MAX_RESOLUTION).contains(&rv) {
+        let sides = MIN_RESOLUTION..=MAX_RESOLUTION;
+        if !sides.contains(&ru) || !sides.contains(&rv) {
             return Err(bad(format!(
-                "resolution {ru}×{rv}: each side must be 2..={MAX_RESOLUTION}"
+                "resolution {ru}×{rv}: each side must be {MIN_RESOLUTION}..={MAX_RESOLUTION}"
             )));
         }
         if self.target.labels.len() > MAX_TARGET_LABELS
@@ -293,11 +301,11 @@ impl Resection {
         check_point(|| format!("resection {:?}: rotation axis", self.name), axis)?;
         let a = vec3(axis);
         let norm = a.norm();
-        if norm < 1e-12 || !angle_deg.is_finite() || angle_deg.abs() > 3600.0 {
+        if norm < 1e-12 || !angle_deg.is_finite() || angle_deg.abs() > MAX_ANGLE_DEG {
             return Err(PlanError::resection(
                 &self.name,
                 format!(
-                    "rotation needs a non-zero axis and a finite angle, got {axis:?}, {angle_deg}°"
+                    "rotation needs a non-zero axis and a finite angle within ±{MAX_ANGLE_DEG}°, got {axis:?}, {angle_deg}°"
                 ),
             ));
         }
