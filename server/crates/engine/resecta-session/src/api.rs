@@ -6,6 +6,9 @@ use std::collections::BTreeMap;
 use resecta_geom::{Real, RoleMap};
 use resecta_plan::{PlanEvent, Resection, Target, Verdict, VolumeReport};
 
+pub use crate::labelmap::{MAX_EXTENT_MM, MAX_ORIGIN_MM, SPACING_MM};
+pub use crate::sessions::MAX_DISPLAY_NAME;
+
 /// The API generation clients must speak.
 pub const API_VERSION: &str = "resecta.v1";
 

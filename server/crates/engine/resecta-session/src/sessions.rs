@@ -16,8 +16,9 @@ use crate::state::{Session, State};
 use crate::support::{blocking, now_ms};
 use crate::watch::Hub;
 
-/// Display names: characters.
-const MAX_DISPLAY_NAME: usize = 256;
+/// Longest display name (characters, i.e. Unicode scalar values); control characters are
+/// refused.
+pub const MAX_DISPLAY_NAME: usize = 256;
 /// Last-access times are written at most this often per session (ms).
 const TOUCH_EVERY_MS: i64 = 60_000;
 
