@@ -4,6 +4,7 @@
 //! the operation layer checks the rest (ranges of plan parameters, geometry, quotas).
 
 use std::collections::BTreeMap;
+use std::ops::{Range, RangeInclusive};
 
 use resecta_api::v1 as pb;
 use resecta_geom::{Mat3, Real, Role, RoleMap};
@@ -21,6 +22,13 @@ use resecta_session::api::{
 use crate::error::WireError;
 
 type Wire<T> = Result<T, WireError>;
+
+/// PSR depths a reconstruction may ask for (`ReconstructOptions.psr_depth`).
+pub const PSR_DEPTHS: RangeInclusive<u32> = 1..=10;
+/// MCSD smoothing factors (`ReconstructOptions.smoothing`).
+pub const SMOOTHING: RangeInclusive<f64> = 0.0..=1.0;
+/// MCSD decimation fractions (`ReconstructOptions.decimation`).
+pub const DECIMATION: Range<f64> = 0.0..1.0;
 
 // ---- inbound ---------------------------------------------------------------------------------
 
@@ -366,28 +374,36 @@ pub fn reconstruct_options(r: &pb::ReconstructRequest) -> Wire<ReconOptions> {
         return Ok(options);
     };
     if let Some(d) = o.psr_depth {
-        if !(1..=10).contains(&d) {
+        if !PSR_DEPTHS.contains(&d) {
             return Err(WireError::invalid(
                 "options.psr_depth",
-                format!("{d} is outside 1..=10"),
+                format!(
+                    "{d} is outside {}..={}",
+                    PSR_DEPTHS.start(),
+                    PSR_DEPTHS.end()
+                ),
             ));
         }
         options.psr_depth = Some(d);
     }
     if let Some(v) = o.smoothing {
-        if !(0.0..=1.0).contains(&finite("options.smoothing", v)?) {
+        if !SMOOTHING.contains(&finite("options.smoothing", v)?) {
             return Err(WireError::invalid(
                 "options.smoothing",
-                format!("{v} is outside [0, 1]"),
+                format!(
+                    "{v} is outside [{}, {}]",
+                    SMOOTHING.start(),
+                    SMOOTHING.end()
+                ),
             ));
         }
         options.smoothing = Some(v);
     }
     if let Some(v) = o.decimation {
-        if !(0.0..1.0).contains(&finite("options.decimation", v)?) {
+        if !DECIMATION.contains(&finite("options.decimation", v)?) {
             return Err(WireError::invalid(
                 "options.decimation",
-                format!("{v} is outside [0, 1)"),
+                format!("{v} is outside [{}, {})", DECIMATION.start, DECIMATION.end),
             ));
         }
         options.decimation = Some(v);
