@@ -19,7 +19,7 @@ class GetServerInfoRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class ServerLimits(_message.Message):
-    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes")
+    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm")
     MAX_VOXELS_FIELD_NUMBER: _ClassVar[int]
     MAX_SESSIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_UPLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
@@ -30,6 +30,21 @@ class ServerLimits(_message.Message):
     MAX_RESOLUTION_FIELD_NUMBER: _ClassVar[int]
     SESSION_IDLE_TIMEOUT_S_FIELD_NUMBER: _ClassVar[int]
     MAX_MEMORY_BYTES_FIELD_NUMBER: _ClassVar[int]
+    MIN_CONTROL_POINTS_FIELD_NUMBER: _ClassVar[int]
+    MIN_RESOLUTION_FIELD_NUMBER: _ClassVar[int]
+    MAX_MARGIN_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_BAND_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_NAME_BYTES_FIELD_NUMBER: _ClassVar[int]
+    MAX_COORDINATE_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_ROTATION_DEG_FIELD_NUMBER: _ClassVar[int]
+    MAX_DISPLAY_NAME_CHARS_FIELD_NUMBER: _ClassVar[int]
+    MAX_PLAN_BYTES_FIELD_NUMBER: _ClassVar[int]
+    MIN_PSR_DEPTH_FIELD_NUMBER: _ClassVar[int]
+    MAX_PSR_DEPTH_FIELD_NUMBER: _ClassVar[int]
+    MIN_SPACING_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_SPACING_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_EXTENT_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_ORIGIN_MM_FIELD_NUMBER: _ClassVar[int]
     max_voxels: int
     max_sessions: int
     max_upload_bytes: int
@@ -40,7 +55,22 @@ class ServerLimits(_message.Message):
     max_resolution: int
     session_idle_timeout_s: int
     max_memory_bytes: int
-    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ...) -> None: ...
+    min_control_points: int
+    min_resolution: int
+    max_margin_mm: float
+    max_band_mm: float
+    max_name_bytes: int
+    max_coordinate_mm: float
+    max_rotation_deg: float
+    max_display_name_chars: int
+    max_plan_bytes: int
+    min_psr_depth: int
+    max_psr_depth: int
+    min_spacing_mm: float
+    max_spacing_mm: float
+    max_extent_mm: float
+    max_origin_mm: float
+    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ...) -> None: ...
 
 class GetServerInfoResponse(_message.Message):
     __slots__ = ("server_version", "api_version", "capabilities", "limits")

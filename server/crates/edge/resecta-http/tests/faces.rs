@@ -186,6 +186,34 @@ async fn every_rpc_answers_the_same_on_both_faces() {
     let h = get(http, "/v1/info").await.json();
     assert_eq!(pj(&g), h);
     assert!(h["limits"]["maxMemoryBytes"].is_string(), "{h}");
+    // The plan and upload limits are the constants the validation uses, on both faces.
+    {
+        use resecta_face::info::limits as k;
+        let l = g.limits.as_ref().unwrap();
+        let sides = (l.min_control_points as usize, l.max_control_points as usize);
+        assert_eq!(sides, (k::MIN_CONTROL_POINTS, k::MAX_CONTROL_POINTS));
+        let samples = (l.min_resolution as usize, l.max_resolution as usize);
+        assert_eq!(samples, (k::MIN_RESOLUTION, k::MAX_RESOLUTION));
+        assert_eq!(l.max_resections as usize, k::MAX_RESECTIONS);
+        assert_eq!(
+            (l.max_margin_mm, l.max_band_mm),
+            (k::MAX_MARGIN_MM, k::MAX_MARGIN_MM)
+        );
+        assert_eq!(l.max_name_bytes as usize, k::MAX_NAME_LEN);
+        assert_eq!(l.max_coordinate_mm, k::MAX_COORDINATE_MM);
+        assert_eq!(l.max_rotation_deg, k::MAX_ANGLE_DEG);
+        assert_eq!(l.max_display_name_chars as usize, k::MAX_DISPLAY_NAME);
+        assert_eq!(l.max_plan_bytes as usize, k::MAX_PLAN_BYTES);
+        assert_eq!(l.min_psr_depth..=l.max_psr_depth, k::PSR_DEPTHS);
+        assert_eq!(l.min_spacing_mm..=l.max_spacing_mm, k::SPACING_MM);
+        assert_eq!(
+            (l.max_extent_mm, l.max_origin_mm),
+            (k::MAX_EXTENT_MM, k::MAX_ORIGIN_MM)
+        );
+        let idle = config().idle_expiry.map_or(0, |d| d.as_secs());
+        assert!(idle > 0);
+        assert_eq!(l.session_idle_timeout_s, idle);
+    }
 
     // One session per face, with the same history from here on.
     walked("CreateSession");
