@@ -51,7 +51,7 @@ pub async fn read_body(
 #[derive(Debug)]
 pub struct ProtoJson<T>(pub T);
 
-impl<T: DeserializeOwned + Default> FromRequest<App> for ProtoJson<T> {
+impl<T: DeserializeOwned + Default + prost::Name> FromRequest<App> for ProtoJson<T> {
     type Rejection = Problem;
 
     async fn from_request(req: Request, app: &App) -> Result<Self, Problem> {
@@ -60,10 +60,18 @@ impl<T: DeserializeOwned + Default> FromRequest<App> for ProtoJson<T> {
         if bytes.iter().all(u8::is_ascii_whitespace) {
             return Ok(Self(T::default()));
         }
-        serde_json::from_slice(&bytes)
+        proto_json::<T>(&bytes)
             .map(ProtoJson)
             .map_err(|e| Problem::invalid(format!("request body: {e}")))
     }
+}
+
+/// Message `T` from its proto JSON text; integer fields may be written `5.0` too (JSON does not
+/// tell the two apart: see [`crate::proto::integral_numbers`]).
+pub fn proto_json<T: DeserializeOwned + prost::Name>(text: &[u8]) -> serde_json::Result<T> {
+    let mut value: serde_json::Value = serde_json::from_slice(text)?;
+    crate::proto::integral_numbers(&T::full_name(), &mut value);
+    serde_json::from_value(value)
 }
 
 /// A request message whose fields are the query parameters (by their proto or JSON names; the

@@ -17,7 +17,7 @@ use resecta_face::upload::Upload;
 use resecta_face::{WireError, convert};
 
 use crate::App;
-use crate::extract::{Path, ProtoJson, ProtoQuery, read_body};
+use crate::extract::{Path, ProtoJson, ProtoQuery, proto_json, read_body};
 use crate::problem::Problem;
 use crate::wire;
 
@@ -131,8 +131,8 @@ impl UploadQuery {
         let parse = |name: &str, json: &str| -> Answer<Header> {
             let bad = |e: serde_json::Error| Problem::invalid(format!("{name}: {e}"));
             Ok(match name {
-                "raw" => Header::Raw(serde_json::from_str(json).map_err(bad)?),
-                _ => Header::File(serde_json::from_str(json).map_err(bad)?),
+                "raw" => Header::Raw(proto_json(json.as_bytes()).map_err(bad)?),
+                _ => Header::File(proto_json(json.as_bytes()).map_err(bad)?),
             })
         };
         match (&self.raw, &self.file) {

@@ -189,3 +189,68 @@ pub fn query_json(full_name: &str, pairs: Vec<(String, String)>) -> Result<Value
     }
     Ok(Value::Object(out))
 }
+
+/// Whether `f` holds an integer (32- or 64-bit, signed or not).
+fn is_integer(f: &FieldDescriptorProto) -> bool {
+    matches!(
+        f.r#type(),
+        Type::Int32
+            | Type::Sint32
+            | Type::Sfixed32
+            | Type::Uint32
+            | Type::Fixed32
+            | Type::Int64
+            | Type::Sint64
+            | Type::Sfixed64
+            | Type::Uint64
+            | Type::Fixed64
+    )
+}
+
+/// `v` as an integer JSON number when it is a number with an integral value in range (`5.0`,
+/// `5e0`): JSON (and JSON Schema's `integer`) does not tell `5.0` from `5`, and protobuf's
+/// JSON parsers take both; pbjson takes only the first form.
+fn integral(v: &mut Value) {
+    let Some(x) = v.as_f64().filter(|_| !v.is_i64() && !v.is_u64()) else {
+        return;
+    };
+    // 2^63 and 2^64 are exact in f64; the casts are exact below them.
+    if x.fract() == 0.0 && (-9_223_372_036_854_775_808.0..9_223_372_036_854_775_808.0).contains(&x)
+    {
+        *v = Value::from(x as i64);
+    } else if x.fract() == 0.0 && (0.0..18_446_744_073_709_551_616.0).contains(&x) {
+        *v = Value::from(x as u64);
+    }
+}
+
+/// Rewrites the integral numbers of integer fields in `value`, the proto JSON of message
+/// `full_name` (nested messages too), as integers (see [`integral`]). Anything else is left for
+/// the message's deserializer to judge.
+pub fn integral_numbers(full_name: &str, value: &mut Value) {
+    let (Some(message), Some(object)) = (api().message(full_name), value.as_object_mut()) else {
+        return;
+    };
+    for (key, v) in object.iter_mut() {
+        let Some(field) = message
+            .field
+            .iter()
+            .find(|f| f.name() == key || json_name(f) == *key)
+        else {
+            continue;
+        };
+        let values: Vec<&mut Value> = if field.label() == Label::Repeated
+            && let Value::Array(items) = v
+        {
+            items.iter_mut().collect()
+        } else {
+            vec![v]
+        };
+        for item in values {
+            if is_integer(field) {
+                integral(item);
+            } else if field.r#type() == Type::Message {
+                integral_numbers(field.type_name().trim_start_matches('.'), item);
+            }
+        }
+    }
+}

@@ -990,3 +990,44 @@ async fn shutdown_ends_watch_streams_with_an_unavailable_error_event() {
         "the stream ends after the error event"
     );
 }
+
+/// JSON does not tell `4.0` from `4`, nor does JSON Schema's `integer`: integer fields take
+/// integral numbers written either way (as protobuf's JSON parsers do), and refuse fractions.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn integer_fields_take_integral_numbers_in_any_form() {
+    let s = open_server().await;
+    let id = create_session(s.addr, "Integral").await;
+    let edits = format!("/v1/sessions/{id}/edits");
+    for base in [json!(0.0), json!(0e3), json!("0"), json!(0)] {
+        post_json(s.addr, &edits, &json!({"baseVersion": base, "undo": {}}))
+            .await
+            .problem(409, "NO_LABEL_MAP");
+    }
+    for base in [json!(0.5), json!(-1.0), json!(1e30)] {
+        post_json(s.addr, &edits, &json!({"baseVersion": base, "undo": {}}))
+            .await
+            .problem(400, "INVALID_ARGUMENT");
+    }
+    // Nested messages and repeated fields too: an upload header's dims.
+    let labels = phantom();
+    let mut header = raw_header(&labels);
+    header["dims"] = json!(labels.grid().dims().map(|d| d as f64));
+    let a = send(
+        s.addr,
+        request(
+            "PUT",
+            &format!(
+                "/v1/sessions/{id}/label-map?raw={}",
+                encode(&header.to_string())
+            ),
+            raw_bytes(&labels),
+        ),
+    )
+    .await;
+    assert_eq!(
+        a.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&a.body)
+    );
+}
