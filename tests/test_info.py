@@ -1,5 +1,7 @@
-"""`resecta info` against nibabel/numpy on real files, and its bad-input contract."""
+"""`resecta info` against nibabel/numpy on real files, and its bad-input contract; the server's
+info (limits) on both faces against the OpenAPI document."""
 import gzip
+import json
 import zlib
 from pathlib import Path
 
@@ -106,3 +108,59 @@ def test_bad_inputs_exit_2_naming_the_file(resecta, tmp_path):
     obj = tmp_path / "bad.obj"
     obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
     bad(resecta, obj)
+
+
+# ---- the server's info: GetServerInfo and GET /v1/info -------------------------------------
+
+def test_both_faces_report_the_limits_the_document_states(tmp_path):
+    """`GetServerInfo` (gRPC) and `GET /v1/info` carry the same limits, the configured ones
+    (sessions, idle expiry) and the fixed ones of the plan and uploads, and the OpenAPI
+    document states the fixed ones as its bounds."""
+    import requests
+    from google.protobuf import json_format
+    from server_harness import Server, generate_stubs
+
+    (tmp_path / "stubs").mkdir()
+    pb, pb_grpc = generate_stubs(tmp_path / "stubs")
+    cfg = tmp_path / "resecta.toml"
+    cfg.write_text("[limits]\nmax_sessions = 3\nidle_expiry_s = 90\n")
+    s = Server("--config", str(cfg))
+    try:
+        info = pb_grpc.PlanningServiceStub(s.channel()).GetServerInfo(pb.GetServerInfoRequest())
+        grpc_limits = json_format.MessageToDict(info.limits)
+        http_limits = requests.get(f"{s.http_url}/v1/info", timeout=10).json()["limits"]
+        doc = requests.get(f"{s.http_url}/v1/openapi.json", timeout=10).json()
+    finally:
+        s.stop()
+    assert grpc_limits == http_limits
+    assert info.limits.max_sessions == 3 and info.limits.session_idle_timeout_s == 90
+    assert http_limits["sessionIdleTimeoutS"] == "90"
+
+    schemas = doc["components"]["schemas"]
+
+    def bound(message, field, key="maximum", items=False):
+        s = schemas[f"resecta.v1.{message}"]["properties"][field]
+        return (s["items"] if items else s)[key]
+
+    stated = {
+        "minControlPoints": bound("Resection", "gridM", "minimum"),
+        "maxControlPoints": bound("Resection", "gridN"),
+        "minResolution": bound("SetResolution", "ru", "minimum"),
+        "maxResolution": bound("Resection", "rv"),
+        "maxMarginMm": bound("SetMargin", "marginMm"),
+        "maxBandMm": bound("SetBand", "bandMm"),
+        "maxNameBytes": bound("InitFromEndPoint", "name", "maxLength"),
+        "maxCoordinateMm": bound("Vec3", "z"),
+        "maxRotationDeg": bound("Rotate", "angleDeg"),
+        "maxDisplayNameChars": bound("CreateSessionRequest", "displayName", "maxLength"),
+        "minPsrDepth": bound("ReconstructOptions", "psrDepth", "minimum"),
+        "maxPsrDepth": bound("ReconstructOptions", "psrDepth"),
+        "minSpacingMm": bound("RawLabelMapHeader", "spacing", "minimum", items=True),
+        "maxSpacingMm": bound("RawLabelMapHeader", "spacing", items=True),
+        "maxOriginMm": bound("RawLabelMapHeader", "origin", items=True),
+        "maxResections": schemas["PlanDocument"]["properties"]["resections"]["maxItems"],
+    }
+    for name, value in stated.items():
+        assert value > 0 and http_limits[name] == value, (name, http_limits.get(name), value)
+    assert f"at most {http_limits['maxPlanBytes']} bytes" in json.dumps(doc, ensure_ascii=False)
+    assert f"longer than {http_limits['maxExtentMm']:g} mm" in json.dumps(doc, ensure_ascii=False)

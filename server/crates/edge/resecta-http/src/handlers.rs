@@ -275,6 +275,18 @@ pub async fn import_plan(
     Ok(axum::Json(pb::ImportPlanResponse { plan_version }))
 }
 
+/// The media type of an exported mesh file of `format`.
+pub fn model_media(format: pb::ModelFormat) -> &'static str {
+    match format {
+        pb::ModelFormat::Vtp => "application/xml",
+        pb::ModelFormat::Stl => "model/stl",
+        pb::ModelFormat::Obj => "model/obj",
+        pb::ModelFormat::Vtk | pb::ModelFormat::Ply | pb::ModelFormat::Unspecified => {
+            "application/octet-stream"
+        }
+    }
+}
+
 /// `ExportModel`: the whole file as the body (not base64 chunks); `{name}` is a model's or a
 /// resection's name, the query the rest of the `ExportModelRequest` (`format`).
 pub async fn export_model(
@@ -289,14 +301,7 @@ pub async fn export_model(
         ));
     }
     let format = convert::mesh_format(req.format)?;
-    let media = match pb::ModelFormat::try_from(req.format) {
-        Ok(pb::ModelFormat::Vtp) => "application/xml",
-        Ok(pb::ModelFormat::Stl) => "model/stl",
-        Ok(pb::ModelFormat::Obj) => "model/obj",
-        Ok(pb::ModelFormat::Vtk | pb::ModelFormat::Ply | pb::ModelFormat::Unspecified) | Err(_) => {
-            "application/octet-stream"
-        }
-    };
+    let media = model_media(pb::ModelFormat::try_from(req.format).unwrap_or_default());
     let bytes = app
         .service
         .export_model(&req.session_id, &name, format)

@@ -894,20 +894,32 @@ async fn the_openapi_document_matches_the_router_and_the_protos() {
             );
         }
     }
-    // The edit request's schema: the proto's fields by their JSON names, enums by name.
-    let edit = &doc["components"]["schemas"]["resecta.v1.EditRequest"]["properties"];
-    for field in [
-        "sessionId",
-        "baseVersion",
-        "setControlPoint",
-        "addResection",
-        "undo",
-    ] {
-        assert!(edit.get(field).is_some(), "EditRequest.{field}: {edit}");
+    // The edit request's schema: the proto's fields by their JSON names (but `sessionId`, which
+    // the path gives), enums by name without the refused UNSPECIFIED, exactly one edit.
+    let schemas = &doc["components"]["schemas"];
+    let edit = &schemas["resecta.v1.EditRequest"];
+    for field in ["baseVersion", "setControlPoint", "addResection", "undo"] {
+        assert!(
+            edit["properties"].get(field).is_some(),
+            "EditRequest.{field}: {edit}"
+        );
     }
-    assert_eq!(edit["baseVersion"]["format"], "uint64");
-    let group = &doc["components"]["schemas"]["resecta.v1.ControlGroup"];
-    assert_eq!(group["enum"][1], "CONTROL_GROUP_INNER");
+    assert_eq!(edit["properties"].get("sessionId"), None, "{edit}");
+    assert_eq!(edit["properties"]["baseVersion"]["format"], "uint64");
+    assert_eq!(edit["oneOf"].as_array().unwrap().len(), 15, "{edit}");
+    assert_eq!(
+        schemas["resecta.v1.ControlGroup"]["enum"],
+        json!([
+            "CONTROL_GROUP_INNER",
+            "CONTROL_GROUP_OUTER",
+            "CONTROL_GROUP_ALL"
+        ])
+    );
+    // UNSPECIFIED means PSR there: offered.
+    assert_eq!(
+        schemas["resecta.v1.ReconstructionMethod"]["enum"][0],
+        "RECONSTRUCTION_METHOD_UNSPECIFIED"
+    );
 
     // Every $ref resolves.
     let text = resecta_http::openapi_document();
@@ -991,6 +1003,132 @@ async fn shutdown_ends_watch_streams_with_an_unavailable_error_event() {
     );
 }
 
+/// The document's schema at `pointer` (under `components/schemas/`).
+fn schema_at<'a>(doc: &'a Value, pointer: &str) -> &'a Value {
+    doc.pointer(&format!("/components/schemas/{pointer}"))
+        .unwrap_or_else(|| panic!("no schema at {pointer}"))
+}
+
+/// The bounds the OpenAPI document states are the limits `GET /v1/info` reports (both from the
+/// constants the server enforces), and the server answers a request at each bound and refuses
+/// one just beyond it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_document_states_the_limits_the_server_reports_and_enforces() {
+    let doc: Value = serde_json::from_str(resecta_http::openapi_document()).unwrap();
+    let s = open_server().await;
+    let limits = get(s.addr, "/v1/info").await.json()["limits"].clone();
+    let v1 = "resecta.v1.";
+    let stated = |pointer: &str| schema_at(&doc, &format!("{v1}{pointer}")).clone();
+    let reported = |name: &str| limits[name].clone();
+    let n = |v: Value| v.as_f64().unwrap();
+    for (pointer, limit) in [
+        ("Resection/properties/gridM/minimum", "minControlPoints"),
+        ("Resection/properties/gridN/maximum", "maxControlPoints"),
+        (
+            "InitFromEndPoint/properties/gridM/maximum",
+            "maxControlPoints",
+        ),
+        ("SetResolution/properties/ru/minimum", "minResolution"),
+        ("SetResolution/properties/rv/maximum", "maxResolution"),
+        ("Resection/properties/ru/maximum", "maxResolution"),
+        ("SetMargin/properties/marginMm/maximum", "maxMarginMm"),
+        ("SetBand/properties/bandMm/maximum", "maxBandMm"),
+        ("Resection/properties/name/maxLength", "maxNameBytes"),
+        ("InitFromPlane/properties/name/maxLength", "maxNameBytes"),
+        ("Vec3/properties/x/maximum", "maxCoordinateMm"),
+        ("Rotate/properties/angleDeg/maximum", "maxRotationDeg"),
+        (
+            "CreateSessionRequest/properties/displayName/maxLength",
+            "maxDisplayNameChars",
+        ),
+        (
+            "ReconstructOptions/properties/psrDepth/minimum",
+            "minPsrDepth",
+        ),
+        (
+            "ReconstructOptions/properties/psrDepth/maximum",
+            "maxPsrDepth",
+        ),
+        (
+            "RawLabelMapHeader/properties/spacing/items/minimum",
+            "minSpacingMm",
+        ),
+        (
+            "RawLabelMapHeader/properties/spacing/items/maximum",
+            "maxSpacingMm",
+        ),
+        (
+            "RawLabelMapHeader/properties/origin/items/maximum",
+            "maxOriginMm",
+        ),
+    ] {
+        assert_eq!(
+            n(stated(pointer)),
+            n(reported(limit)),
+            "{pointer} vs {limit}"
+        );
+        assert!(n(reported(limit)) > 0.0, "{limit}: {limits}");
+    }
+    let plan = schema_at(&doc, "PlanDocument");
+    assert_eq!(
+        n(plan["properties"]["resections"]["maxItems"].clone()),
+        n(reported("maxResections"))
+    );
+    assert_eq!(plan["additionalProperties"], false);
+    assert_eq!(plan["required"], json!(["format", "roles"]));
+    let doc_text = resecta_http::openapi_document();
+    assert!(
+        doc_text.contains(&format!("at most {} bytes", n(reported("maxPlanBytes")))),
+        "the plan's size limit is said"
+    );
+
+    // Display names: 1..=max characters, no control characters.
+    let max = n(reported("maxDisplayNameChars")) as usize;
+    let create = |name: String| async move {
+        post_json(s.addr, "/v1/sessions", &json!({ "displayName": name })).await
+    };
+    assert_eq!(create("é".repeat(max)).await.status, StatusCode::CREATED);
+    create("é".repeat(max + 1))
+        .await
+        .problem(400, "INVALID_ARGUMENT");
+    create(String::new()).await.problem(400, "INVALID_ARGUMENT");
+    create("tab\there".into())
+        .await
+        .problem(400, "INVALID_ARGUMENT");
+    let pattern = schema_at(
+        &doc,
+        "resecta.v1.CreateSessionRequest/properties/displayName/pattern",
+    );
+    assert_eq!(pattern, r"^[^\u0000-\u001F\u007F-\u009F]*$");
+    // An empty body is an empty name: the document requires a body there.
+    let op = &doc["paths"]["/v1/sessions"]["post"];
+    assert_eq!(op["requestBody"]["required"], true);
+    send(s.addr, request("POST", "/v1/sessions", Body::empty()))
+        .await
+        .problem(400, "INVALID_ARGUMENT");
+
+    // PSR depths: the bounds are taken (409: no label map yet), beyond them refused (400).
+    let id = create_session(s.addr, "Depths").await;
+    let depth = |d: f64| {
+        let id = id.clone();
+        async move {
+            post_json(
+                s.addr,
+                &format!("/v1/sessions/{id}/reconstruct"),
+                &json!({"options": {"psrDepth": d}}),
+            )
+            .await
+        }
+    };
+    let (lo, hi) = (n(reported("minPsrDepth")), n(reported("maxPsrDepth")));
+    for d in [lo, hi] {
+        depth(d).await.problem(409, "NO_LABEL_MAP");
+    }
+    for d in [lo - 1.0, hi + 1.0, lo + 0.5] {
+        depth(d).await.problem(400, "INVALID_ARGUMENT");
+    }
+}
+
 /// JSON does not tell `4.0` from `4`, nor does JSON Schema's `integer`: integer fields take
 /// integral numbers written either way (as protobuf's JSON parsers do), and refuse fractions.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -1030,4 +1168,143 @@ async fn integer_fields_take_integral_numbers_in_any_form() {
         "{}",
         String::from_utf8_lossy(&a.body)
     );
+}
+
+/// `DATA_TYPE_INT8` uploads as UINT8 does when every voxel is ≥ 0, and is refused (naming the
+/// negative labels) when one is not; the document offers it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn int8_raw_uploads_are_taken_and_negative_labels_refused() {
+    let doc: Value = serde_json::from_str(resecta_http::openapi_document()).unwrap();
+    let types = schema_at(&doc, "resecta.v1.DataType/enum");
+    assert!(
+        types.as_array().unwrap().contains(&json!("DATA_TYPE_INT8")),
+        "{types}"
+    );
+    let s = open_server().await;
+    let labels = phantom();
+    let upload = |data_type: &str, bytes: Vec<u8>| {
+        let mut header = raw_header(&labels);
+        header["dataType"] = json!(data_type);
+        async move {
+            let id = create_session(s.addr, "Int8").await;
+            let q = format!("raw={}", encode(&header.to_string()));
+            send(
+                s.addr,
+                request("PUT", &format!("/v1/sessions/{id}/label-map?{q}"), bytes),
+            )
+            .await
+        }
+    };
+    let unsigned = upload("DATA_TYPE_UINT8", raw_bytes(&labels)).await;
+    let signed = upload("DATA_TYPE_INT8", raw_bytes(&labels)).await;
+    assert_eq!(
+        signed.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&signed.body)
+    );
+    assert_eq!(signed.json()["labelMap"], unsigned.json()["labelMap"]);
+    let mut negative = raw_bytes(&labels);
+    negative[7] = 0xff; // −1
+    let p = upload("DATA_TYPE_INT8", negative)
+        .await
+        .problem(400, "INVALID_ARGUMENT");
+    assert!(p["detail"].as_str().unwrap().contains("negative"), "{p}");
+}
+
+/// The `PlanDocument` schema is what the plan reader takes: a plan at every bound it states is
+/// read, one just beyond any bound, with an unknown field or without a required one is refused.
+#[test]
+fn the_plan_document_schema_is_what_plans_take() {
+    let doc: Value = serde_json::from_str(resecta_http::openapi_document()).unwrap();
+    let plan = schema_at(&doc, "PlanDocument");
+    let r = &plan["properties"]["resections"]["items"]["properties"];
+    let int = |v: &Value| v.as_u64().unwrap() as usize;
+    let num = |v: &Value| v.as_f64().unwrap();
+    let (g_lo, g_hi) = (
+        int(&r["grid"]["items"]["minimum"]),
+        int(&r["grid"]["items"]["maximum"]),
+    );
+    let (s_lo, s_hi) = (
+        int(&r["resolution"]["items"]["minimum"]),
+        int(&r["resolution"]["items"]["maximum"]),
+    );
+    let margin = num(&r["margin_mm"]["maximum"]);
+    let band = num(&r["band_mm"]["maximum"]);
+    let coordinate = num(&r["control_points"]["items"]["items"]["maximum"]);
+    let name_max = int(&r["name"]["maxLength"]);
+    let most = int(&plan["properties"]["resections"]["maxItems"]);
+    assert_eq!(r["margin_mm"]["exclusiveMinimum"], 0);
+    assert_eq!(num(&r["band_mm"]["minimum"]), 0.0);
+
+    let resection = |name: String, grid: [usize; 2]| {
+        json!({"name": name, "grid": grid,
+               "control_points": vec![[coordinate, -coordinate, 0.0]; grid[0] * grid[1]],
+               "margin_mm": margin, "band_mm": band, "resolution": [s_lo, s_hi],
+               "target": {"labels": [2], "points": [[coordinate, 0.0, -coordinate]]}})
+    };
+    let document = |resections: Vec<Value>| {
+        json!({"format": plan["properties"]["format"]["const"],
+               "roles": {"parenchyma": [1], "tumor": [2], "vessel": [65535]},
+               "resections": resections})
+    };
+    let reads = |v: &Value| resecta_plan::Plan::from_json(&v.to_string()).is_ok();
+    let edge = resection("n".repeat(name_max), [g_lo, g_hi]);
+    assert!(reads(&document(vec![edge.clone()])));
+    let many = (0..most)
+        .map(|k| resection(format!("r{k}"), [g_lo, g_lo]))
+        .collect::<Vec<_>>();
+    assert!(reads(&document(many.clone())));
+    let mut too_many = many;
+    too_many.push(resection("one more".into(), [g_lo, g_lo]));
+    assert!(!reads(&document(too_many)));
+
+    let beyond: Vec<(&str, Value)> = vec![
+        ("grid", json!([g_lo - 1, g_lo])),
+        ("grid", json!([g_lo, g_hi + 1])),
+        ("resolution", json!([s_lo - 1, s_lo])),
+        ("resolution", json!([s_lo, s_hi + 1])),
+        ("margin_mm", json!(0.0)),
+        ("margin_mm", json!(margin * (1.0 + 1e-12))),
+        ("band_mm", json!(-1e-9)),
+        ("band_mm", json!(band * (1.0 + 1e-12))),
+        ("name", json!("")),
+        ("name", json!(" \u{3000}\t")),
+        ("name", json!("n".repeat(name_max + 1))),
+        ("kind", json!("plane")),
+        ("surprise", json!(1)),
+        ("target", json!({"labels": [0]})),
+        ("target", json!({"colour": "red"})),
+        (
+            "control_points",
+            json!([[coordinate * (1.0 + 1e-12), 0.0, 0.0]]),
+        ),
+    ];
+    for (key, value) in beyond {
+        let mut r = edge.clone();
+        r[key] = value.clone();
+        if key == "control_points" {
+            let mut points = edge["control_points"].as_array().unwrap().clone();
+            points[0] = value[0].clone();
+            r[key] = Value::Array(points);
+        }
+        assert!(!reads(&document(vec![r])), "{key} = {value} was read");
+    }
+    for required in ["format", "roles"] {
+        let mut d = document(vec![]);
+        d.as_object_mut().unwrap().remove(required);
+        assert!(!reads(&d), "a plan without {required} was read");
+    }
+    // Without tumour labels no resection can be planned (and ImportPlan refuses the plan too:
+    // its role map is not the label map's, which has some).
+    let mut d = document(vec![resection("r".into(), [g_lo, g_lo])]);
+    d["roles"] = json!({"parenchyma": [1]});
+    assert!(!reads(&d), "a plan without tumour labels was read");
+    let mut d = document(vec![]);
+    d["roles"] = json!({"tumor": [2], "portal": []});
+    assert!(!reads(&d), "an empty role was read");
+    d["roles"] = json!({"tumor": [2]});
+    assert!(reads(&d));
+    d["extra"] = json!(true);
+    assert!(!reads(&d), "an unknown field was read");
 }

@@ -1,0 +1,247 @@
+//! What the server enforces beyond the proto types, as JSON Schema keywords of the document:
+//! the ranges, lengths, patterns and required fields of the wire validation
+//! (`resecta_face::convert`), the operation layer and the plan, each from the constant that
+//! enforces it ([`resecta_face::info::limits`]); and, in words, what a schema cannot say
+//! (relations between fields, the session's state).
+
+use resecta_face::info::limits::*;
+use serde_json::{Map, Value, json};
+
+/// No control character (Unicode general category Cc), as `char::is_control` refuses.
+const NO_CONTROL: &str = r"^[^\u0000-\u001F\u007F-\u009F]*$";
+
+/// At least one character that is not Unicode White_Space (what `str::trim` removes): a name
+/// that is not blank.
+const NOT_BLANK: &str =
+    r"[^\u0009-\u000D\u0020\u0085\u00A0\u1680\u2000-\u200A\u2028\u2029\u202F\u205F\u3000]";
+
+/// The request field the path's `{id}` fills: left out of the request bodies and upload
+/// headers (one may still carry it when it equals the path's; another id is refused).
+pub const SESSION_FIELD: &str = "sessionId";
+
+/// Enums whose zero value (`*_UNSPECIFIED`) is never valid on the wire: refused in requests
+/// (`convert::known`) or never sent. They are offered without it.
+pub const NO_ZERO: [&str; 6] = [
+    "resecta.v1.DataType",
+    "resecta.v1.LabelMapFormat",
+    "resecta.v1.ControlGroup",
+    "resecta.v1.ModelFormat",
+    "resecta.v1.SessionState",
+    "resecta.v1.SurfaceKind",
+];
+
+fn label() -> Value {
+    json!({"type": "integer", "minimum": 1, "maximum": MAX_LABEL})
+}
+
+/// A finite double (JSON has no NaN or infinities; these bounds keep out numbers that overflow).
+pub fn finite() -> Value {
+    json!({"type": "number", "minimum": -f64::MAX, "maximum": f64::MAX})
+}
+
+fn coordinate() -> Value {
+    json!({"type": "number", "minimum": -MAX_COORDINATE_MM, "maximum": MAX_COORDINATE_MM})
+}
+
+/// A resection's name where a new resection is named (init, add).
+fn new_name() -> Value {
+    json!({"minLength": 1, "maxLength": MAX_NAME_LEN, "pattern": NOT_BLANK,
+           "description": format!("Name of the new resection: 1..={MAX_NAME_LEN} bytes of UTF-8 (`maxLength` counts characters: a name of multi-byte characters is refused sooner), not blank, unique in the plan (a name in use is refused).")})
+}
+
+/// A grid side of an init: 0 (the default) or a side of a resection grid.
+fn init_side(default: usize) -> Value {
+    json!({"maximum": MAX_CONTROL_POINTS, "not": {"const": 1},
+           "description": format!("Control points along this direction, {MIN_CONTROL_POINTS}..={MAX_CONTROL_POINTS}; 0 or absent: {default}.")})
+}
+
+fn side() -> Value {
+    json!({"minimum": MIN_CONTROL_POINTS, "maximum": MAX_CONTROL_POINTS})
+}
+
+fn resolution() -> Value {
+    json!({"minimum": MIN_RESOLUTION, "maximum": MAX_RESOLUTION})
+}
+
+fn margin() -> Value {
+    json!({"exclusiveMinimum": 0, "maximum": MAX_MARGIN_MM})
+}
+
+fn band() -> Value {
+    json!({"minimum": 0, "maximum": MAX_MARGIN_MM})
+}
+
+fn control_points() -> Value {
+    json!({"minItems": MIN_CONTROL_POINTS * MIN_CONTROL_POINTS,
+           "maxItems": MAX_CONTROL_POINTS * MAX_CONTROL_POINTS})
+}
+
+/// Extra keywords of field `field` (JSON name) of message `message` (full name), merged into
+/// its schema (`items` into the items' schema).
+pub fn field(message: &str, field: &str) -> Option<Value> {
+    let short = message.trim_start_matches("resecta.v1.");
+    Some(match (short, field) {
+        ("CreateSessionRequest", "displayName") => {
+            json!({"minLength": 1, "maxLength": MAX_DISPLAY_NAME, "pattern": NO_CONTROL})
+        }
+        ("Vec3", "x" | "y" | "z") => coordinate(),
+        ("RoleMap", "parenchyma" | "tumor") => json!({"minItems": 1, "items": label()}),
+        ("RoleMap", _) => json!({"items": label()}),
+        ("Target", "labels") => json!({"items": label()}),
+        ("RawLabelMapHeader", "dims") => {
+            json!({"minItems": 3, "maxItems": 3, "items": {"minimum": 1}})
+        }
+        ("RawLabelMapHeader", "spacing") => json!({"minItems": 3, "maxItems": 3,
+            "items": {"minimum": SPACING_MM.start(), "maximum": SPACING_MM.end()}}),
+        ("RawLabelMapHeader", "origin") => json!({"minItems": 3, "maxItems": 3,
+            "items": {"minimum": -MAX_ORIGIN_MM, "maximum": MAX_ORIGIN_MM}}),
+        ("RawLabelMapHeader", "direction") => json!({"minItems": 9, "maxItems": 9}),
+        ("ReconstructOptions", "psrDepth") => {
+            json!({"minimum": PSR_DEPTHS.start(), "maximum": PSR_DEPTHS.end()})
+        }
+        ("ReconstructOptions", "smoothing") => {
+            json!({"minimum": SMOOTHING.start(), "maximum": SMOOTHING.end()})
+        }
+        ("ReconstructOptions", "decimation") => {
+            json!({"minimum": DECIMATION.start, "exclusiveMaximum": DECIMATION.end})
+        }
+        ("ReconstructOptions", "minComponentMm3") => json!({"minimum": 0}),
+        ("InitFromEndPoint" | "InitFromPlane", "name") => new_name(),
+        ("InitFromEndPoint", "gridM") | ("InitFromPlane", "gridM") => init_side(DEFAULT_GRID[0]),
+        ("InitFromEndPoint", "gridN") | ("InitFromPlane", "gridN") => init_side(DEFAULT_GRID[1]),
+        ("SetControlPoints", "points") => control_points(),
+        ("Rotate", "angleDeg") => json!({"minimum": -MAX_ANGLE_DEG, "maximum": MAX_ANGLE_DEG}),
+        ("SetMargin", "marginMm") | ("Resection", "marginMm") => margin(),
+        ("SetBand", "bandMm") | ("Resection", "bandMm") => band(),
+        ("SetResolution" | "Resection", "ru" | "rv") => resolution(),
+        ("Resection", "name") => new_name(),
+        ("Resection", "gridM" | "gridN") => side(),
+        ("Resection", "controlPoints") => control_points(),
+        ("ImportPlanRequest", "planJson") => json!({
+            "minLength": 1, "contentMediaType": "application/json",
+            "contentSchema": {"$ref": "#/components/schemas/PlanDocument"},
+            "description": format!("A `resecta-plan/1` JSON document (schema `PlanDocument`), at most {MAX_PLAN_BYTES} bytes; anything else is refused (400 `BAD_PLAN`), and so is a plan whose role map differs from the session's label map's.")}),
+        _ => return None,
+    })
+}
+
+/// Fields (JSON names) a request must carry: absent, they are the proto default, which the
+/// server refuses (an empty string, an UNSPECIFIED enum, a missing message, a 0 out of range).
+pub fn required(message: &str) -> &'static [&'static str] {
+    match message.trim_start_matches("resecta.v1.") {
+        "CreateSessionRequest" => &["displayName"],
+        "RoleMap" => &["parenchyma", "tumor"],
+        "RawLabelMapHeader" => &["dims", "spacing", "origin", "direction", "dataType"],
+        "FileLabelMapHeader" => &["format"],
+        "InitFromEndPoint" => &["name", "endPoint"],
+        "InitFromPlane" => &["name", "planePoint", "planeNormal"],
+        "SetControlPoint" => &["point"],
+        "SetControlPoints" => &["points"],
+        "MoveGroup" | "Translate" => &["delta"],
+        "Rotate" => &["axis"],
+        "SetMargin" => &["marginMm"],
+        "SetResolution" => &["ru", "rv"],
+        "AddResection" => &["resection"],
+        "Resection" => &[
+            "name",
+            "gridM",
+            "gridN",
+            "controlPoints",
+            "marginMm",
+            "ru",
+            "rv",
+        ],
+        "ImportPlanRequest" => &["planJson"],
+        "ExportModelRequest" => &["format"],
+        "GetSlicesRequest" => &["resection"],
+        _ => &[],
+    }
+}
+
+/// Query fields of a GET route's request message that the HTTP face refuses, and why.
+pub fn refused_query(message: &str, field: &str) -> Option<&'static str> {
+    match (message.trim_start_matches("resecta.v1."), field) {
+        ("GetSlicesRequest", "model") => {
+            Some("`model=` is refused (501 `UNSUPPORTED`): only resections are sliced so far.")
+        }
+        _ => None,
+    }
+}
+
+/// The oneof of `message` a request must set (exactly one of its fields).
+pub fn required_oneof(message: &str) -> Option<&'static str> {
+    match message.trim_start_matches("resecta.v1.") {
+        "EditRequest" => Some("edit"),
+        "MoveGroup" => Some("selection"),
+        _ => None,
+    }
+}
+
+/// What the server refuses beyond the schema of `message`, in words.
+pub fn note(message: &str) -> Option<String> {
+    Some(match message.trim_start_matches("resecta.v1.") {
+        "RoleMap" => "Each label belongs to at most one role (refused otherwise). In an upload, some parenchyma label and some tumour label must occur in the label map.".to_owned(),
+        "RawLabelMapHeader" => format!("Also refused: `totalBytes` (when given) other than dims[0]·dims[1]·dims[2]·size of `dataType`, and a body of another length; a `direction` that is singular or whose columns are not orthogonal; a side (voxels × spacing) longer than {MAX_EXTENT_MM} mm; voxel values outside 0..={MAX_LABEL}; INT8 data holding negative values; more voxels than `ServerLimits.max_voxels` (413)."),
+        "FileLabelMapHeader" => "Also refused: `totalBytes` (when given) other than the body's length, a file that is not in `format`, or whose geometry or labels are out of range as for raw uploads.".to_owned(),
+        "Target" => format!("`labels` must be tumour labels of the session's role map present in its label map, and a tumour label that does not touch the liver is refused; each point must lie within {TARGET_POINT_SNAP_MM} mm of a tumour component (all refused with 400 otherwise)."),
+        "InitFromEndPoint" => format!("The end point must lie at least {MIN_END_DISTANCE_MM} mm from the target's centroid, and the plane it gives must cut the liver (400 otherwise)."),
+        "InitFromPlane" => "`planeNormal` must be non-zero, and the plane must cut the liver (400 otherwise).".to_owned(),
+        "SetControlPoint" => "`i` and `j` must lie in the resection's grid (400 otherwise); an unknown name is 404.".to_owned(),
+        "SetControlPoints" => "As many points as the resection's grid has (gridM·gridN; 400 otherwise).".to_owned(),
+        "MoveGroup" => "The group must hold some point of the resection's grid (a ring beyond its middle is refused), and the moved points must stay within the coordinate range.".to_owned(),
+        "Translate" => "The moved points must stay within the coordinate range.".to_owned(),
+        "Rotate" => "`axis` must be non-zero, and the rotated points must stay within the coordinate range.".to_owned(),
+        "Resection" => "In a request, `controlPoints` holds exactly gridM·gridN points.".to_owned(),
+        "EditRequest" => "Every edit but init and add names an existing resection (404 otherwise); undo and redo need something to undo or redo (409 otherwise); a non-zero `baseVersion` other than the plan's version is 409 `STALE_VERSION`.".to_owned(),
+        _ => return None,
+    })
+}
+
+/// The `resecta-plan/1` document (`ImportPlanRequest.planJson`, `ExportPlanResponse.planJson`),
+/// as the plan reads it: unknown fields are refused, and so are missing required ones.
+pub fn plan_document() -> Value {
+    let labels = json!({"type": "array", "minItems": 1, "items": label()});
+    let roles: Map<String, Value> = ["parenchyma", "tumor", "portal", "hepatic", "vessel"]
+        .into_iter()
+        .map(|r| (r.to_owned(), labels.clone()))
+        .collect();
+    let point = json!({"type": "array", "minItems": 3, "maxItems": 3, "items": coordinate()});
+    let pair = |lo: usize, hi: usize| {
+        json!({"type": "array", "minItems": 2, "maxItems": 2,
+               "items": {"type": "integer", "minimum": lo, "maximum": hi}})
+    };
+    let resection = json!({
+        "type": "object",
+        "additionalProperties": false,
+        "required": ["name", "grid", "control_points"],
+        "description": "One resection. `control_points` holds exactly grid[0]·grid[1] points; names are unique in the plan; target labels are tumour labels of `roles` (all refused otherwise).",
+        "properties": {
+            "name": {"type": "string", "minLength": 1, "maxLength": MAX_NAME_LEN, "pattern": NOT_BLANK,
+                     "description": format!("1..={MAX_NAME_LEN} bytes of UTF-8 (`maxLength` counts characters: a name of multi-byte characters is refused sooner), not blank.")},
+            "kind": {"enum": ["bezier"]},
+            "grid": pair(MIN_CONTROL_POINTS, MAX_CONTROL_POINTS),
+            "control_points": {"type": "array", "items": point,
+                               "minItems": MIN_CONTROL_POINTS * MIN_CONTROL_POINTS,
+                               "maxItems": MAX_CONTROL_POINTS * MAX_CONTROL_POINTS},
+            "margin_mm": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_MARGIN_MM},
+            "band_mm": {"type": "number", "minimum": 0, "maximum": MAX_MARGIN_MM},
+            "target": {"type": "object", "additionalProperties": false, "properties": {
+                "labels": {"type": "array", "items": label()},
+                "points": {"type": "array", "items": point}}},
+            "resolution": pair(MIN_RESOLUTION, MAX_RESOLUTION)
+        }
+    });
+    json!({
+        "type": "object",
+        "description": "A `resecta-plan/1` plan file (not a protobuf message: snake_case keys). Unknown fields are refused everywhere in it.",
+        "additionalProperties": false,
+        "required": ["format", "roles"],
+        "properties": {
+            "format": {"const": PLAN_FORMAT},
+            "roles": {"type": "object", "additionalProperties": false, "required": ["tumor"],
+                      "properties": roles,
+                      "description": "Role → label values; each label in at most one role. `tumor` is required: resections need tumour labels, and ImportPlan takes only the session's label map's role map, which has some."},
+            "resections": {"type": "array", "maxItems": MAX_RESECTIONS, "items": resection}
+        }
+    })
+}
