@@ -46,13 +46,13 @@ fn coordinate() -> Value {
 /// A resection's name where a new resection is named (init, add).
 fn new_name() -> Value {
     json!({"minLength": 1, "maxLength": MAX_NAME_LEN, "pattern": NOT_BLANK,
-           "description": format!("Name of the new resection: 1..={MAX_NAME_LEN} bytes of UTF-8 (`maxLength` counts characters: a name of multi-byte characters is refused sooner), not blank, unique in the plan (a name in use is refused).")})
+           "description": format!("1..={MAX_NAME_LEN} bytes of UTF-8 (`maxLength` counts characters: a name of multi-byte characters is refused sooner), not blank; a name in use is refused.")})
 }
 
-/// A grid side of an init: 0 (the default) or a side of a resection grid.
-fn init_side(default: usize) -> Value {
-    json!({"maximum": MAX_CONTROL_POINTS, "not": {"const": 1},
-           "description": format!("Control points along this direction, {MIN_CONTROL_POINTS}..={MAX_CONTROL_POINTS}; 0 or absent: {default}.")})
+/// A grid side of an init: 0 (the default, [`DEFAULT_GRID`]) or a side of a resection grid.
+fn init_side() -> Value {
+    let below: Vec<usize> = (1..MIN_CONTROL_POINTS).collect();
+    json!({"maximum": MAX_CONTROL_POINTS, "not": {"enum": below}})
 }
 
 fn side() -> Value {
@@ -107,8 +107,7 @@ pub fn field(message: &str, field: &str) -> Option<Value> {
         }
         ("ReconstructOptions", "minComponentMm3") => json!({"minimum": 0}),
         ("InitFromEndPoint" | "InitFromPlane", "name") => new_name(),
-        ("InitFromEndPoint", "gridM") | ("InitFromPlane", "gridM") => init_side(DEFAULT_GRID[0]),
-        ("InitFromEndPoint", "gridN") | ("InitFromPlane", "gridN") => init_side(DEFAULT_GRID[1]),
+        ("InitFromEndPoint" | "InitFromPlane", "gridM" | "gridN") => init_side(),
         ("SetControlPoints", "points") => control_points(),
         ("Rotate", "angleDeg") => json!({"minimum": -MAX_ANGLE_DEG, "maximum": MAX_ANGLE_DEG}),
         ("SetMargin", "marginMm") | ("Resection", "marginMm") => margin(),
