@@ -16,7 +16,7 @@ pub mod limits {
     pub use resecta_plan::plan::MAX_PLAN_BYTES;
     pub use resecta_plan::resection::{
         MAX_ANGLE_DEG, MAX_COORDINATE_MM, MAX_MARGIN_MM, MAX_NAME_LEN, MAX_RESOLUTION,
-        MIN_CONTROL_POINTS, MIN_RESOLUTION,
+        MAX_TARGET_LABELS, MAX_TARGET_POINTS, MIN_CONTROL_POINTS, MIN_RESOLUTION,
     };
     pub use resecta_session::api::{
         DEFAULT_GRID, MAX_DISPLAY_NAME, MAX_EXTENT_MM, MAX_ORIGIN_MM, SPACING_MM,

@@ -87,7 +87,8 @@ pub fn field(message: &str, field: &str) -> Option<Value> {
         ("Vec3", "x" | "y" | "z") => coordinate(),
         ("RoleMap", "parenchyma" | "tumor") => json!({"minItems": 1, "items": label()}),
         ("RoleMap", _) => json!({"items": label()}),
-        ("Target", "labels") => json!({"items": label()}),
+        ("Target", "labels") => json!({"maxItems": MAX_TARGET_LABELS, "items": label()}),
+        ("Target", "points") => json!({"maxItems": MAX_TARGET_POINTS}),
         ("RawLabelMapHeader", "dims") => {
             json!({"minItems": 3, "maxItems": 3, "items": {"minimum": 1}})
         }
@@ -225,8 +226,8 @@ pub fn plan_document() -> Value {
             "margin_mm": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_MARGIN_MM},
             "band_mm": {"type": "number", "minimum": 0, "maximum": MAX_MARGIN_MM},
             "target": {"type": "object", "additionalProperties": false, "properties": {
-                "labels": {"type": "array", "items": label()},
-                "points": {"type": "array", "items": point}}},
+                "labels": {"type": "array", "maxItems": MAX_TARGET_LABELS, "items": label()},
+                "points": {"type": "array", "maxItems": MAX_TARGET_POINTS, "items": point}}},
             "resolution": pair(MIN_RESOLUTION, MAX_RESOLUTION)
         }
     });
