@@ -4,7 +4,6 @@
 //! the operation layer checks the rest (ranges of plan parameters, geometry, quotas).
 
 use std::collections::BTreeMap;
-use std::ops::{Range, RangeInclusive};
 
 use resecta_api::v1 as pb;
 use resecta_geom::{Mat3, Real, Role, RoleMap};
@@ -23,12 +22,7 @@ use crate::error::WireError;
 
 type Wire<T> = Result<T, WireError>;
 
-/// PSR depths a reconstruction may ask for (`ReconstructOptions.psr_depth`).
-pub const PSR_DEPTHS: RangeInclusive<u32> = 1..=10;
-/// MCSD smoothing factors (`ReconstructOptions.smoothing`).
-pub const SMOOTHING: RangeInclusive<f64> = 0.0..=1.0;
-/// MCSD decimation fractions (`ReconstructOptions.decimation`).
-pub const DECIMATION: Range<f64> = 0.0..1.0;
+pub use resecta_session::api::{DECIMATION, PSR_DEPTHS, SMOOTHING};
 
 // ---- inbound ---------------------------------------------------------------------------------
 

@@ -118,6 +118,13 @@ impl RawLabelMap {
     }
 }
 
+/// PSR depths a reconstruction may ask for (`ReconOptions::psr_depth`).
+pub const PSR_DEPTHS: std::ops::RangeInclusive<u32> = 1..=10;
+/// MCSD smoothing factors (`ReconOptions::smoothing`).
+pub const SMOOTHING: std::ops::RangeInclusive<f64> = 0.0..=1.0;
+/// MCSD decimation fractions (`ReconOptions::decimation`).
+pub const DECIMATION: std::ops::Range<f64> = 0.0..1.0;
+
 /// Image file formats accepted as label-map uploads.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum FileFormat {

@@ -11,7 +11,8 @@ use resecta_recon::{
 use tokio::sync::mpsc;
 
 use crate::api::{
-    DroppedComponents, ModelInfo, ReconMethod, ReconOptions, ReconstructEvent, Surface, SurfaceKind,
+    DECIMATION, DroppedComponents, ModelInfo, PSR_DEPTHS, ReconMethod, ReconOptions,
+    ReconstructEvent, SMOOTHING, Surface, SurfaceKind,
 };
 use crate::budget::{Charge, Use, reconstruction_bytes};
 use crate::error::{Missing, Result, SessionError};
@@ -35,20 +36,22 @@ fn surface_kind(role: Role) -> SurfaceKind {
 /// [`SessionError::Invalid`] naming the field out of range.
 fn model_options(options: &ReconOptions, default_depth: u32) -> Result<ModelOptions> {
     let depth = options.psr_depth.unwrap_or(default_depth);
-    if !(1..=10).contains(&depth) {
+    if !PSR_DEPTHS.contains(&depth) {
         return Err(SessionError::Invalid(format!(
-            "psr_depth {depth} is outside 1..=10"
+            "psr_depth {depth} is outside {}..={}",
+            PSR_DEPTHS.start(),
+            PSR_DEPTHS.end()
         )));
     }
     let defaults = McsdParams::default();
     let smoothing = options.smoothing.unwrap_or(defaults.smoothing);
-    if !(0.0..=1.0).contains(&smoothing) {
+    if !SMOOTHING.contains(&smoothing) {
         return Err(SessionError::Invalid(format!(
             "smoothing {smoothing} is outside [0, 1]"
         )));
     }
     let decimation = options.decimation.unwrap_or(defaults.decimation);
-    if !(0.0..1.0).contains(&decimation) {
+    if !DECIMATION.contains(&decimation) {
         return Err(SessionError::Invalid(format!(
             "decimation {decimation} is outside [0, 1)"
         )));
