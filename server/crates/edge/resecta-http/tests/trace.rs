@@ -25,6 +25,20 @@ impl Write for Logs {
     }
 }
 
+impl Logs {
+    /// The text logged once `done` holds of it (or after 10 s, for the assertions to say why).
+    async fn until(&self, done: impl Fn(&str) -> bool) -> String {
+        let text = || String::from_utf8(self.0.lock().unwrap().clone()).unwrap();
+        for _ in 0..1000 {
+            if done(&text()) {
+                break;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+        }
+        text()
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn requests_are_logged_without_patient_data() {
     let logs = Logs::default();
@@ -51,7 +65,14 @@ async fn requests_are_logged_without_patient_data() {
         request("GET", &format!("/v1/sessions/{id}"), Body::empty()),
     )
     .await;
-    let text = String::from_utf8(logs.0.lock().unwrap().clone()).unwrap();
+    // A request's line may be written just after its client has the answer: wait for both.
+    let text = logs
+        .until(|t| {
+            t.contains("route=\"/v1/sessions/{id}\"")
+                && t.lines()
+                    .any(|l| l.contains("trace-me-7") && l.contains("response"))
+        })
+        .await;
     let created = text
         .lines()
         .find(|l| l.contains("request_id=\"trace-me-7\"") && l.contains("response"))
