@@ -1,0 +1,336 @@
+// Client of the server's public HTTP/JSON API (docs/server.md), same origin. Bodies are the
+// protos' canonical JSON (64-bit integers as decimal strings, bytes as base64); errors are RFC
+// 9457 problems. The watch stream is read with `fetch` (not EventSource, which cannot send the
+// bearer token) and reconnects by itself, resuming from the last event id.
+
+export interface Vec3 { x: number; y: number; z: number }
+export interface Rgba { r?: number; g?: number; b?: number; a?: number }
+
+export interface Session {
+  id: string;
+  displayName: string;
+  createdMs?: string;
+  lastAccessMs?: string;
+  state?: string; // SESSION_STATE_*
+  planVersion?: string;
+}
+
+export interface Resection {
+  name: string;
+  gridM?: number;
+  gridN?: number;
+  controlPoints?: Vec3[];
+  marginMm?: number;
+  bandMm?: number;
+  ru?: number;
+  rv?: number;
+}
+
+export interface Verdict {
+  minMarginMm?: number;
+  point?: Vec3;
+  violation?: boolean;
+  violatingAreaMm2?: number;
+  warningAreaMm2?: number;
+  insideAreaMm2?: number;
+  marginUncertaintyMm?: number;
+}
+
+export interface ResectionVolume {
+  name: string;
+  resectedMl?: number;
+  resectedPct?: number;
+  completeCut?: boolean;
+  incompleteReason?: string;
+}
+
+export interface VolumeReport {
+  totalMl?: number;
+  remnantMl?: number;
+  remnantPct?: number;
+  resectedMl?: number;
+  flrThresholdPct?: number;
+  flrWarning?: boolean;
+  complete?: boolean;
+  resections?: ResectionVolume[];
+}
+
+export interface Surface {
+  name: string;
+  kind?: string; // SURFACE_KIND_*
+  label?: number;
+  color?: Rgba;
+  mesh?: string; // base64 RSMS
+}
+
+export interface ResectionSurface {
+  name: string;
+  resection?: Resection;
+  verdict?: Verdict;
+  fullMesh?: string; // base64 RSMS
+  meshDelta?: string; // base64 RSDL
+}
+
+export interface Snapshot {
+  session?: Session;
+  models?: Surface[];
+  resections?: ResectionSurface[];
+  volumes?: VolumeReport;
+  complete?: boolean;
+}
+
+export interface PlanDelta {
+  resections?: ResectionSurface[];
+  removed?: string[];
+}
+
+export interface WatchResponse {
+  seq?: string;
+  planVersion?: string;
+  snapshot?: Snapshot;
+  delta?: PlanDelta;
+  volumes?: VolumeReport;
+}
+
+export interface EditResponse {
+  planVersion?: string;
+  resections?: { resection?: Resection; verdict?: Verdict }[];
+  removed?: string[];
+}
+
+/** One operation of `EditRequest` (its `edit` oneof), e.g. `{ setControlPoint: {...} }`. */
+export type Edit = Record<string, unknown>;
+
+export interface Problem {
+  type?: string;
+  title?: string;
+  status?: number;
+  detail?: string;
+  code?: string;
+  current_version?: string;
+}
+
+/** An HTTP error answer (or a stream's `error` event), with its problem when it sent one. */
+export class ApiError extends Error {
+  override name = "ApiError";
+  constructor(
+    readonly status: number,
+    readonly problem: Problem,
+  ) {
+    super(`${status} ${problem.code ?? problem.title ?? ""}: ${problem.detail ?? ""}`.trim());
+  }
+}
+
+const TOKEN_KEY = "resecta.token";
+
+/** Asks the person for the bearer token (null: they declined). */
+export type AskToken = (retry: boolean) => Promise<string | null>;
+
+export class Api {
+  private asking: Promise<string | null> | null = null;
+
+  constructor(
+    private readonly askToken: AskToken,
+    private readonly base = "",
+  ) {}
+
+  listSessions(): Promise<{ sessions?: Session[] }> {
+    return this.json("GET", "/v1/sessions");
+  }
+  createSession(displayName: string): Promise<{ session: Session }> {
+    return this.json("POST", "/v1/sessions", { displayName });
+  }
+  getSession(id: string): Promise<{ session: Session }> {
+    return this.json("GET", `/v1/sessions/${enc(id)}`);
+  }
+  /** Applies one edit made against `baseVersion` (0: unchecked; a stale one gets a 409). */
+  edit(id: string, baseVersion: string | number, edit: Edit): Promise<EditResponse> {
+    return this.json("POST", `/v1/sessions/${enc(id)}/edits`, { baseVersion: String(baseVersion), ...edit });
+  }
+  exportPlan(id: string): Promise<{ planVersion?: string; planJson: string }> {
+    return this.json("GET", `/v1/sessions/${enc(id)}/plan`);
+  }
+  volumes(id: string): Promise<{ planVersion?: string; volumes?: VolumeReport }> {
+    return this.json("GET", `/v1/sessions/${enc(id)}/volumes`);
+  }
+
+  /** Follows a session's watch stream until `close()`: whole snapshots (parts joined), deltas
+   * and volumes, in order. Reconnects after a network error, a server shutdown (503) or the
+   * stream's end, resuming after the last event seen; `resync()` drops that and asks for a
+   * fresh snapshot (after a delta that did not apply). */
+  watch(id: string, on: WatchHandlers): WatchStream {
+    let lastSeq: string | null = null;
+    let abort = new AbortController();
+    let closed = false;
+    const run = async () => {
+      for (let attempt = 0; !closed; attempt++) {
+        let parts: Snapshot[] = [];
+        try {
+          const headers: Record<string, string> = { accept: "text/event-stream" };
+          if (lastSeq !== null) headers["last-event-id"] = lastSeq;
+          const res = await this.fetch("GET", `/v1/sessions/${enc(id)}/watch`, undefined, headers, abort.signal);
+          on.status("live");
+          for await (const ev of sseEvents(res.body!)) {
+            attempt = 0;
+            const data = JSON.parse(ev.data) as unknown;
+            if (ev.event === "error") throw new ApiError((data as Problem).status ?? 500, data as Problem);
+            const msg = data as WatchResponse;
+            if (msg.snapshot) {
+              parts.push(msg.snapshot);
+              if (!msg.snapshot.complete) continue;
+              on.snapshot(joinParts(parts), msg);
+              parts = [];
+            } else if (msg.delta) on.delta(msg.delta, msg);
+            else if (msg.volumes) on.volumes(msg.volumes, msg);
+            if (ev.id) lastSeq = ev.id;
+          }
+          if (closed) return;
+          on.status("reconnecting", null);
+        } catch (e) {
+          if (closed) return;
+          if (abort.signal.aborted) abort = new AbortController(); // resync
+          else if (e instanceof ApiError && e.status !== 503) {
+            on.status("failed", e);
+            return;
+          } else on.status("reconnecting", e);
+        }
+        await sleep(Math.min(10_000, 500 * 2 ** Math.min(attempt, 5)));
+      }
+    };
+    void run();
+    return {
+      close() {
+        closed = true;
+        abort.abort();
+      },
+      resync() {
+        lastSeq = null;
+        abort.abort();
+      },
+    };
+  }
+
+  private async json<T>(method: string, path: string, body?: unknown): Promise<T> {
+    const res = await this.fetch(method, path, body === undefined ? undefined : JSON.stringify(body), {
+      "content-type": "application/json",
+    });
+    return (await res.json()) as T;
+  }
+
+  /** `fetch` with the token; on a 401 asks for the token (once at a time) and tries again. */
+  private async fetch(
+    method: string,
+    path: string,
+    body: string | undefined,
+    headers: Record<string, string>,
+    signal?: AbortSignal,
+  ): Promise<Response> {
+    for (let retry = false; ; retry = true) {
+      const token = sessionStorage.getItem(TOKEN_KEY);
+      const h: Record<string, string> = { "resecta-api-version": "v1", ...headers };
+      if (token) h["authorization"] = `Bearer ${token}`;
+      const init: RequestInit = { method, headers: h };
+      if (body !== undefined) init.body = body;
+      if (signal) init.signal = signal;
+      const res = await fetch(this.base + path, init);
+      if (res.ok) return res;
+      const problem = await readProblem(res);
+      if (res.status !== 401) throw new ApiError(res.status, problem);
+      this.asking ??= this.askToken(token !== null || retry).finally(() => (this.asking = null));
+      const given = await this.asking;
+      if (!given) throw new ApiError(401, problem);
+      sessionStorage.setItem(TOKEN_KEY, given);
+    }
+  }
+}
+
+export interface WatchHandlers {
+  snapshot(s: Snapshot, msg: WatchResponse): void;
+  delta(d: PlanDelta, msg: WatchResponse): void;
+  volumes(v: VolumeReport, msg: WatchResponse): void;
+  /** The connection: live, reconnecting (with what went wrong, if anything) or failed for good. */
+  status(s: "live" | "reconnecting" | "failed", error?: unknown): void;
+}
+
+export interface WatchStream {
+  close(): void;
+  resync(): void;
+}
+
+/** A snapshot's parts as one snapshot (session from the first, volumes from the last). */
+export function joinParts(parts: Snapshot[]): Snapshot {
+  const out: Snapshot = { models: [], resections: [], complete: true };
+  for (const p of parts) {
+    out.session ??= p.session;
+    out.models!.push(...(p.models ?? []));
+    out.resections!.push(...(p.resections ?? []));
+    if (p.volumes) out.volumes = p.volumes;
+  }
+  return out;
+}
+
+export interface SseEvent { event: string; id: string | null; data: string }
+
+/** The server-sent events of a byte stream (the WHATWG event-stream format). */
+export async function* sseEvents(body: ReadableStream<Uint8Array>): AsyncGenerator<SseEvent> {
+  const reader = body.getReader();
+  const text = new TextDecoder();
+  let buf = "";
+  let from = 0; // buf before this has no line break
+  let event = "message", id: string | null = null, data: string[] = [];
+  const lineBreak = /\r\n|\r|\n/g;
+  try {
+    for (;;) {
+      const { value, done } = await reader.read();
+      if (done) return;
+      buf += text.decode(value, { stream: true });
+      for (;;) {
+        lineBreak.lastIndex = from;
+        const m = lineBreak.exec(buf);
+        // A CR at the end may be the first half of a CRLF: wait for the next chunk.
+        if (!m || (m[0] === "\r" && m.index === buf.length - 1)) {
+          from = m ? m.index : buf.length;
+          break;
+        }
+        const line = buf.slice(0, m.index);
+        buf = buf.slice(m.index + m[0].length);
+        from = 0;
+        if (line === "") {
+          if (data.length) yield { event, id, data: data.join("\n") };
+          event = "message";
+          data = [];
+          continue;
+        }
+        const colon = line.indexOf(":");
+        if (colon === 0) continue; // comment
+        const field = colon < 0 ? line : line.slice(0, colon);
+        const value = colon < 0 ? "" : line.slice(colon + (line[colon + 1] === " " ? 2 : 1));
+        if (field === "event") event = value;
+        else if (field === "data") data.push(value);
+        else if (field === "id") id = value;
+      }
+    }
+  } finally {
+    reader.releaseLock();
+  }
+}
+
+/** Bytes of a base64 string (mesh bytes in the JSON). */
+export function base64Bytes(b64: string): Uint8Array {
+  const bin = atob(b64);
+  const out = new Uint8Array(bin.length);
+  for (let i = 0; i < bin.length; i++) out[i] = bin.charCodeAt(i);
+  return out;
+}
+
+async function readProblem(res: Response): Promise<Problem> {
+  const text = await res.text().catch(() => "");
+  try {
+    return JSON.parse(text) as Problem;
+  } catch {
+    return { status: res.status, title: res.statusText, detail: text.slice(0, 200) };
+  }
+}
+
+const enc = encodeURIComponent;
+const sleep = (ms: number) => new Promise((r) => setTimeout(r, ms));

@@ -1,0 +1,119 @@
+// The side panel (session, plan version, verdicts, volumes, status) and the small forms: the
+// session picker and the bearer-token prompt. Plain DOM; text is always set as text.
+
+import type { Session, VolumeReport } from "./api";
+import type { Plan } from "./plan";
+
+type Child = Node | string;
+
+function h(tag: string, attrs: Record<string, string> = {}, ...children: Child[]): HTMLElement {
+  const el = document.createElement(tag);
+  for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, v);
+  el.append(...children);
+  return el;
+}
+
+const mm = (x: number | undefined | null) => (x == null ? "–" : `${x.toFixed(1)} mm`);
+const ml = (x: number | undefined) => (x == null ? "–" : `${x.toFixed(0)} ml`);
+const pct = (x: number | undefined) => (x == null ? "–" : `${x.toFixed(1)} %`);
+
+function table(head: string[], rows: Child[][]): HTMLElement {
+  return h(
+    "table",
+    {},
+    h("thead", {}, h("tr", {}, ...head.map((c) => h("th", {}, c)))),
+    h("tbody", {}, ...rows.map((r) => h("tr", {}, ...r.map((c) => h("td", {}, c))))),
+  );
+}
+
+export class Panel {
+  private readonly body = h("div", { class: "panel-body" });
+  private readonly status = h("div", { class: "status", role: "status" });
+
+  constructor(readonly root: HTMLElement) {
+    root.replaceChildren(h("h1", {}, "resecta"), this.status, this.body);
+  }
+
+  setStatus(text: string, kind: "ok" | "busy" | "error" = "ok"): void {
+    this.status.textContent = text;
+    this.status.className = `status ${kind}`;
+  }
+
+  /** The plan's summary: session, version, a verdict per resection, the volumes. */
+  show(plan: Plan): void {
+    const rows = [...plan.resections].map(([name, r]) => {
+      const v = r.verdict;
+      const verdict = h("span", { class: v.violation ? "bad" : "good" }, v.violation ? "violation" : "ok");
+      return [name, mm(v.minMarginMm), mm(r.resection.marginMm), verdict];
+    });
+    this.body.replaceChildren(
+      h("p", { class: "session" }, plan.session?.displayName ?? plan.sessionId),
+      h("p", {}, `Plan version ${plan.planVersion}`),
+      h("h2", {}, "Resections"),
+      rows.length ? table(["name", "min margin", "margin", "verdict"], rows) : h("p", { class: "muted" }, "none"),
+      h("h2", {}, "Volumes"),
+      plan.volumes ? volumesTable(plan.volumes, plan.volumesVersion !== plan.planVersion) : h("p", { class: "muted" }, "not computed yet"),
+    );
+  }
+
+  /** Lets the person pick one of `sessions`; resolves with its id. */
+  pickSession(sessions: Session[]): Promise<string> {
+    return new Promise((resolve) => {
+      const items = sessions.map((s) => {
+        const b = h("button", { type: "button" }, s.displayName || s.id);
+        b.title = `${s.state ?? ""} · plan version ${s.planVersion ?? "0"}`;
+        b.onclick = () => resolve(s.id);
+        return h("li", {}, b);
+      });
+      this.body.replaceChildren(
+        h("h2", {}, "Sessions"),
+        items.length ? h("ul", { class: "sessions" }, ...items) : h("p", { class: "muted" }, "The server holds no session."),
+      );
+    });
+  }
+}
+
+function volumesTable(v: VolumeReport, stale: boolean): HTMLElement {
+  const rows: Child[][] = [
+    ["functional liver", ml(v.totalMl), ""],
+    ["remnant (FLR)", ml(v.remnantMl), pct(v.remnantPct)],
+    ["resected", ml(v.resectedMl), ""],
+    ...(v.resections ?? []).map((r) => [
+      `  ${r.name}`,
+      r.completeCut ? ml(r.resectedMl) : "incomplete cut",
+      r.completeCut ? pct(r.resectedPct) : "",
+    ]),
+  ];
+  const out = h("div", {}, table(["", "volume", "share"], rows));
+  if (v.flrWarning) out.append(h("p", { class: "bad" }, `Remnant below ${pct(v.flrThresholdPct)}`));
+  if (v.complete === false) out.append(h("p", { class: "muted" }, "Some cut is incomplete."));
+  if (stale) out.append(h("p", { class: "muted" }, "Recomputing…"));
+  return out;
+}
+
+/** A modal form asking for the server's bearer token; null when cancelled. */
+export function askToken(retry: boolean): Promise<string | null> {
+  return new Promise((resolve) => {
+    const input = h("input", { type: "password", autocomplete: "current-password", required: "", minlength: "1" }) as HTMLInputElement;
+    const cancel = h("button", { type: "button" }, "Cancel");
+    const form = h(
+      "form",
+      { class: "token" },
+      h("p", {}, retry ? "The server refused the token. Token:" : "This server needs a token:"),
+      input,
+      h("div", {}, h("button", { type: "submit" }, "Connect"), cancel),
+    ) as HTMLFormElement;
+    const dialog = h("div", { class: "modal" }, form);
+    const done = (v: string | null) => {
+      dialog.remove();
+      resolve(v);
+    };
+    form.onsubmit = (e) => {
+      e.preventDefault();
+      done(input.value.trim() || null);
+    };
+    cancel.onclick = () => done(null);
+    document.body.append(dialog);
+    input.focus();
+  });
+}

@@ -1,0 +1,154 @@
+// The 3D view (vtk.js): one actor per surface, models in their structure's colour and opacity,
+// resection surfaces coloured per vertex by margin class. The actors share the decoded meshes'
+// arrays, so a delta applied in place needs only `update(name)` and a render.
+
+import "@kitware/vtk.js/Rendering/Profiles/Geometry";
+import vtkDataArray from "@kitware/vtk.js/Common/Core/DataArray";
+import vtkPolyData from "@kitware/vtk.js/Common/DataModel/PolyData";
+import vtkActor from "@kitware/vtk.js/Rendering/Core/Actor";
+import vtkMapper from "@kitware/vtk.js/Rendering/Core/Mapper";
+import { ColorMode, ScalarMode } from "@kitware/vtk.js/Rendering/Core/Mapper/Constants";
+import vtkFullScreenRenderWindow from "@kitware/vtk.js/Rendering/Misc/FullScreenRenderWindow";
+import type { Mesh } from "./wire";
+
+type Rgb = [number, number, number];
+
+/** Colour and opacity per surface kind (the Slicer module's palette, ResectaLib/models.py). */
+export const PALETTE: Record<string, [Rgb, number]> = {
+  parenchyma: [[0.867, 0.51, 0.396], 0.35],
+  tumor: [[0.306, 0.706, 0.306], 1.0],
+  portal: [[0.788, 0.373, 0.733], 1.0],
+  hepatic: [[0.0, 0.592, 0.808], 1.0],
+  vessel: [[0.847, 0.396, 0.31], 1.0],
+  resection: [[0.75, 0.75, 0.75], 1.0],
+};
+
+/** RGBA per margin class code (outside, safe, warning, violation), as the Slicer module. */
+export const MARGIN_CLASS_RGBA: readonly [number, number, number, number][] = [
+  [0.86, 0.86, 0.86, 0.35],
+  [0.62, 0.62, 0.62, 1.0],
+  [1.0, 0.85, 0.0, 1.0],
+  [0.9, 0.05, 0.05, 1.0],
+];
+
+export interface SurfaceStyle {
+  kind: string; // parenchyma, tumor, ..., resection
+  rgb?: Rgb; // the server's suggestion, else the palette's
+  opacity?: number;
+}
+
+interface Entry {
+  mesh: Mesh;
+  polyData: ReturnType<typeof vtkPolyData.newInstance>;
+  actor: ReturnType<typeof vtkActor.newInstance>;
+  colors: Uint8Array | null; // per-vertex RGBA of margin classes
+}
+
+export class Scene {
+  private readonly view: ReturnType<typeof vtkFullScreenRenderWindow.newInstance>;
+  private readonly entries = new Map<string, Entry>();
+  private framed = false;
+
+  constructor(container: HTMLElement) {
+    this.view = vtkFullScreenRenderWindow.newInstance({
+      container,
+      background: [0.1, 0.11, 0.13],
+      containerStyle: { position: "absolute", inset: "0", overflow: "hidden" },
+    });
+  }
+
+  names(): string[] {
+    return [...this.entries.keys()];
+  }
+
+  /** Shows `mesh` as `name`: a mesh already shown was changed in place and is updated, another
+   * replaces what was there. */
+  show(name: string, mesh: Mesh, style: SurfaceStyle): void {
+    if (this.entries.get(name)?.mesh === mesh) this.update(name);
+    else this.set(name, mesh, style);
+  }
+
+  /** Shows `mesh` as `name`, replacing what was there. */
+  set(name: string, mesh: Mesh, style: SurfaceStyle): void {
+    this.remove(name);
+    const polyData = vtkPolyData.newInstance();
+    polyData.getPoints().setData(mesh.positions, 3);
+    const cells = new Uint32Array(4 * (mesh.triangles.length / 3));
+    for (let t = 0, c = 0; t < mesh.triangles.length; t += 3, c += 4) {
+      cells[c] = 3;
+      cells.set(mesh.triangles.subarray(t, t + 3), c + 1);
+    }
+    polyData.getPolys().setData(cells);
+    if (mesh.normals) {
+      polyData.getPointData().setNormals(vtkDataArray.newInstance({ name: "Normals", numberOfComponents: 3, values: mesh.normals }));
+    }
+    const colors = mesh.classes ? new Uint8Array(4 * mesh.vertexCount) : null;
+    if (colors) {
+      polyData.getPointData().setScalars(vtkDataArray.newInstance({ name: "margin_class", numberOfComponents: 4, values: colors }));
+    }
+    const mapper = vtkMapper.newInstance({ interpolateScalarsBeforeMapping: false });
+    mapper.setInputData(polyData);
+    if (colors) {
+      mapper.setColorMode(ColorMode.DIRECT_SCALARS);
+      mapper.setScalarMode(ScalarMode.USE_POINT_DATA);
+    } else mapper.setScalarVisibility(false);
+    const actor = vtkActor.newInstance();
+    actor.setMapper(mapper);
+    const [rgb, opacity] = PALETTE[style.kind] ?? PALETTE["vessel"]!;
+    actor.getProperty().setColor(...(style.rgb ?? rgb));
+    actor.getProperty().setOpacity(style.opacity ?? opacity);
+    if (colors) actor.setForceTranslucent(true);
+    const entry: Entry = { mesh, polyData, actor, colors };
+    this.entries.set(name, entry);
+    this.paintClasses(entry);
+    this.view.getRenderer().addActor(actor);
+  }
+
+  /** After `name`'s mesh arrays changed in place (a delta applied). */
+  update(name: string): void {
+    const e = this.entries.get(name);
+    if (!e) return;
+    this.paintClasses(e);
+    e.polyData.getPoints().modified();
+    e.polyData.getPointData().getNormals()?.modified();
+    e.polyData.modified();
+  }
+
+  remove(name: string): void {
+    const e = this.entries.get(name);
+    if (!e) return;
+    this.view.getRenderer().removeActor(e.actor);
+    e.actor.getMapper()?.delete();
+    e.actor.delete();
+    e.polyData.delete();
+    this.entries.delete(name);
+  }
+
+  clear(): void {
+    for (const name of this.names()) this.remove(name);
+  }
+
+  /** Renders; the first time anything is shown, frames it seen from the front (anterior). */
+  render(): void {
+    if (!this.framed && this.entries.size) {
+      const camera = this.view.getRenderer().getActiveCamera();
+      camera.setFocalPoint(0, 0, 0);
+      camera.setPosition(-0.35, 1, 0.25); // RAS: from anterior (a little from the left and above), superior up
+      camera.setViewUp(0, 0, 1);
+      this.view.getRenderer().resetCamera();
+      this.framed = true;
+    }
+    this.view.getRenderWindow().render();
+  }
+
+  private paintClasses(e: Entry): void {
+    const { colors } = e;
+    const classes = e.mesh.classes;
+    if (!colors || !classes) return;
+    for (let i = 0; i < classes.length; i++) {
+      const rgba = MARGIN_CLASS_RGBA[classes[i]!] ?? MARGIN_CLASS_RGBA[0]!;
+      for (let c = 0; c < 4; c++) colors[4 * i + c] = Math.round(255 * rgba[c]!);
+    }
+    e.polyData.getPointData().getScalars()?.modified();
+  }
+}
