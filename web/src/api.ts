@@ -122,6 +122,8 @@ export class ApiError extends Error {
 }
 
 const TOKEN_KEY = "resecta.token";
+/** The decoder (wire.ts) reads compressed and quantised meshes: a server may send them. */
+const WATCH_QUERY = "allowZstd=true&allowQuantized=true";
 
 /** Asks the person for the bearer token (null: they declined). */
 export type AskToken = (retry: boolean) => Promise<string | null>;
@@ -129,9 +131,12 @@ export type AskToken = (retry: boolean) => Promise<string | null>;
 export class Api {
   private asking: Promise<string | null> | null = null;
 
+  /** `base`: the server's origin ("" on the page: same origin); `tokens`: where the token is
+   * kept (the tab's sessionStorage). */
   constructor(
     private readonly askToken: AskToken,
     private readonly base = "",
+    private readonly tokens: Pick<Storage, "getItem" | "setItem"> = sessionStorage,
   ) {}
 
   listSessions(): Promise<{ sessions?: Session[] }> {
@@ -168,7 +173,7 @@ export class Api {
         try {
           const headers: Record<string, string> = { accept: "text/event-stream" };
           if (lastSeq !== null) headers["last-event-id"] = lastSeq;
-          const res = await this.fetch("GET", `/v1/sessions/${enc(id)}/watch`, undefined, headers, abort.signal);
+          const res = await this.fetch("GET", `/v1/sessions/${enc(id)}/watch?${WATCH_QUERY}`, undefined, headers, abort.signal);
           on.status("live");
           for await (const ev of sseEvents(res.body!)) {
             attempt = 0;
@@ -226,7 +231,7 @@ export class Api {
     signal?: AbortSignal,
   ): Promise<Response> {
     for (let retry = false; ; retry = true) {
-      const token = sessionStorage.getItem(TOKEN_KEY);
+      const token = this.tokens.getItem(TOKEN_KEY);
       const h: Record<string, string> = { "resecta-api-version": "v1", ...headers };
       if (token) h["authorization"] = `Bearer ${token}`;
       const init: RequestInit = { method, headers: h };
@@ -239,7 +244,7 @@ export class Api {
       this.asking ??= this.askToken(token !== null || retry).finally(() => (this.asking = null));
       const given = await this.asking;
       if (!given) throw new ApiError(401, problem);
-      sessionStorage.setItem(TOKEN_KEY, given);
+      this.tokens.setItem(TOKEN_KEY, given);
     }
   }
 }
