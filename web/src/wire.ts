@@ -181,9 +181,15 @@ function unzstd(body: Uint8Array, expected: number): Uint8Array {
       throw new WireError(`zstd frame holds ${size} bytes, the payload is ${expected}`);
     }
   }
-  if (singleSegment) window = size!;
-  // The decompressor allocates the window: bound it by what the payload needs.
-  if (window > Math.max(2 * expected, 1 << 20)) fail(`window of ${window} bytes for a ${expected}-byte payload`);
+  // The decompressor allocates the window the header asks for (up to 2 GiB). No match can reach
+  // back beyond the payload's start, so a window of the payload's size decodes every valid frame
+  // the same: a larger one is lowered to that (on a copy), and memory stays bounded by it.
+  const needed = Math.max(expected, BLOCK_MAX);
+  let frame = body;
+  if (!singleSegment && window > needed) {
+    frame = body.slice();
+    frame[5] = (Math.max(10, Math.ceil(Math.log2(needed))) - 10) << 3;
+  }
   at += fcsBytes;
   // Walk the blocks to find the frame's end: exactly one frame, then its 4-byte checksum.
   for (let last = 0; !last; ) {
@@ -207,7 +213,7 @@ function unzstd(body: Uint8Array, expected: number): Uint8Array {
       out.set(chunk, filled);
       filled += chunk.length;
     });
-    d.push(body, true);
+    d.push(frame, true);
   } catch (e) {
     if (e instanceof WireError) throw e;
     fail(`corrupt frame (${e instanceof Error ? e.message : String(e)})`);
@@ -336,14 +342,17 @@ export function decodeMesh(buf: Uint8Array, limits: Limits = DEFAULT_LIMITS): Me
 }
 
 /** Decodes a delta (magic RSDL). With `held`, also checks that it applies to that mesh (same
- * vertex count, no attribute the mesh lacks) before reading the payload. */
+ * vertex count, no attribute the mesh lacks) before reading the payload, in the spec's order. */
 export function decodeDelta(buf: Uint8Array, limits: Limits = DEFAULT_LIMITS, held?: Mesh): Delta {
   const h = readHeader(buf);
   if (h.kind !== "delta") throw new WireError("a mesh (RSMS) where a delta (RSDL) was expected");
   checkLimit("vertex", h.vertexCount, limits.maxVertices);
   const n = h.vertexCount, m = h.count2;
-  if (held) checkApplies(held, n, h.flags);
+  if (held && n !== held.vertexCount) {
+    throw new WireError(`vertex count differs: ${n} in the delta, ${held.vertexCount} held`);
+  }
   if (m > n) throw new WireError(`changed-vertex set: ${m} changed vertices of ${n}`);
+  if (held) checkSections(held, h.flags);
   const list = (h.flags & INDEX_LIST) !== 0;
   const words = list ? m : Math.ceil(n / 32);
   const r = new Reader(payload(buf, h, 4 * words + attributeBytes(h.flags, m)));
@@ -388,10 +397,7 @@ const SECTIONS = [
   ["classes", CLASSES],
 ] as const;
 
-function checkApplies(mesh: Mesh, n: number, flags: number): void {
-  if (n !== mesh.vertexCount) {
-    throw new WireError(`vertex count differs: ${n} in the delta, ${mesh.vertexCount} held`);
-  }
+function checkSections(mesh: Mesh, flags: number): void {
   for (const [what, flag] of SECTIONS) {
     if (flags & flag && !mesh[what]) throw new WireError(`${what} present in the delta but not in the mesh`);
   }

@@ -69,3 +69,22 @@ test("bad headers are named", () => {
   assert.throws(() => w.decodeDelta(b), /reserved bits set/);
   assert.throws(() => w.decodeMesh(exampleDelta()), /a delta \(RSDL\) where a mesh \(RSMS\) was expected/);
 });
+
+test("a zstd frame without content size and with a 2 MiB window decodes like the raw payload", () => {
+  // `zstd --check --no-content-size` of the example's payload (window descriptor 0x58: 2 MiB).
+  const frame = Buffer.from(
+    "28b52ffd045801020000000000110000008f0000000000003f0000c03f0000204000006040000090400000b0400000d0400000f0400000084100000080000080bf000000c00202020048cafba3",
+    "hex",
+  );
+  const raw = exampleDelta();
+  const msg = new Uint8Array(20 + frame.length);
+  msg.set(raw.subarray(0, 20));
+  msg[6] = raw[6]! | w.ZSTD;
+  msg.set(frame, 20);
+  const want = w.decodeDelta(raw);
+  const got = w.decodeDelta(msg);
+  assert.deepEqual([got.changed, got.positions, got.margins, got.classes], [want.changed, want.positions, want.margins, want.classes]);
+  assert.equal(msg[25], 0x58, "the message itself is left alone");
+  msg[msg.length - 2]! ^= 1;
+  assert.throws(() => w.decodeDelta(msg), /checksum does not match/);
+});
