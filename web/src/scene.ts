@@ -2,13 +2,17 @@
 // resection surfaces coloured per vertex by margin class. The actors share the decoded meshes'
 // arrays, so a delta applied in place needs only `update(name)` and a render.
 
-import "@kitware/vtk.js/Rendering/Profiles/Geometry";
+import "@kitware/vtk.js/Rendering/OpenGL/Profiles/Geometry"; // WebGL only: smaller than with WebGPU
 import vtkDataArray from "@kitware/vtk.js/Common/Core/DataArray";
 import vtkPolyData from "@kitware/vtk.js/Common/DataModel/PolyData";
+import vtkInteractorStyleTrackballCamera from "@kitware/vtk.js/Interaction/Style/InteractorStyleTrackballCamera";
 import vtkActor from "@kitware/vtk.js/Rendering/Core/Actor";
 import vtkMapper from "@kitware/vtk.js/Rendering/Core/Mapper";
 import { ColorMode, ScalarMode } from "@kitware/vtk.js/Rendering/Core/Mapper/Constants";
-import vtkFullScreenRenderWindow from "@kitware/vtk.js/Rendering/Misc/FullScreenRenderWindow";
+import vtkRenderer from "@kitware/vtk.js/Rendering/Core/Renderer";
+import vtkRenderWindow from "@kitware/vtk.js/Rendering/Core/RenderWindow";
+import vtkRenderWindowInteractor from "@kitware/vtk.js/Rendering/Core/RenderWindowInteractor";
+import vtkOpenGLRenderWindow from "@kitware/vtk.js/Rendering/OpenGL/RenderWindow";
 import type { Mesh } from "./wire";
 
 type Rgb = [number, number, number];
@@ -45,16 +49,28 @@ interface Entry {
 }
 
 export class Scene {
-  private readonly view: ReturnType<typeof vtkFullScreenRenderWindow.newInstance>;
+  private readonly renderer = vtkRenderer.newInstance({ background: [0.1, 0.11, 0.13] });
+  private readonly renderWindow = vtkRenderWindow.newInstance();
   private readonly entries = new Map<string, Entry>();
   private framed = false;
 
+  /** A render window filling `container` (vtk.js's FullScreenRenderWindow, WebGL only). */
   constructor(container: HTMLElement) {
-    this.view = vtkFullScreenRenderWindow.newInstance({
-      container,
-      background: [0.1, 0.11, 0.13],
-      containerStyle: { position: "absolute", inset: "0", overflow: "hidden" },
-    });
+    this.renderWindow.addRenderer(this.renderer);
+    const gl = vtkOpenGLRenderWindow.newInstance();
+    gl.setContainer(container);
+    this.renderWindow.addView(gl);
+    const interactor = vtkRenderWindowInteractor.newInstance();
+    interactor.setView(gl);
+    interactor.initialize();
+    interactor.bindEvents(container);
+    interactor.setInteractorStyle(vtkInteractorStyleTrackballCamera.newInstance());
+    new ResizeObserver(() => {
+      const { width, height } = container.getBoundingClientRect();
+      const dpr = window.devicePixelRatio || 1;
+      gl.setSize(Math.floor(width * dpr), Math.floor(height * dpr));
+      this.renderWindow.render();
+    }).observe(container);
   }
 
   names(): string[] {
@@ -101,7 +117,7 @@ export class Scene {
     const entry: Entry = { mesh, polyData, actor, colors };
     this.entries.set(name, entry);
     this.paintClasses(entry);
-    this.view.getRenderer().addActor(actor);
+    this.renderer.addActor(actor);
   }
 
   /** After `name`'s mesh arrays changed in place (a delta applied). */
@@ -117,7 +133,7 @@ export class Scene {
   remove(name: string): void {
     const e = this.entries.get(name);
     if (!e) return;
-    this.view.getRenderer().removeActor(e.actor);
+    this.renderer.removeActor(e.actor);
     e.actor.getMapper()?.delete();
     e.actor.delete();
     e.polyData.delete();
@@ -131,14 +147,14 @@ export class Scene {
   /** Renders; the first time anything is shown, frames it seen from the front (anterior). */
   render(): void {
     if (!this.framed && this.entries.size) {
-      const camera = this.view.getRenderer().getActiveCamera();
+      const camera = this.renderer.getActiveCamera();
       camera.setFocalPoint(0, 0, 0);
       camera.setPosition(-0.35, 1, 0.25); // RAS: from anterior (a little from the left and above), superior up
       camera.setViewUp(0, 0, 1);
-      this.view.getRenderer().resetCamera();
+      this.renderer.resetCamera();
       this.framed = true;
     }
-    this.view.getRenderWindow().render();
+    this.renderWindow.render();
   }
 
   private paintClasses(e: Entry): void {
