@@ -187,10 +187,12 @@ export class Api {
               parts = [];
             } else if (msg.delta) on.delta(msg.delta, msg);
             else if (msg.volumes) on.volumes(msg.volumes, msg);
+            if (abort.signal.aborted) break; // close() or resync() from a handler
             if (ev.id) lastSeq = ev.id;
           }
           if (closed) return;
-          on.status("reconnecting", null);
+          if (abort.signal.aborted) abort = new AbortController();
+          else on.status("reconnecting", null);
         } catch (e) {
           if (closed) return;
           if (abort.signal.aborted) abort = new AbortController(); // resync

@@ -76,3 +76,32 @@ test("watch joins snapshot parts, resumes after the last event and reconnects af
   assert.deepEqual(seen, [undefined, undefined, "6", "6"]);
   assert.deepEqual(events, ["live", "snapshot a,b", "delta r1", "reconnecting", "live", "reconnecting", "live", "volumes 1"]);
 });
+
+test("resync drops the resume point: the next connection asks for a fresh snapshot", async () => {
+  const seen: (string | undefined)[] = [];
+  const server = http.createServer((req, res) => {
+    seen.push(req.headers["last-event-id"] as string | undefined);
+    res.writeHead(200, { "content-type": "text/event-stream" });
+    res.write(`event: snapshot\nid: 9\ndata: ${JSON.stringify({ seq: "9", snapshot: { complete: true } })}\n\n`);
+    res.write(`event: delta\nid: 10\ndata: ${JSON.stringify({ seq: "10", delta: {} })}\n\n`);
+  });
+  await new Promise<void>((r) => server.listen(0, "127.0.0.1", r));
+  const base = `http://127.0.0.1:${(server.address() as AddressInfo).port}`;
+  let snapshots = 0;
+  await new Promise<void>((done) => {
+    const stream = new Api(async () => null, base, memory()).watch("s1", {
+      snapshot: () => {
+        if (++snapshots === 2) {
+          stream.close();
+          done();
+        }
+      },
+      delta: () => stream.resync(), // as after a delta that does not apply
+      volumes: () => {},
+      status: () => {},
+    });
+  });
+  server.close();
+  server.closeAllConnections();
+  assert.deepEqual(seen, [undefined, undefined]);
+});
