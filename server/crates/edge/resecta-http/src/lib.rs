@@ -17,6 +17,7 @@
 //!
 //! | route | RPC | body / query → answer |
 //! |---|---|---|
+//! | `GET /`, `GET /app.js`, … | — | the browser client ([`resecta_web`]: every file of its bundle) |
 //! | `GET /healthz`, `GET /metrics` | — | liveness; Prometheus text (when [`HttpOptions::metrics`]) |
 //! | `GET /v1/openapi.json` | — | the OpenAPI document |
 //! | `GET /v1/info` | `GetServerInfo` | → `GetServerInfoResponse` |
@@ -295,7 +296,9 @@ pub fn router(service: Arc<Service>, policy: AccessPolicy, options: HttpOptions)
         }
     }
     let guarded = guarded.route_layer(middleware::from_fn_with_state(Arc::new(policy), access));
-    open.merge(guarded)
+    // The browser client: static files that carry no data, so open like the document.
+    open.merge(resecta_web::router())
+        .merge(guarded)
         .fallback(handlers::no_route)
         .method_not_allowed_fallback(handlers::method_not_allowed)
         .with_state(app)

@@ -30,11 +30,27 @@ pub use error::ServerError;
 pub use telemetry::{init_tracing, metrics_handle};
 
 /// Where the faces listen, as printed on start-up.
-#[derive(Debug, Clone, Copy, Serialize)]
+#[derive(Debug, Clone, Serialize)]
 pub struct Bound {
     pub grpc: SocketAddr,
     pub http: SocketAddr,
     pub tls: bool,
+    /// The browser client's address (on this machine when the HTTP face listens on every
+    /// interface).
+    pub page: String,
+}
+
+/// The page's URL on the HTTP face at `http`.
+fn page_url(http: SocketAddr, tls: bool) -> String {
+    let mut at = http;
+    if at.ip().is_unspecified() {
+        at.set_ip(if at.is_ipv4() {
+            std::net::Ipv4Addr::LOCALHOST.into()
+        } else {
+            std::net::Ipv6Addr::LOCALHOST.into()
+        });
+    }
+    format!("{}://{at}/", if tls { "https" } else { "http" })
 }
 
 /// The session store the configuration names.
@@ -81,10 +97,12 @@ pub async fn run(
         l.local_addr()
             .map_err(|source| ServerError::Bind { addr, source })
     };
+    let http_at = local(&http_listener, config.http)?;
     let bound = Bound {
         grpc: local(&grpc_listener, config.grpc)?,
-        http: local(&http_listener, config.http)?,
+        http: http_at,
         tls: tls.is_some(),
+        page: page_url(http_at, tls.is_some()),
     };
 
     // Connections of both faces: admitted by an authenticated request (any request without a
@@ -212,7 +230,7 @@ pub async fn run(
             }
         });
     }
-    tracing::info!(grpc = %bound.grpc, http = %bound.http, tls = bound.tls,
+    tracing::info!(grpc = %bound.grpc, http = %bound.http, tls = bound.tls, page = %bound.page,
         auth = config.access.requires_token(), durable = config.data_dir.is_some(),
         handshake_timeout_s = limits.handshake_timeout.as_secs_f64(),
         idle_timeout_s = limits.idle_timeout.as_secs_f64(), "listening");
