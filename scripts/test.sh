@@ -11,9 +11,10 @@ step() { printf '\n== %s ==\n' "$*" >&2; }
 step "system packages"
 df -h . >&2 || true
 # Mesa's lavapipe gives wgpu a CPU Vulkan device (with f64), so the GPU tests really run here;
-# Mesa's EGL lets VTK render offscreen (the Slicer module's displayable-manager tests).
+# Mesa's EGL lets VTK render offscreen (the Slicer module's displayable-manager tests);
+# Chromium runs the browser client's end-to-end tests (Playwright drives it, software WebGL).
 need_apt=()
-for p in mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
+for p in mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri chromium; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
 if ((${#need_apt[@]})); then
   sudo_=""; [ "$(id -u)" = 0 ] || sudo_=sudo
   export DEBIAN_FRONTEND=noninteractive
@@ -24,6 +25,14 @@ command -v cargo-nextest >/dev/null || cargo install --locked cargo-nextest
 step "python venv"
 if [ ! -x .venv/bin/python ]; then python3 -m venv .venv; fi
 .venv/bin/python -m pip install -q --disable-pip-version-check -r tests/requirements.txt
+
+step "browser client (web/): install, type check, unit tests, build; the embedded bundle is fresh"
+command -v npm >/dev/null || { sudo_=""; [ "$(id -u)" = 0 ] || sudo_=sudo; $sudo_ apt-get install -y -qq nodejs npm; }
+(cd web && npm ci --no-audit --no-fund --loglevel=error && npm run check && npm test && npm run build)
+if ! git diff --quiet -- web/dist || [ -n "$(git ls-files --others --exclude-standard web/dist)" ]; then
+  echo "web/dist differs from what web/ builds: run 'npm run build' in web/ and commit web/dist" >&2
+  exit 1
+fi
 
 step "format, lints, layering"
 cargo fmt --all -- --check

@@ -285,3 +285,18 @@ def test_random_corruption_never_raises_anything_but_value_error(golden: Any) ->
                 decode(bytes(b))
             except ValueError:
                 pass
+
+
+def test_the_browser_decoder_matches_rust_on_every_golden_message(golden):
+    """The TypeScript decoder of the browser client (web/src/wire.ts), run by Node on the same
+    golden messages: its own test compares headers, triangles and bit patterns with Rust's."""
+    web = ROOT / "web"
+    if shutil.which("npm") is None or not (web / "node_modules").is_dir():
+        print("SKIP: npm or web/node_modules missing (scripts/test.sh installs them)")
+        pytest.skip("web/node_modules missing")
+    proc = subprocess.run(["npm", "test", "--silent"], cwd=web, capture_output=True, text=True,
+                          env={**os.environ, "RESECTA_GOLDEN_DIR": str(golden[0])}, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    assert "RESECTA_GOLDEN_DIR is not set" not in out, out[-2000:]
+    assert "ok 4 - meshes decode like Rust" in out and "# fail 0" in out, out[-2000:]

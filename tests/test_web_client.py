@@ -1,0 +1,106 @@
+"""The browser client (#20) end to end: `resecta serve --demo` serves the page at `/`; Debian's
+Chromium (software WebGL through SwiftShader), driven by Playwright, opens it, shows the demo
+patient in 3D and follows edits made by another client."""
+import shutil
+import time
+
+import pytest
+import requests
+
+from server_harness import Server, wait_for
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+        "--disable-background-networking", "--disable-component-update", "--no-first-run"]
+
+
+@pytest.fixture(scope="module")
+def demo():
+    server = Server("--demo")
+
+    def ready():
+        sessions = requests.get(f"{server.http_url}/v1/sessions", timeout=30).json()
+        s = sessions.get("sessions", [])
+        return s and s[0].get("state") == "SESSION_STATE_READY" and s[0]["id"]
+
+    sid = wait_for(ready, timeout=180)
+    yield server, sid
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+def state(page):
+    return page.evaluate("window.resecta && window.resecta.state()")
+
+
+def test_the_page_opens_the_demo_patient_and_follows_other_clients(demo, browser, tmp_path):
+    server, sid = demo
+    page = browser.new_page(viewport={"width": 1024, "height": 700})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.bound["page"])
+    # The server holds one session: the page opens it and shows its resection.
+    page.wait_for_function(
+        "() => { const s = window.resecta && window.resecta.state();"
+        " return s && s.sessionId && Object.keys(s.resections).length > 0; }", timeout=60_000)
+    shown = state(page)
+    assert shown["sessionId"] == sid
+    version = int(shown["planVersion"])
+    (name, resection), = shown["resections"].items()
+    assert isinstance(resection["minMarginMm"], (int, float))
+    # The 3D view is drawn: a screenshot of the canvas holds many colours, not a blank clear.
+    shot = tmp_path / "page.png"
+    page.locator("canvas").first.screenshot(path=str(shot))
+    colours = distinct_colours(shot)
+    assert colours > 50, f"{colours} colours: the scene is not drawn"
+    # The demo resection comes closer to its tumour than its margin: its violating vertices
+    # are drawn in the violation colour (red, seen through the translucent surface).
+    assert resection["violation"] is True
+    red = reddish_pixels(shot)
+    assert red > 500, f"{red} violation-coloured pixels"
+    # Another client moves the resection: the page shows the new plan version within seconds.
+    move = {"baseVersion": str(version),
+            "translate": {"name": name, "delta": {"x": 2.0, "y": 0.0, "z": 0.0}}}
+    r = requests.post(f"{server.http_url}/v1/sessions/{sid}/edits", json=move, timeout=60)
+    assert r.status_code == 200, r.text
+    after = int(r.json()["planVersion"])
+    page.wait_for_function(f"() => Number(window.resecta.state().planVersion) >= {after}",
+                           timeout=10_000)
+    assert not errors, errors
+    page.close()
+
+
+def reddish_pixels(png):
+    """Pixels whose red exceeds green and blue by more than 60 (the violation colour blended
+    with the liver; the liver itself, the vessels and the tumours stay below)."""
+    from PIL import Image
+
+    with Image.open(png) as im:
+        counts = im.convert("RGB").getcolors(maxcolors=1 << 24)
+    return sum(n for n, (r, g, b) in counts if r > 110 and r - g > 60 and r - b > 60)
+
+
+def distinct_colours(png):
+    from PIL import Image
+
+    with Image.open(png) as im:
+        return len(im.convert("RGB").getcolors(maxcolors=1 << 24))
+
+
+def test_the_page_is_served_with_a_same_origin_policy(demo):
+    server, _ = demo
+    r = requests.get(server.bound["page"], timeout=30)
+    assert r.status_code == 200
+    assert r.headers["content-type"].startswith("text/html")
+    assert "default-src 'self'" in r.headers["content-security-policy"]
+    again = requests.get(server.bound["page"], headers={"if-none-match": r.headers["etag"]},
+                         timeout=30)
+    assert again.status_code == 304
