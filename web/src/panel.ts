@@ -29,9 +29,23 @@ function table(head: string[], rows: Child[][]): HTMLElement {
 export class Panel {
   private readonly body = h("div", { class: "panel-body" });
   private readonly status = h("div", { class: "status", role: "status" });
+  private readonly actions = h("div", { class: "actions", role: "toolbar", "aria-label": "plan" });
+  /** The resection whose control grid is shown and edited. */
+  selected: string | null = null;
+  onSelect: (name: string) => void = () => {};
 
   constructor(readonly root: HTMLElement) {
-    root.replaceChildren(h("h1", {}, "resecta"), this.status, this.body);
+    root.replaceChildren(h("h1", {}, "resecta"), this.status, this.actions, this.body);
+  }
+
+  /** Shows the undo and redo buttons (with their keyboard shortcuts in the tooltip). */
+  setActions(undo: () => void, redo: () => void): void {
+    const button = (label: string, title: string, run: () => void) => {
+      const b = h("button", { type: "button", title, "aria-keyshortcuts": title.replace(/.*\((.*)\)/, "$1") }, label);
+      b.onclick = run;
+      return b;
+    };
+    this.actions.replaceChildren(button("Undo", "Undo (Control+Z)", undo), button("Redo", "Redo (Control+Y)", redo));
   }
 
   setStatus(text: string, kind: "ok" | "busy" | "error" = "ok"): void {
@@ -44,7 +58,9 @@ export class Panel {
     const rows = [...plan.resections].map(([name, r]) => {
       const v = r.verdict;
       const verdict = h("span", { class: v.violation ? "bad" : "good" }, v.violation ? "violation" : "ok");
-      return [name, mm(v.minMarginMm), mm(r.resection.marginMm), verdict];
+      const pick = h("button", { type: "button", class: "link", "aria-pressed": String(name === this.selected), title: "Edit its control points" }, name);
+      pick.onclick = () => this.onSelect(name);
+      return [pick, mm(v.minMarginMm), mm(r.resection.marginMm), verdict];
     });
     this.body.replaceChildren(
       h("p", { class: "session" }, plan.session?.displayName ?? plan.sessionId),

@@ -5,6 +5,7 @@
 import "@kitware/vtk.js/Rendering/OpenGL/Profiles/Geometry"; // WebGL only: smaller than with WebGPU
 import vtkDataArray from "@kitware/vtk.js/Common/Core/DataArray";
 import vtkPolyData from "@kitware/vtk.js/Common/DataModel/PolyData";
+import vtkSphereSource from "@kitware/vtk.js/Filters/Sources/SphereSource";
 import vtkInteractorStyleTrackballCamera from "@kitware/vtk.js/Interaction/Style/InteractorStyleTrackballCamera";
 import vtkActor from "@kitware/vtk.js/Rendering/Core/Actor";
 import vtkMapper from "@kitware/vtk.js/Rendering/Core/Mapper";
@@ -13,6 +14,7 @@ import vtkRenderer from "@kitware/vtk.js/Rendering/Core/Renderer";
 import vtkRenderWindow from "@kitware/vtk.js/Rendering/Core/RenderWindow";
 import vtkRenderWindowInteractor from "@kitware/vtk.js/Rendering/Core/RenderWindowInteractor";
 import vtkOpenGLRenderWindow from "@kitware/vtk.js/Rendering/OpenGL/RenderWindow";
+import type { Vec3 } from "./api";
 import type { Mesh } from "./wire";
 
 type Rgb = [number, number, number];
@@ -41,6 +43,18 @@ export interface SurfaceStyle {
   opacity?: number;
 }
 
+/** The control grid's colour (spheres and lines). */
+const GRID_RGB: Rgb = [1.0, 0.78, 0.1];
+
+/** A point on the page: client (CSS) pixels, and the normalised depth there (0 near, 1 far). */
+export interface ScreenPoint {
+  x: number;
+  y: number;
+  depth: number;
+}
+
+type PolyData = ReturnType<typeof vtkPolyData.newInstance>;
+
 interface Entry {
   mesh: Mesh;
   polyData: ReturnType<typeof vtkPolyData.newInstance>;
@@ -53,11 +67,14 @@ export class Scene {
   private readonly renderWindow = vtkRenderWindow.newInstance();
   private readonly entries = new Map<string, Entry>();
   private framed = false;
+  private readonly gl = vtkOpenGLRenderWindow.newInstance();
+  private readonly spheres = gridActor(2);
+  private readonly lines = gridActor(2);
 
   /** A render window filling `container` (vtk.js's FullScreenRenderWindow, WebGL only). */
   constructor(container: HTMLElement) {
     this.renderWindow.addRenderer(this.renderer);
-    const gl = vtkOpenGLRenderWindow.newInstance();
+    const gl = this.gl;
     gl.setContainer(container);
     this.renderWindow.addView(gl);
     const interactor = vtkRenderWindowInteractor.newInstance();
@@ -144,6 +161,33 @@ export class Scene {
     for (const name of this.names()) this.remove(name);
   }
 
+  /** Shows the control grid `points` (row-major, `m` × `n`) as spheres joined by lines, or
+   * hides it (`points` empty). */
+  showGrid(points: readonly Vec3[], m: number, n: number): void {
+    const show = points.length > 0 && points.length === m * n;
+    for (const g of [this.spheres, this.lines]) {
+      if (show && !this.renderer.hasViewProp(g.actor)) this.renderer.addActor(g.actor);
+      if (!show && this.renderer.hasViewProp(g.actor)) this.renderer.removeActor(g.actor);
+    }
+    if (!show) return;
+    setSpheres(this.spheres.polyData, points, sphereRadius(points));
+    setGridLines(this.lines.polyData, points, m, n);
+  }
+
+  /** Where world point `p` is drawn on the page. */
+  toScreen(p: Vec3): ScreenPoint {
+    const { rect, scale } = this.frame();
+    const [x, y, depth] = this.gl.worldToDisplay(p.x, p.y, p.z, this.renderer);
+    return { x: rect.left + x / scale, y: rect.bottom - y / scale, depth };
+  }
+
+  /** The world point drawn at page position (`x`, `y`) and normalised depth `depth`. */
+  fromScreen(s: ScreenPoint): Vec3 {
+    const { rect, scale } = this.frame();
+    const [x, y, z] = this.gl.displayToWorld((s.x - rect.left) * scale, (rect.bottom - s.y) * scale, s.depth, this.renderer);
+    return { x, y, z };
+  }
+
   /** Renders; the first time anything is shown, frames it seen from the front (anterior). */
   render(): void {
     if (!this.framed && this.entries.size) {
@@ -157,6 +201,13 @@ export class Scene {
     this.renderWindow.render();
   }
 
+  /** The canvas' place on the page and its framebuffer pixels per CSS pixel. */
+  private frame(): { rect: DOMRect; scale: number } {
+    const rect = this.gl.getCanvas()!.getBoundingClientRect();
+    const [width] = this.gl.getFramebufferSize();
+    return { rect, scale: rect.width > 0 ? width / rect.width : 1 };
+  }
+
   private paintClasses(e: Entry): void {
     const { colors } = e;
     const classes = e.mesh.classes;
@@ -167,4 +218,71 @@ export class Scene {
     }
     e.polyData.getPointData().getScalars()?.modified();
   }
+}
+
+function gridActor(lineWidth: number): { polyData: PolyData; actor: ReturnType<typeof vtkActor.newInstance> } {
+  const polyData = vtkPolyData.newInstance();
+  const mapper = vtkMapper.newInstance({ scalarVisibility: false });
+  mapper.setInputData(polyData);
+  const actor = vtkActor.newInstance();
+  actor.setMapper(mapper);
+  actor.getProperty().setColor(...GRID_RGB);
+  actor.getProperty().setLineWidth(lineWidth);
+  actor.setPickable(false);
+  return { polyData, actor };
+}
+
+/** Sphere radius for a grid: a twentieth of its mean edge length (2 mm when degenerate). */
+function sphereRadius(points: readonly Vec3[]): number {
+  let lo = [Infinity, Infinity, Infinity];
+  let hi = [-Infinity, -Infinity, -Infinity];
+  for (const p of points) {
+    lo = [Math.min(lo[0]!, p.x), Math.min(lo[1]!, p.y), Math.min(lo[2]!, p.z)];
+    hi = [Math.max(hi[0]!, p.x), Math.max(hi[1]!, p.y), Math.max(hi[2]!, p.z)];
+  }
+  const diagonal = Math.hypot(hi[0]! - lo[0]!, hi[1]! - lo[1]!, hi[2]! - lo[2]!);
+  return diagonal > 0 ? Math.max(1, diagonal / (20 * Math.sqrt(points.length))) : 2;
+}
+
+const SPHERE = (() => {
+  const s = vtkSphereSource.newInstance({ radius: 1, thetaResolution: 16, phiResolution: 12 });
+  const out = s.getOutputData();
+  return { points: out.getPoints().getData() as Float32Array, polys: out.getPolys().getData() as Uint32Array };
+})();
+
+/** One sphere of `radius` at each point, all in one polydata. */
+function setSpheres(polyData: PolyData, points: readonly Vec3[], radius: number): void {
+  const per = SPHERE.points.length / 3;
+  const xyz = new Float32Array(3 * per * points.length);
+  const cells = new Uint32Array(SPHERE.polys.length * points.length);
+  points.forEach((p, k) => {
+    for (let v = 0; v < per; v++) {
+      const o = 3 * (k * per + v);
+      xyz[o] = p.x + radius * SPHERE.points[3 * v]!;
+      xyz[o + 1] = p.y + radius * SPHERE.points[3 * v + 1]!;
+      xyz[o + 2] = p.z + radius * SPHERE.points[3 * v + 2]!;
+    }
+    const c0 = k * SPHERE.polys.length;
+    for (let c = 0; c < SPHERE.polys.length; ) {
+      const count = SPHERE.polys[c]!;
+      cells[c0 + c] = count;
+      for (let t = 1; t <= count; t++) cells[c0 + c + t] = SPHERE.polys[c + t]! + k * per;
+      c += count + 1;
+    }
+  });
+  polyData.getPoints().setData(xyz, 3);
+  polyData.getPolys().setData(cells);
+  polyData.modified();
+}
+
+/** The grid's rows and columns as polylines. */
+function setGridLines(polyData: PolyData, points: readonly Vec3[], m: number, n: number): void {
+  const xyz = new Float32Array(3 * points.length);
+  points.forEach((p, k) => xyz.set([p.x, p.y, p.z], 3 * k));
+  const cells: number[] = [];
+  for (let i = 0; i < m; i++) cells.push(n, ...Array.from({ length: n }, (_, j) => i * n + j));
+  for (let j = 0; j < n; j++) cells.push(m, ...Array.from({ length: m }, (_, i) => i * n + j));
+  polyData.getPoints().setData(xyz, 3);
+  polyData.getLines().setData(Uint32Array.from(cells));
+  polyData.modified();
 }
