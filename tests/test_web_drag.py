@@ -1,0 +1,129 @@
+"""The browser client's planning interaction (#20) end to end: in Debian's Chromium (software
+WebGL through SwiftShader), driven by Playwright, a real mouse drag on a control point of the
+demo resection edits the plan on `resecta serve --demo`; Ctrl+Z and Ctrl+Y undo and redo it;
+a drag elsewhere rotates the camera and edits nothing."""
+import json
+import math
+import shutil
+
+import pytest
+import requests
+
+from server_harness import Server, wait_for
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+        "--disable-background-networking", "--disable-component-update", "--no-first-run"]
+
+
+@pytest.fixture(scope="module")
+def demo():
+    server = Server("--demo")
+
+    def ready():
+        sessions = requests.get(f"{server.http_url}/v1/sessions", timeout=30).json()
+        s = sessions.get("sessions", [])
+        return s and s[0].get("state") == "SESSION_STATE_READY" and s[0]["id"]
+
+    sid = wait_for(ready, timeout=180)
+    yield server, sid
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api")
+    with sync_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
+        yield b
+        b.close()
+
+
+def state(page):
+    return page.evaluate("window.resecta.state()")
+
+
+def version(page):
+    return int(state(page)["planVersion"])
+
+
+def wait_version_above(page, v):
+    page.wait_for_function(f"() => Number(window.resecta.state().planVersion) > {v}",
+                           timeout=15_000)
+
+
+def exported(server, sid):
+    """The server's plan export: its version and its resections by name."""
+    r = requests.get(f"{server.http_url}/v1/sessions/{sid}/plan", timeout=30)
+    assert r.status_code == 200, r.text
+    body = r.json()
+    plan = json.loads(body["planJson"])
+    return int(body["planVersion"]), {x["name"]: x for x in plan["resections"]}
+
+
+def test_a_mouse_drag_moves_a_control_point_and_undo_redo_follow(demo, browser):
+    server, sid = demo
+    page = browser.new_page(viewport={"width": 1024, "height": 700})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.bound["page"])
+    page.wait_for_function(
+        "() => { const s = window.resecta && window.resecta.state();"
+        " return s && Object.keys(s.resections).length > 0"
+        " && window.resecta.screenPosition('r1', 1, 2) !== null; }", timeout=60_000)
+    page.wait_for_timeout(300)  # the first frame framed the camera
+    before = state(page)
+    v0 = int(before["planVersion"])
+    grid = before["resections"]["r1"]["controlPoints"]
+    assert len(grid) == 16
+
+    # A drag away from the grid rotates the camera: the point is drawn elsewhere, no edit.
+    at0 = page.evaluate("window.resecta.screenPosition('r1', 1, 2)")
+    page.mouse.move(60, 640)
+    page.mouse.down()
+    page.mouse.move(140, 600, steps=6)
+    page.mouse.up()
+    page.wait_for_timeout(200)
+    at = page.evaluate("window.resecta.screenPosition('r1', 1, 2)")
+    assert math.hypot(at["x"] - at0["x"], at["y"] - at0["y"]) > 5, "the camera did not rotate"
+    assert version(page) == v0
+
+    # Drag P_12 with the mouse: 40 px right, 30 px up, in steps (coalesced edits).
+    page.mouse.move(at["x"], at["y"])
+    page.mouse.down()
+    for k in range(1, 11):
+        page.mouse.move(at["x"] + 4 * k, at["y"] - 3 * k)
+    page.mouse.up()
+    wait_version_above(page, v0)
+    # The last position wins: once the edits are all answered, the page, the server's plan
+    # and the pointer agree.
+    target = page.evaluate("window.resecta.state().resections.r1.controlPoints[6]")
+    wait_for(lambda: exported(server, sid)[1]["r1"]["control_points"][6] == pytest.approx(
+        [target["x"], target["y"], target["z"]], abs=1e-6), timeout=15)
+    v1, plan = exported(server, sid)
+    assert v1 > v0
+    moved = plan["r1"]["control_points"][6]
+    old = grid[6]
+    assert math.dist(moved, [old["x"], old["y"], old["z"]]) > 1.0, "the point did not move"
+    # Only P_12 moved.
+    for k, p in enumerate(plan["r1"]["control_points"]):
+        if k != 6:
+            assert p == pytest.approx([grid[k]["x"], grid[k]["y"], grid[k]["z"]], abs=1e-9)
+    # The point is drawn under the pointer where the drag ended.
+    page.wait_for_function(f"() => Number(window.resecta.state().planVersion) >= {v1}",
+                           timeout=15_000)
+    end = page.evaluate("window.resecta.screenPosition('r1', 1, 2)")
+    assert math.hypot(end["x"] - (at["x"] + 40), end["y"] - (at["y"] - 30)) < 2.0
+
+    # Ctrl+Z undoes the last edit, Ctrl+Y redoes it: each moves the plan version on.
+    page.keyboard.press("Control+z")
+    wait_version_above(page, v1)
+    v2 = version(page)
+    assert exported(server, sid)[0] == v2
+    page.keyboard.press("Control+y")
+    wait_version_above(page, v2)
+    v3, plan = exported(server, sid)
+    assert v3 > v2
+    assert plan["r1"]["control_points"][6] == pytest.approx(moved, abs=1e-9)
+    assert not errors, errors
+    page.close()
