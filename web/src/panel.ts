@@ -40,12 +40,12 @@ export class Panel {
 
   /** Shows the undo and redo buttons (with their keyboard shortcuts in the tooltip). */
   setActions(undo: () => void, redo: () => void): void {
-    const button = (label: string, title: string, run: () => void) => {
-      const b = h("button", { type: "button", title, "aria-keyshortcuts": title.replace(/.*\((.*)\)/, "$1") }, label);
+    const button = (label: string, keys: string[], run: () => void) => {
+      const b = h("button", { type: "button", title: `${label} (${keys.join(", ")})`, "aria-keyshortcuts": keys.join(" ") }, label);
       b.onclick = run;
       return b;
     };
-    this.actions.replaceChildren(button("Undo", "Undo (Control+Z)", undo), button("Redo", "Redo (Control+Y)", redo));
+    this.actions.replaceChildren(button("Undo", ["Control+Z"], undo), button("Redo", ["Control+Y", "Control+Shift+Z"], redo));
   }
 
   setStatus(text: string, kind: "ok" | "busy" | "error" = "ok"): void {
