@@ -1,40 +1,9 @@
 """The browser client (#20) end to end: `resecta serve --demo` serves the page at `/`; Debian's
 Chromium (software WebGL through SwiftShader), driven by Playwright, opens it, shows the demo
 patient in 3D and follows edits made by another client."""
-import shutil
-import time
-
-import pytest
 import requests
 
-from server_harness import Server, wait_for
-
-CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-ARGS = ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-        "--disable-background-networking", "--disable-component-update", "--no-first-run"]
-
-
-@pytest.fixture(scope="module")
-def demo():
-    server = Server("--demo")
-
-    def ready():
-        sessions = requests.get(f"{server.http_url}/v1/sessions", timeout=30).json()
-        s = sessions.get("sessions", [])
-        return s and s[0].get("state") == "SESSION_STATE_READY" and s[0]["id"]
-
-    sid = wait_for(ready, timeout=180)
-    yield server, sid
-    server.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    sync_api = pytest.importorskip("playwright.sync_api")
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
-        yield b
-        b.close()
+from browser_harness import browser, demo  # noqa: F401 (fixtures)
 
 
 def state(page):
