@@ -8,7 +8,7 @@ use resecta_geom::RoleMap;
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::Target;
 use resecta_session::Service;
-use resecta_session::api::{DataType, EditOp, LabelMapSource, RawLabelMap, ReconstructEvent};
+use resecta_session::api::{EditOp, LabelMapSource, RawLabelMap, ReconstructEvent};
 
 use crate::error::ServerError;
 
@@ -33,16 +33,7 @@ pub async fn seed_demo(service: &Arc<Service>) -> Result<String, ServerError> {
         .map_err(demo)?
         .map_err(demo)?
         .labels;
-    let g = labels.grid();
-    let d = g.direction();
-    let raw = RawLabelMap {
-        dims: g.dims(),
-        spacing: g.spacing(),
-        origin: g.origin().into(),
-        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
-        data_type: DataType::U16,
-        data: labels.data().iter().flat_map(|v| v.to_le_bytes()).collect(),
-    };
+    let raw = RawLabelMap::of(&labels);
     let id = service
         .create_session(DEMO_SESSION_NAME)
         .await

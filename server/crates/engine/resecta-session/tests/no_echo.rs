@@ -9,7 +9,7 @@ use resecta_geom::RoleMap;
 use resecta_io::mesh::MeshFormat;
 use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::{PlanEvent, SlicePositions};
-use resecta_session::api::{DataType, EditOp, FileFormat, LabelMapSource, RawLabelMap};
+use resecta_session::api::{EditOp, FileFormat, LabelMapSource, RawLabelMap};
 use resecta_session::{ErrorKind, Service, ServiceConfig, SessionError};
 use resecta_store::{MemoryStore, StoreOptions};
 
@@ -125,16 +125,7 @@ async fn no_error_of_the_service_carries_client_text() {
 
     // A label map, then edits, models and slices naming resections that do not exist.
     let labels = generate(&PhantomSpec::small()).unwrap().labels;
-    let g = labels.grid();
-    let d = g.direction();
-    let raw = RawLabelMap {
-        dims: g.dims(),
-        spacing: g.spacing(),
-        origin: g.origin().into(),
-        direction: std::array::from_fn(|k| d[(k / 3, k % 3)]),
-        data_type: DataType::U8,
-        data: labels.data().iter().map(|&v| v as u8).collect(),
-    };
+    let raw = RawLabelMap::of(&labels);
     service
         .upload_label_map(&id, LabelMapSource::Raw(raw), RoleMap::default())
         .await
