@@ -34,3 +34,16 @@ def browser():
         b = p.chromium.launch(executable_path=CHROMIUM, args=ARGS)
         yield b
         b.close()
+
+
+def open_page(browser, server):
+    """A page on the server's browser client, once it shows a resection; and the list its
+    uncaught errors are collected into."""
+    page = browser.new_page(viewport={"width": 1024, "height": 700})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.bound["page"])
+    page.wait_for_function(
+        "() => { const s = window.resecta && window.resecta.state();"
+        " return s && s.sessionId && Object.keys(s.resections).length > 0; }", timeout=60_000)
+    return page, errors

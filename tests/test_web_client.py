@@ -3,7 +3,7 @@ Chromium (software WebGL through SwiftShader), driven by Playwright, opens it, s
 patient in 3D and follows edits made by another client."""
 import requests
 
-from browser_harness import browser, demo  # noqa: F401 (fixtures)
+from browser_harness import browser, demo, open_page  # noqa: F401 (fixtures)
 
 
 def state(page):
@@ -12,14 +12,8 @@ def state(page):
 
 def test_the_page_opens_the_demo_patient_and_follows_other_clients(demo, browser, tmp_path):
     server, sid = demo
-    page = browser.new_page(viewport={"width": 1024, "height": 700})
-    errors = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(server.bound["page"])
     # The server holds one session: the page opens it and shows its resection.
-    page.wait_for_function(
-        "() => { const s = window.resecta && window.resecta.state();"
-        " return s && s.sessionId && Object.keys(s.resections).length > 0; }", timeout=60_000)
+    page, errors = open_page(browser, server)
     shown = state(page)
     assert shown["sessionId"] == sid
     version = int(shown["planVersion"])

@@ -8,7 +8,7 @@ import math
 import pytest
 import requests
 
-from browser_harness import browser, demo  # noqa: F401 (fixtures)
+from browser_harness import browser, demo, open_page  # noqa: F401 (fixtures)
 from server_harness import wait_for
 
 
@@ -36,14 +36,9 @@ def exported(server, sid):
 
 def test_a_mouse_drag_moves_a_control_point_and_undo_redo_follow(demo, browser):
     server, sid = demo
-    page = browser.new_page(viewport={"width": 1024, "height": 700})
-    errors = []
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(server.bound["page"])
-    page.wait_for_function(
-        "() => { const s = window.resecta && window.resecta.state();"
-        " return s && Object.keys(s.resections).length > 0"
-        " && window.resecta.screenPosition('r1', 1, 2) !== null; }", timeout=60_000)
+    page, errors = open_page(browser, server)
+    page.wait_for_function("() => window.resecta.screenPosition('r1', 1, 2) !== null",
+                           timeout=60_000)
     page.wait_for_timeout(300)  # the first frame framed the camera
     before = state(page)
     v0 = int(before["planVersion"])
