@@ -177,6 +177,7 @@ export class Api {
           on.status("live");
           for await (const ev of sseEvents(res.body!)) {
             attempt = 0;
+            const received = performance.now();
             const data = JSON.parse(ev.data) as unknown;
             if (ev.event === "error") throw new ApiError((data as Problem).status ?? 500, data as Problem);
             const msg = data as WatchResponse;
@@ -185,7 +186,7 @@ export class Api {
               if (!msg.snapshot.complete) continue;
               on.snapshot(joinParts(parts), msg);
               parts = [];
-            } else if (msg.delta) on.delta(msg.delta, msg);
+            } else if (msg.delta) on.delta(msg.delta, msg, received);
             else if (msg.volumes) on.volumes(msg.volumes, msg);
             if (abort.signal.aborted) break; // close() or resync() from a handler
             if (ev.id) lastSeq = ev.id;
@@ -253,7 +254,8 @@ export class Api {
 
 export interface WatchHandlers {
   snapshot(s: Snapshot, msg: WatchResponse): void;
-  delta(d: PlanDelta, msg: WatchResponse): void;
+  /** `received`: `performance.now()` when its event came, before its JSON was parsed. */
+  delta(d: PlanDelta, msg: WatchResponse, received: number): void;
   volumes(v: VolumeReport, msg: WatchResponse): void;
   /** The connection: live, reconnecting (with what went wrong, if anything) or failed for good. */
   status(s: "live" | "reconnecting" | "failed", error?: unknown): void;

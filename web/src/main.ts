@@ -10,6 +10,8 @@ import { Plan } from "./plan";
 import type { Change, PublicState } from "./plan";
 import { Scene } from "./scene";
 import type { ScreenPoint } from "./scene";
+import { RepaintTimer } from "./timings";
+import type { Timings } from "./timings";
 
 declare global {
   interface Window {
@@ -22,6 +24,8 @@ declare global {
       dragControlPoint(name: string, i: number, j: number, to: [number, number, number]): void;
       undo(): Promise<void>;
       redo(): Promise<void>;
+      /** The last deltas' times: received → applied, rendered and the frame after (timings.ts). */
+      timings(): Timings;
     };
   }
 }
@@ -30,6 +34,7 @@ const api = new Api(askToken);
 const panel = new Panel(document.getElementById("panel")!);
 const view = document.getElementById("view")!;
 const scene = new Scene(view);
+const timer = new RepaintTimer();
 let plan: Plan | null = null;
 let editor: GridEditor | null = null;
 
@@ -60,6 +65,7 @@ window.resecta = {
   dragControlPoint: (name, i, j, [x, y, z]) => editor?.move({ name, i, j }, { x, y, z } satisfies Vec3),
   undo: () => history("undo"),
   redo: () => history("redo"),
+  timings: () => timer.timings(),
 };
 
 panel.setActions(() => void history("undo"), () => void history("redo"));
@@ -102,6 +108,7 @@ function requestRender(): void {
   frame ||= requestAnimationFrame(() => {
     frame = 0;
     scene.render();
+    if (timer.render(performance.now())) requestAnimationFrame(() => timer.paint(performance.now()));
   });
 }
 
@@ -126,9 +133,10 @@ async function main(): Promise<void> {
         panel.setStatus(`Bad snapshot: ${message(e)}`, "error");
       }
     },
-    delta(d, msg) {
+    delta(d, msg, received) {
       try {
         redraw(p, p.applyDelta(d, msg));
+        timer.apply(Number(msg.planVersion ?? p.planVersion), received, performance.now());
       } catch (e) {
         panel.setStatus(`${message(e)}; asking for a fresh snapshot`, "busy");
         stream.resync();
