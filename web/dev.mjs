@@ -1,6 +1,6 @@
 // Development server: rebuilds dev-dist/ on every change and serves it, passing the API (/v1/…,
 // /healthz) through to a running `resecta serve`, so the page is same-origin as in production.
-//   node dev.mjs [--server http://127.0.0.1:8080] [--port 5173]
+//   node dev.mjs [--server http://127.0.0.1:8080] [--port 5173] [--dist]
 import { context } from "esbuild";
 import { createReadStream, existsSync } from "node:fs";
 import { copyFile, mkdir } from "node:fs/promises";
@@ -14,14 +14,19 @@ const arg = (name, fallback) => {
 const server = new URL(arg("--server", "http://127.0.0.1:8080"));
 const port = Number(arg("--port", "5173"));
 
-const out = "dev-dist"; // not dist/: that is the committed release bundle
-await mkdir(out, { recursive: true });
-const ctx = await context({
-  entryPoints: { app: "src/main.ts" }, outdir: out, bundle: true, format: "esm", platform: "browser",
-  target: "es2022", sourcemap: "inline", logLevel: "info",
-  plugins: [{ name: "html", setup: (b) => b.onEnd(() => copyFile("src/index.html", `${out}/index.html`)) }],
-});
-await ctx.watch();
+// --dist: serve the committed release bundle as it is (benchmarks); else rebuild on every change
+// into dev-dist/ (not dist/: that is the committed release bundle).
+const release = process.argv.includes("--dist");
+const out = release ? "dist" : "dev-dist";
+if (!release) {
+  await mkdir(out, { recursive: true });
+  const ctx = await context({
+    entryPoints: { app: "src/main.ts" }, outdir: out, bundle: true, format: "esm", platform: "browser",
+    target: "es2022", sourcemap: "inline", logLevel: "info",
+    plugins: [{ name: "html", setup: (b) => b.onEnd(() => copyFile("src/index.html", `${out}/index.html`)) }],
+  });
+  await ctx.watch();
+}
 
 const types = { ".html": "text/html", ".js": "text/javascript", ".css": "text/css" };
 http
