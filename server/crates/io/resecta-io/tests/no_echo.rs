@@ -65,7 +65,7 @@ fn gzip(data: &[u8]) -> Vec<u8> {
 
 /// A valid 2×2×2 `short` NRRD header with the marker in every free-text place: a comment, the
 /// free fields (`content`, `units`, labels), and a key/value pair whose key and value are both
-/// the marker. `{}` placeholders are replaced by the cases.
+/// the marker. Each of `changes` sets a field (added if absent; an empty value drops it).
 fn nrrd_header(changes: &[(&str, &str)]) -> String {
     let mut fields = vec![
         ("type", "short".to_owned()),
