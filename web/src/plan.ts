@@ -2,13 +2,14 @@
 // verdicts, the volumes; kept up to date by the watch stream's events. No DOM: testable in Node.
 
 import { base64Bytes } from "./api";
-import type { PlanDelta, Resection, Session, Snapshot, Verdict, VolumeReport, WatchResponse } from "./api";
+import type { PlanDelta, Resection, Session, Snapshot, Vec3, Verdict, VolumeReport, WatchResponse } from "./api";
 import { applyDelta, decodeMesh } from "./wire";
 import type { Mesh } from "./wire";
 
 export interface Model {
   name: string;
   kind: string; // parenchyma, tumor, portal, hepatic, vessel
+  label?: number; // the label value it was built from (tumours: the one a target names)
   rgb?: [number, number, number];
   opacity?: number;
   mesh: Mesh;
@@ -31,7 +32,10 @@ export interface Change {
 export interface PublicState {
   sessionId: string;
   planVersion: number;
-  resections: Record<string, { minMarginMm: number | null; violation: boolean; controlPoints: Resection["controlPoints"] }>;
+  resections: Record<
+    string,
+    { minMarginMm: number | null; violation: boolean; closestPoint: Vec3 | null; marginMm: number | null; bandMm: number | null; controlPoints: Resection["controlPoints"] }
+  >;
   volumes: VolumeReport | null;
 }
 
@@ -51,6 +55,7 @@ export class Plan {
     const models = (s.models ?? []).map((m): Model => {
       const c = m.color;
       const model: Model = { name: m.name, kind: kindName(m.kind), mesh: decodeMesh(base64Bytes(m.mesh ?? "")) };
+      if (m.label !== undefined) model.label = m.label;
       if (c) {
         model.rgb = [c.r ?? 0, c.g ?? 0, c.b ?? 0];
         model.opacity = c.a ?? 0;
@@ -59,7 +64,7 @@ export class Plan {
     });
     const resections = (s.resections ?? []).map((r) => [
       r.name,
-      { resection: r.resection ?? { name: r.name }, verdict: r.verdict ?? {}, mesh: r.fullMesh ? decodeMesh(base64Bytes(r.fullMesh)) : null },
+      { resection: resectionOf(r.resection ?? { name: r.name }), verdict: verdictOf(r.verdict ?? {}), mesh: r.fullMesh ? decodeMesh(base64Bytes(r.fullMesh)) : null },
     ] as const);
     this.models.clear();
     this.resections.clear();
@@ -85,8 +90,8 @@ export class Plan {
         applyDelta(mesh, base64Bytes(r.meshDelta), { inPlace: true });
       }
       this.resections.set(r.name, {
-        resection: r.resection ?? held?.resection ?? { name: r.name },
-        verdict: r.verdict ?? held?.verdict ?? {},
+        resection: r.resection ? resectionOf(r.resection) : (held?.resection ?? { name: r.name }),
+        verdict: r.verdict ? verdictOf(r.verdict) : (held?.verdict ?? {}),
         mesh,
       });
       if (r.fullMesh || r.meshDelta) change.surfaces.push(r.name);
@@ -111,6 +116,9 @@ export class Plan {
       resections[name] = {
         minMarginMm: r.verdict.minMarginMm ?? null,
         violation: r.verdict.violation ?? false,
+        closestPoint: r.verdict.point ?? null,
+        marginMm: r.resection.marginMm ?? null,
+        bandMm: r.resection.bandMm ?? null,
         controlPoints: r.resection.controlPoints ?? [],
       };
     }
@@ -126,4 +134,15 @@ export class Plan {
 /** "parenchyma", "tumor", ... of a proto `SurfaceKind` name. */
 export function kindName(kind: string | undefined): string {
   return (kind ?? "SURFACE_KIND_VESSEL").toLowerCase().replace(/^surface_kind_/, "");
+}
+
+/** A point of the proto JSON, whose zero coordinates are left out. */
+export const vec3 = (p: Partial<Vec3>): Vec3 => ({ x: p.x ?? 0, y: p.y ?? 0, z: p.z ?? 0 });
+
+function resectionOf(r: Resection): Resection {
+  return r.controlPoints ? { ...r, controlPoints: r.controlPoints.map(vec3) } : r;
+}
+
+function verdictOf(v: Verdict): Verdict {
+  return v.point ? { ...v, point: vec3(v.point) } : v;
 }
