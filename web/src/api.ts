@@ -155,6 +155,15 @@ export class Api {
   exportPlan(id: string): Promise<{ planVersion?: string; planJson: string }> {
     return this.json("GET", `/v1/sessions/${enc(id)}/plan`);
   }
+  /** Replaces the plan with a `resecta-plan/1` document, checked against `baseVersion`. */
+  importPlan(id: string, planJson: string, baseVersion: string | number): Promise<{ planVersion?: string }> {
+    return this.json("PUT", `/v1/sessions/${enc(id)}/plan`, { planJson, baseVersion: String(baseVersion) });
+  }
+  /** A model's or a resection's mesh file (`format`: MODEL_FORMAT_VTP, _STL, _PLY, _OBJ, _VTK). */
+  async exportModel(id: string, name: string, format: string): Promise<Blob> {
+    const res = await this.fetch("GET", `/v1/sessions/${enc(id)}/models/${enc(name)}?format=${enc(format)}`, undefined, {});
+    return res.blob();
+  }
   volumes(id: string): Promise<{ planVersion?: string; volumes?: VolumeReport }> {
     return this.json("GET", `/v1/sessions/${enc(id)}/volumes`);
   }

@@ -3,7 +3,7 @@
 
 import "./app.css";
 import { Api, ApiError } from "./api";
-import type { Vec3 } from "./api";
+import type { Edit, Vec3 } from "./api";
 import { GridEditor } from "./editor";
 import { askToken, Panel } from "./panel";
 import { Plan } from "./plan";
@@ -12,6 +12,7 @@ import { Scene } from "./scene";
 import type { ScreenPoint } from "./scene";
 import { RepaintTimer } from "./timings";
 import type { Timings } from "./timings";
+import { Tools } from "./tools";
 
 declare global {
   interface Window {
@@ -26,6 +27,10 @@ declare global {
       redo(): Promise<void>;
       /** The last deltas' times: received → applied, rendered and the frame after (timings.ts). */
       timings(): Timings;
+      /** Where the 3D view's camera looks (RAS mm). */
+      focalPoint(): Vec3;
+      /** The opacity and visibility surface `name` is drawn with. */
+      look(name: string): { opacity: number; visible: boolean } | null;
     };
   }
 }
@@ -37,6 +42,16 @@ const scene = new Scene(view);
 const timer = new RepaintTimer();
 let plan: Plan | null = null;
 let editor: GridEditor | null = null;
+/** The newest plan version an edit of this page was answered with. */
+let answered = 0;
+/** The page's own edits (the tools', undo, redo), one at a time in order. */
+let queue: Promise<unknown> = Promise.resolve();
+/** A resection made here, selected once the stream shows it. */
+let selectWhenShown: string | null = null;
+/** The resection whose closest point is marked. */
+let marked: string | null = null;
+/** While true the next click on the 3D view gives the new resection's end point. */
+let pickingEndPoint = false;
 
 const message = (e: unknown) => (e instanceof Error ? e.message : String(e));
 
@@ -47,16 +62,149 @@ function state(): PublicState | null {
   return s;
 }
 
+/** The newest plan version known here: shown, answered to an edit, or to a drag. */
+function knownVersion(): number {
+  return Math.max(Number(plan?.planVersion ?? 0), answered, editor?.coalescer.acceptedVersion ?? 0);
+}
+
+/** What went wrong with an edit, in words for the person planning. */
+function editFailure(e: unknown): string {
+  if (e instanceof ApiError) {
+    const p = e.problem;
+    if (e.status === 409 && p.current_version != null) {
+      return `The plan changed meanwhile (now version ${p.current_version}): your change was not applied. Look again and repeat it.`;
+    }
+    if (p.code?.startsWith("NOTHING_TO_")) return p.code === "NOTHING_TO_UNDO" ? "Nothing to undo" : "Nothing to redo";
+    return p.detail || e.message;
+  }
+  return message(e);
+}
+
+/** Sends `edit` after the page's earlier ones, against the newest version known; true when
+ * applied, otherwise the status line says why. */
+function send(edit: Edit, unchecked = false): Promise<boolean> {
+  const run = async () => {
+    if (!plan) return false;
+    try {
+      const a = await api.edit(plan.sessionId, unchecked ? 0 : knownVersion(), edit);
+      answered = Math.max(answered, Number(a.planVersion ?? 0));
+      return true;
+    } catch (e) {
+      panel.setStatus(editFailure(e), "error");
+      return false;
+    }
+  };
+  const done = queue.then(run);
+  queue = done;
+  return done;
+}
+
 /** Undo or redo: drops drag positions not yet sent, then asks the server. */
 async function history(op: "undo" | "redo"): Promise<void> {
   if (!plan || !editor) return;
   editor.cancelPending();
-  try {
-    await api.edit(plan.sessionId, 0, { [op]: {} });
-  } catch (e) {
-    panel.setStatus(e instanceof ApiError && e.problem.code?.startsWith("NOTHING_TO_") ? `Nothing to ${op}` : message(e), "error");
-  }
+  await send({ [op]: {} }, true);
 }
+
+/** Offers `blob` as a download named `name`. */
+function download(blob: Blob, name: string): void {
+  const url = URL.createObjectURL(blob);
+  const a = document.createElement("a");
+  a.href = url;
+  a.download = name;
+  a.click();
+  setTimeout(() => URL.revokeObjectURL(url), 10_000);
+}
+
+/** Marks resection `name`'s closest point to its tumour and, with `turn`, looks at it. */
+function showClosest(name: string, turn: boolean): void {
+  const v = plan?.resections.get(name)?.verdict;
+  if (!v?.point || v.minMarginMm == null) {
+    scene.mark(null);
+    marked = null;
+    if (turn) panel.setStatus(`No part of ${name} is inside the liver`, "error");
+    return;
+  }
+  marked = name;
+  scene.mark(v.point, 1.5);
+  if (turn) {
+    scene.focus(v.point, 120);
+    panel.setStatus(`${name}: ${v.minMarginMm.toFixed(1)} mm from the tumour at its closest point (marked)`);
+  }
+  requestRender();
+}
+
+const tools = new Tools({
+  edit: (e) => send(e),
+  showClosest: (name) => showClosest(name, true),
+  pickEndPoint() {
+    pickingEndPoint = true;
+    view.style.cursor = "crosshair";
+    panel.setStatus("Click the liver in the 3D view where the resection should end (Esc: cancel)", "busy");
+  },
+  setLook(name, look) {
+    scene.setLook(name, look);
+    requestRender();
+  },
+  look: (name) => scene.look(name),
+  async exportModel(name, format) {
+    if (!plan) return;
+    try {
+      download(await api.exportModel(plan.sessionId, name, format), `${name}.${format.replace("MODEL_FORMAT_", "").toLowerCase()}`);
+    } catch (e) {
+      panel.setStatus(`Export failed: ${editFailure(e)}`, "error");
+    }
+  },
+  async savePlan() {
+    if (!plan) return;
+    try {
+      const { planJson, planVersion } = await api.exportPlan(plan.sessionId);
+      download(new Blob([planJson], { type: "application/json" }), `plan-v${planVersion ?? "0"}.json`);
+    } catch (e) {
+      panel.setStatus(`Saving the plan failed: ${editFailure(e)}`, "error");
+    }
+  },
+  async loadPlan(file) {
+    if (!plan) return;
+    if (file.size > 16 << 20) return panel.setStatus("That file is larger than a plan can be (16 MiB)", "error");
+    const text = await file.text();
+    const id = plan.sessionId;
+    const done = queue.then(async () => {
+      try {
+        const { planVersion } = await api.importPlan(id, text, knownVersion());
+        answered = Math.max(answered, Number(planVersion ?? 0));
+        panel.setStatus(`Plan loaded: version ${planVersion ?? "?"}`);
+      } catch (e) {
+        panel.setStatus(`The plan was not loaded: ${editFailure(e)}`, "error");
+      }
+    });
+    queue = done;
+    await done;
+  },
+  report: (text, kind) => panel.setStatus(text, kind),
+});
+tools.onCreated = (name) => {
+  if (plan?.resections.has(name)) panel.onSelect(name);
+  else selectWhenShown = name; // the stream has not shown it yet
+};
+panel.root.append(tools.root);
+
+view.addEventListener(
+  "pointerdown",
+  (e) => {
+    if (!pickingEndPoint || e.button !== 0) return;
+    e.stopPropagation();
+    e.preventDefault();
+    const names = plan ? [...plan.models.values()].filter((m) => m.kind === "parenchyma").map((m) => m.name) : [];
+    const p = scene.pickSurface(e.clientX, e.clientY, names.length ? names : scene.names());
+    if (!p) return panel.setStatus("That is not on the liver: click its surface (Esc: cancel)", "busy");
+    pickingEndPoint = false;
+    view.style.cursor = "";
+    tools.setEndPoint(p);
+    panel.setStatus("End point set: choose the tumour and Create");
+  },
+  { capture: true },
+);
 
 window.resecta = {
   state,
@@ -66,10 +214,18 @@ window.resecta = {
   undo: () => history("undo"),
   redo: () => history("redo"),
   timings: () => timer.timings(),
+  focalPoint: () => scene.focalPoint(),
+  look: (name) => scene.look(name),
 };
 
 panel.setActions(() => void history("undo"), () => void history("redo"));
 document.addEventListener("keydown", (e) => {
+  if (e.key === "Escape" && pickingEndPoint) {
+    pickingEndPoint = false;
+    view.style.cursor = "";
+    panel.setStatus("Picking cancelled");
+    return;
+  }
   if (!(e.ctrlKey || e.metaKey) || e.altKey || e.target instanceof HTMLInputElement) return;
   const key = e.key.toLowerCase();
   const op = key === "z" ? (e.shiftKey ? "redo" : "undo") : key === "y" && !e.shiftKey ? "redo" : null;
@@ -98,9 +254,15 @@ function redraw(p: Plan, change: Change): void {
     if (model) scene.show(name, model.mesh, model);
     else if (r?.mesh) scene.show(name, r.mesh, { kind: "resection" });
   }
+  if (selectWhenShown && p.resections.has(selectWhenShown) && editor) {
+    editor.selected = selectWhenShown;
+    selectWhenShown = null;
+  }
   editor?.refresh();
   panel.selected = editor?.selected ?? null;
   panel.show(p);
+  tools.update(p, panel.selected);
+  if (marked) showClosest(marked, false);
   requestRender();
 }
 
@@ -122,13 +284,18 @@ async function main(): Promise<void> {
     e.select(name);
     panel.selected = name;
     panel.show(p);
+    tools.update(p, name);
   };
   panel.setStatus("Loading the session…", "busy");
+  let lost = false;
+  let opened = false;
   const stream = api.watch(id, {
     snapshot(s, msg) {
       try {
         redraw(p, p.applySnapshot(s, msg));
-        panel.setStatus(p.models.size ? "Live" : "Live: no models yet (reconstruct them first)");
+        // Later snapshots (after an import, a resync) keep what the status line says.
+        if (!opened || !p.models.size) panel.setStatus(p.models.size ? "Live" : "Live: no models yet (reconstruct them first)");
+        opened = true;
       } catch (e) {
         panel.setStatus(`Bad snapshot: ${message(e)}`, "error");
       }
@@ -147,10 +314,19 @@ async function main(): Promise<void> {
       panel.show(p);
     },
     status(s, e) {
-      if (s === "reconnecting") panel.setStatus(`Reconnecting…${e ? ` (${message(e)})` : ""}`, "busy");
-      else if (s === "failed") panel.setStatus(message(e), "error");
+      if (s === "live" && lost) panel.setStatus("Live again: reconnected to the server");
+      if (s === "reconnecting") panel.setStatus("Connection to the server lost: reconnecting…", "busy");
+      else if (s === "failed") panel.setStatus(streamFailure(e), "error");
+      lost = s !== "live";
     },
   });
+}
+
+/** Why the watch stream stopped for good, in words. */
+function streamFailure(e: unknown): string {
+  if (e instanceof ApiError && e.status === 401) return "The server refused the token: reload the page to enter it again";
+  if (e instanceof ApiError && e.status === 404) return "This session is no longer on the server (deleted or expired)";
+  return `The live view stopped: ${message(e)}`;
 }
 
 main().catch((e: unknown) => {

@@ -6,7 +6,7 @@ import type { Plan } from "./plan";
 
 type Child = Node | string;
 
-function h(tag: string, attrs: Record<string, string> = {}, ...children: Child[]): HTMLElement {
+export function h(tag: string, attrs: Record<string, string> = {}, ...children: Child[]): HTMLElement {
   const el = document.createElement(tag);
   for (const [k, v] of Object.entries(attrs)) el.setAttribute(k, v);
   el.append(...children);

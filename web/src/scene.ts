@@ -8,6 +8,7 @@ import vtkPolyData from "@kitware/vtk.js/Common/DataModel/PolyData";
 import vtkSphereSource from "@kitware/vtk.js/Filters/Sources/SphereSource";
 import vtkInteractorStyleTrackballCamera from "@kitware/vtk.js/Interaction/Style/InteractorStyleTrackballCamera";
 import vtkActor from "@kitware/vtk.js/Rendering/Core/Actor";
+import vtkCellPicker from "@kitware/vtk.js/Rendering/Core/CellPicker";
 import vtkMapper from "@kitware/vtk.js/Rendering/Core/Mapper";
 import { ColorMode, ScalarMode } from "@kitware/vtk.js/Rendering/Core/Mapper/Constants";
 import vtkRenderer from "@kitware/vtk.js/Rendering/Core/Renderer";
@@ -45,6 +46,8 @@ export interface SurfaceStyle {
 
 /** The control grid's colour (spheres and lines). */
 const GRID_RGB: Rgb = [1.0, 0.78, 0.1];
+/** The closest point's marker. */
+const MARKER_RGB: Rgb = [1.0, 0.1, 0.6];
 
 /** A point on the page: client (CSS) pixels, and the normalised depth there (0 near, 1 far). */
 export interface ScreenPoint {
@@ -70,6 +73,10 @@ export class Scene {
   private readonly gl = vtkOpenGLRenderWindow.newInstance();
   private readonly spheres = gridActor(2);
   private readonly lines = gridActor(2);
+  private readonly marker = gridActor(1, MARKER_RGB);
+  private readonly picker = vtkCellPicker.newInstance({ tolerance: 0 });
+  /** Opacity and visibility the person set per surface name; kept across snapshots. */
+  private readonly looks = new Map<string, { opacity?: number; visible?: boolean }>();
 
   /** A render window filling `container` (vtk.js's FullScreenRenderWindow, WebGL only). */
   constructor(container: HTMLElement) {
@@ -131,6 +138,9 @@ export class Scene {
     actor.getProperty().setColor(...(style.rgb ?? rgb));
     actor.getProperty().setOpacity(style.opacity ?? opacity);
     if (colors) actor.setForceTranslucent(true);
+    const look = this.looks.get(name);
+    if (look?.opacity !== undefined) actor.getProperty().setOpacity(look.opacity);
+    if (look?.visible !== undefined) actor.setVisibility(look.visible);
     const entry: Entry = { mesh, polyData, actor, colors };
     this.entries.set(name, entry);
     this.paintClasses(entry);
@@ -159,6 +169,68 @@ export class Scene {
 
   clear(): void {
     for (const name of this.names()) this.remove(name);
+  }
+
+  /** The opacity (0..1) and visibility of surface `name`, now and after it is replaced. */
+  setLook(name: string, look: { opacity?: number; visible?: boolean }): void {
+    const kept = { ...this.looks.get(name), ...look };
+    this.looks.set(name, kept);
+    const actor = this.entries.get(name)?.actor;
+    if (kept.opacity !== undefined) actor?.getProperty().setOpacity(kept.opacity);
+    if (kept.visible !== undefined) actor?.setVisibility(kept.visible);
+  }
+
+  /** The opacity and visibility surface `name` is drawn with. */
+  look(name: string): { opacity: number; visible: boolean } | null {
+    const actor = this.entries.get(name)?.actor;
+    return actor ? { opacity: actor.getProperty().getOpacity(), visible: actor.getVisibility() } : null;
+  }
+
+  /** Marks `p` (a resection's closest point to its tumour) with a red sphere; null hides it. */
+  mark(p: Vec3 | null, radius = 2): void {
+    const shown = this.renderer.hasViewProp(this.marker.actor);
+    if (!p) {
+      if (shown) this.renderer.removeActor(this.marker.actor);
+      return;
+    }
+    setSpheres(this.marker.polyData, [p], radius);
+    if (!shown) this.renderer.addActor(this.marker.actor);
+  }
+
+  /** Turns the camera to look at `p` from where it looks now, from `distance` mm. */
+  focus(p: Vec3, distance: number): void {
+    const camera = this.renderer.getActiveCamera();
+    const [px, py, pz] = camera.getPosition();
+    const [fx, fy, fz] = camera.getFocalPoint();
+    const d = Math.hypot(px - fx, py - fy, pz - fz) || 1;
+    camera.setFocalPoint(p.x, p.y, p.z);
+    camera.setPosition(p.x + ((px - fx) / d) * distance, p.y + ((py - fy) / d) * distance, p.z + ((pz - fz) / d) * distance);
+    this.renderer.resetCameraClippingRange();
+    this.framed = true;
+  }
+
+  /** The camera's focal point (RAS mm). */
+  focalPoint(): Vec3 {
+    const [x, y, z] = this.renderer.getActiveCamera().getFocalPoint();
+    return { x, y, z };
+  }
+
+  /** The point of one of the surfaces `names` drawn at page position (`x`, `y`), nearest the
+   * camera; null where none is. */
+  pickSurface(x: number, y: number, names: readonly string[]): Vec3 | null {
+    const { rect, scale } = this.frame();
+    const actors = names.flatMap((n) => {
+      const a = this.entries.get(n)?.actor;
+      return a && a.getVisibility() ? [a] : [];
+    });
+    if (!actors.length) return null;
+    this.picker.setPickFromList(true);
+    this.picker.initializePickList();
+    for (const a of actors) this.picker.addPickList(a);
+    this.picker.pick([(x - rect.left) * scale, (rect.bottom - y) * scale, 0], this.renderer);
+    if (!this.picker.getActors().length) return null;
+    const [px, py, pz] = this.picker.getPickPosition();
+    return { x: px, y: py, z: pz };
   }
 
   /** Shows the control grid `points` (row-major, `m` × `n`) as spheres joined by lines, or
@@ -220,13 +292,13 @@ export class Scene {
   }
 }
 
-function gridActor(lineWidth: number): { polyData: PolyData; actor: ReturnType<typeof vtkActor.newInstance> } {
+function gridActor(lineWidth: number, rgb: Rgb = GRID_RGB): { polyData: PolyData; actor: ReturnType<typeof vtkActor.newInstance> } {
   const polyData = vtkPolyData.newInstance();
   const mapper = vtkMapper.newInstance({ scalarVisibility: false });
   mapper.setInputData(polyData);
   const actor = vtkActor.newInstance();
   actor.setMapper(mapper);
-  actor.getProperty().setColor(...GRID_RGB);
+  actor.getProperty().setColor(...rgb);
   actor.getProperty().setLineWidth(lineWidth);
   actor.setPickable(false);
   return { polyData, actor };
