@@ -95,3 +95,37 @@ def test_a_mouse_drag_moves_a_control_point_and_undo_redo_follow(demo, browser):
     assert plan["r1"]["control_points"][6] == pytest.approx(moved, abs=1e-9)
     assert not errors, errors
     page.close()
+
+
+def test_a_shift_drag_moves_the_grabbed_points_group(demo, browser):
+    """Shift+drag on an inner point moves the four inner points by one displacement, as one
+    edit per coalesced position; the border ring stays."""
+    server, sid = demo
+    page, errors = open_page(browser, server)
+    page.wait_for_function("() => window.resecta.screenPosition('r1', 2, 1) !== null",
+                           timeout=60_000)
+    page.wait_for_timeout(300)
+    v0, plan = exported(server, sid)
+    grid = plan["r1"]["control_points"]
+    at = page.evaluate("window.resecta.screenPosition('r1', 2, 1)")
+    page.keyboard.down("Shift")
+    page.mouse.move(at["x"], at["y"])
+    page.mouse.down()
+    for k in range(1, 9):
+        page.mouse.move(at["x"] - 3 * k, at["y"] + 4 * k)
+    page.mouse.up()
+    page.keyboard.up("Shift")
+    wait_version_above(page, v0)
+    shown = page.evaluate("window.resecta.state().resections.r1.controlPoints[9]")
+    wait_for(lambda: exported(server, sid)[1]["r1"]["control_points"][9] == pytest.approx(
+        [shown["x"], shown["y"], shown["z"]], abs=1e-6), timeout=15)
+    _, plan = exported(server, sid)
+    after = plan["r1"]["control_points"]
+    d = [a - b for a, b in zip(after[9], grid[9])]
+    assert math.hypot(*d) > 1.0, "the group did not move"
+    inner = {5, 6, 9, 10}
+    for k in range(16):
+        want = [g + (dk if k in inner else 0.0) for g, dk in zip(grid[k], d)]
+        assert after[k] == pytest.approx(want, abs=1e-6), k
+    assert not errors, errors
+    page.close()

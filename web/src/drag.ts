@@ -1,25 +1,31 @@
 // Coalescing of control-point edits while a point is dragged (as the Slicer module's
 // ResectaLib/coalesce.py): at most one edit in flight; while one is, further positions are
 // parked, one per control point, the latest replacing the earlier; when the edit in flight is
-// answered the parked ones are sent, oldest point first. Each edit carries the newest plan
+// answered the parked ones are sent, oldest point first. A group drag parks the whole grid under
+// the key i = j = -1 and sends it as one `setControlPoints`. Each edit carries the newest plan
 // version known; a stale-version answer (409 with `current_version`) re-bases and the position
 // is sent again, unless a newer one for that point is parked. No DOM: testable in Node.
 
 import { ApiError } from "./api";
 import type { EditResponse, Vec3 } from "./api";
 
+/** Control point P_ij of resection `name`; i = j = -1: all its points (a group drag). */
 export interface ControlPointKey {
   name: string;
   i: number;
   j: number;
 }
 
-/** Sends one `setControlPoint` edit against `baseVersion`; resolves with the server's answer. */
-export type SendControlPoint = (key: ControlPointKey, point: Vec3, baseVersion: string) => Promise<EditResponse>;
+/** One point's position, or every point of the grid (row-major) for the key i = j = -1. */
+export type DragValue = Vec3 | Vec3[];
+
+/** Sends one `setControlPoint` (or `setControlPoints`) edit against `baseVersion`; resolves
+ * with the server's answer. */
+export type SendControlPoint = (key: ControlPointKey, point: DragValue, baseVersion: string) => Promise<EditResponse>;
 
 interface Parked {
   key: ControlPointKey;
-  point: Vec3;
+  point: DragValue;
   retries: number;
 }
 
@@ -71,7 +77,7 @@ export class DragCoalescer {
   }
 
   /** A new position of a control point: sent now when idle, else parked. */
-  push(key: ControlPointKey, point: Vec3): void {
+  push(key: ControlPointKey, point: DragValue): void {
     this.counts.pushed++;
     this.park({ key, point, retries: 0 });
     if (!this.inFlight) this.next();

@@ -2,11 +2,13 @@
 // with the mouse (the control point drawn nearest the pointer, within a few pixels) and dragged
 // in the camera's view plane. A drag sends `setControlPoint` edits through the coalescer and
 // shows the dragged position at once; the server's answer comes back on the watch stream.
+// Shift+drag moves the grabbed point's group with it (thesis Sec. 7.3.6: an inner point moves
+// the inner points, a border point the outer ring), sent as whole grids (`setControlPoints`).
 // Elsewhere the pointer rotates the camera as before.
 
 import type { Api, Vec3 } from "./api";
 import { DragCoalescer } from "./drag";
-import type { ControlPointKey } from "./drag";
+import type { ControlPointKey, DragValue } from "./drag";
 import type { Plan } from "./plan";
 import type { Scene, ScreenPoint } from "./scene";
 
@@ -15,6 +17,8 @@ const GRAB_PX = 14;
 
 interface Drag {
   key: ControlPointKey;
+  /** A group drag: the grid as it was when grabbed. */
+  groupStart: Vec3[] | null;
   pointerId: number;
   grabbed: ScreenPoint; // where the point was drawn when grabbed
   offset: { x: number; y: number }; // pointer minus that
@@ -35,8 +39,12 @@ export class GridEditor {
     private readonly redraw: () => void,
     private readonly report: (error: unknown) => void,
   ) {
-    this.coalescer = new DragCoalescer((k, point, base) =>
-      api.edit(plan.sessionId, base, { setControlPoint: { name: k.name, i: k.i, j: k.j, point } }),
+    this.coalescer = new DragCoalescer((k, value: DragValue, base) =>
+      api.edit(
+        plan.sessionId,
+        base,
+        Array.isArray(value) ? { setControlPoints: { name: k.name, points: value } } : { setControlPoint: { name: k.name, i: k.i, j: k.j, point: value } },
+      ),
     );
     this.coalescer.onAnswer = (e) => e && report(e);
     this.coalescer.onIdle = () => {
@@ -100,6 +108,26 @@ export class GridEditor {
     this.redraw();
   }
 
+  /** Moves the group of P_ij of `name` (inner points or outer ring) so that P_ij goes to
+   * `to`, from the grid `start` (what a Shift+drag does). */
+  moveGroup(key: ControlPointKey, to: Vec3, start: Vec3[] = this.shownPoints(key.name)): void {
+    const r = this.plan.resections.get(key.name)?.resection;
+    const m = r?.gridM ?? 0, n = r?.gridN ?? 0;
+    const from = start[key.i * n + key.j];
+    if (!r || !from || key.i < 0 || key.j < 0 || key.i >= m || key.j >= n) {
+      throw new RangeError(`no control point (${key.i}, ${key.j}) in resection ${JSON.stringify(key.name)}`);
+    }
+    const members = groupOf(key.i, key.j, m, n);
+    const d = { x: to.x - from.x, y: to.y - from.y, z: to.z - from.z };
+    const points = start.map((p, k) => (members.includes(k) ? { x: p.x + d.x, y: p.y + d.y, z: p.z + d.z } : p));
+    let local = this.local.get(key.name);
+    if (!local) this.local.set(key.name, (local = new Map()));
+    for (const k of members) local.set(k, points[k]!);
+    this.coalescer.push({ name: key.name, i: -1, j: -1 }, points);
+    this.refresh();
+    this.redraw();
+  }
+
   /** Forgets positions not yet sent (before an undo or a redo). */
   cancelPending(): void {
     this.coalescer.clear();
@@ -129,13 +157,14 @@ export class GridEditor {
   }
 
   private pointerDown(e: PointerEvent): void {
-    if (e.button !== 0 || e.ctrlKey || e.shiftKey || e.altKey || e.metaKey) return;
+    if (e.button !== 0 || e.ctrlKey || e.altKey || e.metaKey) return;
     const hit = this.pick(e.clientX, e.clientY);
-    if (!hit) return; // the camera's
+    if (!hit) return; // the camera's (Shift+drag pans)
+    const groupStart = e.shiftKey ? this.shownPoints(hit.key.name) : null;
     e.stopPropagation();
     e.preventDefault();
     this.container.setPointerCapture?.(e.pointerId);
-    this.drag = { key: hit.key, pointerId: e.pointerId, grabbed: hit.at, offset: { x: e.clientX - hit.at.x, y: e.clientY - hit.at.y } };
+    this.drag = { key: hit.key, groupStart, pointerId: e.pointerId, grabbed: hit.at, offset: { x: e.clientX - hit.at.x, y: e.clientY - hit.at.y } };
     this.container.style.cursor = "grabbing";
   }
 
@@ -150,7 +179,8 @@ export class GridEditor {
     e.preventDefault();
     const to = this.scene.fromScreen({ x: e.clientX - d.offset.x, y: e.clientY - d.offset.y, depth: d.grabbed.depth });
     try {
-      this.move(d.key, to);
+      if (d.groupStart) this.moveGroup(d.key, to, d.groupStart);
+      else this.move(d.key, to);
     } catch (err) {
       this.report(err);
     }
@@ -166,4 +196,14 @@ export class GridEditor {
     this.refresh();
     this.redraw();
   }
+}
+
+/** The indices (row-major) of the group of P_ij in an m × n grid: the border ring when P_ij is
+ * on it, else the points inside it (ControlGroup OUTER / INNER). */
+export function groupOf(i: number, j: number, m: number, n: number): number[] {
+  const border = (a: number, b: number) => a === 0 || b === 0 || a === m - 1 || b === n - 1;
+  const outer = border(i, j);
+  const out: number[] = [];
+  for (let a = 0; a < m; a++) for (let b = 0; b < n; b++) if (border(a, b) === outer) out.push(a * n + b);
+  return out;
 }

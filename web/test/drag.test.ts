@@ -6,11 +6,12 @@ import { test } from "node:test";
 import { ApiError } from "../src/api";
 import type { EditResponse, Vec3 } from "../src/api";
 import { DragCoalescer } from "../src/drag";
-import type { ControlPointKey } from "../src/drag";
+import type { ControlPointKey, DragValue } from "../src/drag";
+import { groupOf } from "../src/editor";
 
 interface Call {
   key: ControlPointKey;
-  point: Vec3;
+  point: DragValue;
   base: string;
   resolve(a: EditResponse): void;
   reject(e: unknown): void;
@@ -41,7 +42,7 @@ test("one edit in flight; the latest parked position per point wins, oldest poin
   assert.equal(calls.length, 1);
   assert.deepEqual([calls[0]!.point, calls[0]!.base], [at(1), "3"]);
   assert.equal(c.busyWith("r1"), true);
-  assert.deepEqual([...c.pendingPoints("r1").values()].map((p) => p.point.x), [3, 10]);
+  assert.deepEqual([...c.pendingPoints("r1").values()].map((p) => (p.point as Vec3).x), [3, 10]);
   calls[0]!.resolve({ planVersion: "4" });
   await tick();
   assert.equal(calls.length, 2);
@@ -99,4 +100,23 @@ test("the watch stream's version only moves the base forward; other errors are r
   assert.equal(errors.length, 1);
   assert.equal(c.busy, false);
   assert.equal(c.counts.failed, 1);
+});
+
+test("a group drag parks whole grids under one key, the latest replacing the earlier", async () => {
+  const { c, calls } = harness();
+  const all = { name: "r1", i: -1, j: -1 };
+  c.push(all, [at(1), at(2)]);
+  c.push(all, [at(3), at(4)]);
+  c.push(all, [at(5), at(6)]);
+  assert.equal(calls.length, 1);
+  calls[0]!.resolve({ planVersion: "2" });
+  await tick();
+  assert.deepEqual([calls[1]!.key, calls[1]!.point, calls[1]!.base], [all, [at(5), at(6)], "2"]);
+  assert.equal(c.counts.replaced, 1);
+});
+
+test("groups of a 4 × 4 grid: the 12 border points, the 4 inner ones", () => {
+  assert.deepEqual(groupOf(0, 2, 4, 4), [0, 1, 2, 3, 4, 7, 8, 11, 12, 13, 14, 15]);
+  assert.deepEqual(groupOf(2, 1, 4, 4), [5, 6, 9, 10]);
+  assert.deepEqual(groupOf(1, 1, 3, 5), [6, 7, 8]);
 });
