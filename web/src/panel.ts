@@ -101,7 +101,9 @@ function volumesTable(v: VolumeReport, stale: boolean): HTMLElement {
     ]),
   ];
   const out = h("div", {}, table(["", "volume", "share"], rows));
-  if (v.flrWarning) out.append(h("p", { class: "bad" }, `Remnant below ${pct(v.flrThresholdPct)}`));
+  if (v.flrWarning) {
+    out.append(h("p", { class: "bad flr", role: "alert" }, `⚠ Future liver remnant ${pct(v.remnantPct)} is below ${pct(v.flrThresholdPct)}`));
+  }
   if (v.complete === false) out.append(h("p", { class: "muted" }, "Some cut is incomplete."));
   if (stale) out.append(h("p", { class: "muted" }, "Recomputing…"));
   return out;
