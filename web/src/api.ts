@@ -13,6 +13,68 @@ export interface Session {
   lastAccessMs?: string;
   state?: string; // SESSION_STATE_*
   planVersion?: string;
+  labelMap?: LabelMapSummary; // absent while SESSION_STATE_EMPTY
+}
+
+/** Label values per role (`RoleMap`); a role left out has none. */
+export interface RoleMap {
+  parenchyma?: number[];
+  tumor?: number[];
+  portal?: number[];
+  hepatic?: number[];
+  vessel?: number[];
+}
+
+export interface LabelMapSummary {
+  dims?: number[];
+  spacing?: number[];
+  origin?: number[];
+  direction?: number[];
+  roles?: RoleMap;
+  labels?: { label: number; voxels?: string; volumeMl?: number }[];
+  liverVolumeMl?: number;
+}
+
+/** `FileLabelMapHeader` less the session and the length (the path and the body give them). */
+export interface FileHeader {
+  format: string; // LABEL_MAP_FORMAT_*
+  roles?: RoleMap;
+}
+
+export interface ReconstructRequest {
+  method?: string; // RECONSTRUCTION_METHOD_*
+  options?: { psrDepth?: number; smoothing?: number; decimation?: number; splitComponents?: boolean; minComponentMm3?: number };
+}
+
+export interface ModelInfo {
+  name: string;
+  kind?: string;
+  label?: number;
+  triangleCount?: string;
+  vertexCount?: string;
+  volumeMl?: number;
+  method?: string;
+}
+
+export interface ReconstructDone {
+  modelCount?: number;
+  elapsedS?: number;
+  dropped?: { kind?: string; count?: number; volumeMl?: number }[];
+  minComponentMm3?: number;
+}
+
+/** One event of a reconstruction (`ReconstructResponse`): exactly one field is set. */
+export interface ReconstructEvent {
+  progress?: { stage?: string; fraction?: number };
+  model?: ModelInfo;
+  done?: ReconstructDone;
+}
+
+/** `GetServerInfo`'s limits the page checks against (64-bit ones as decimal strings). */
+export interface ServerLimits {
+  maxUploadBytes?: string;
+  minPsrDepth?: number;
+  maxPsrDepth?: number;
 }
 
 export interface Resection {
@@ -121,6 +183,12 @@ export class ApiError extends Error {
   }
 }
 
+/** What went wrong, for people: a problem's text (its detail, else its title), else the message. */
+export function problemText(e: unknown): string {
+  if (e instanceof ApiError) return e.problem.detail || e.problem.title || e.message;
+  return e instanceof Error ? e.message : String(e);
+}
+
 const TOKEN_KEY = "resecta.token";
 /** The decoder (wire.ts) reads compressed and quantised meshes: a server may send them. */
 const WATCH_QUERY = "allowZstd=true&allowQuantized=true";
@@ -147,6 +215,51 @@ export class Api {
   }
   getSession(id: string): Promise<{ session: Session }> {
     return this.json("GET", `/v1/sessions/${enc(id)}`);
+  }
+  info(): Promise<{ serverVersion?: string; capabilities?: string[]; limits?: ServerLimits }> {
+    return this.json("GET", "/v1/info");
+  }
+  /** Uploads a label-map file (`UploadLabelMap`) with XMLHttpRequest, which, unlike `fetch`,
+   * reports the upload's progress; the token as `fetch` sends it, asked for on a 401. */
+  async uploadLabelMap(
+    id: string,
+    file: Blob,
+    header: FileHeader,
+    onProgress: (sent: number, total: number) => void,
+  ): Promise<{ labelMap?: LabelMapSummary }> {
+    const url = `${this.base}/v1/sessions/${enc(id)}/label-map?file=${enc(JSON.stringify(header))}`;
+    for (let retry = false; ; retry = true) {
+      const { headers, token } = this.headers({ "content-type": "application/octet-stream" });
+      const xhr = new XMLHttpRequest();
+      const loaded = new Promise<void>((resolve, reject) => {
+        xhr.upload.onprogress = (e) => onProgress(e.loaded, e.lengthComputable ? e.total : file.size);
+        xhr.onload = () => resolve();
+        xhr.onerror = () => reject(new TypeError("the upload failed (network error)"));
+      });
+      xhr.open("PUT", url);
+      for (const [k, v] of Object.entries(headers)) xhr.setRequestHeader(k, v);
+      xhr.send(file);
+      await loaded;
+      if (xhr.status >= 200 && xhr.status < 300) return JSON.parse(xhr.responseText) as { labelMap?: LabelMapSummary };
+      const problem = problemOf(xhr.status, xhr.statusText, xhr.responseText);
+      if (xhr.status !== 401) throw new ApiError(xhr.status, problem);
+      await this.renewToken(token, retry, problem);
+    }
+  }
+  /** Builds the models (`Reconstruct`): its events as they come, until `done`. Aborting
+   * `signal` closes the request, and the server cancels the reconstruction. */
+  async *reconstruct(id: string, req: ReconstructRequest, signal?: AbortSignal): AsyncGenerator<ReconstructEvent> {
+    const res = await this.fetch("POST", `/v1/sessions/${enc(id)}/reconstruct`, JSON.stringify(req), {
+      "content-type": "application/json",
+      accept: "text/event-stream",
+    }, signal);
+    for await (const ev of sseEvents(res.body!)) {
+      const data = JSON.parse(ev.data) as unknown;
+      if (ev.event === "error") throw new ApiError((data as Problem).status ?? 500, data as Problem);
+      yield data as ReconstructEvent;
+      if ((data as ReconstructEvent).done) return;
+    }
+    throw new ApiError(502, { title: "The reconstruction stream ended before its done event" });
   }
   /** Applies one edit made against `baseVersion` (0: unchecked; a stale one gets a 409). */
   edit(id: string, baseVersion: string | number, edit: Edit): Promise<EditResponse> {
@@ -239,25 +352,37 @@ export class Api {
     method: string,
     path: string,
     body: string | undefined,
-    headers: Record<string, string>,
+    extra: Record<string, string>,
     signal?: AbortSignal,
   ): Promise<Response> {
     for (let retry = false; ; retry = true) {
-      const token = this.tokens.getItem(TOKEN_KEY);
-      const h: Record<string, string> = { "resecta-api-version": "v1", ...headers };
-      if (token) h["authorization"] = `Bearer ${token}`;
-      const init: RequestInit = { method, headers: h };
+      const { headers, token } = this.headers(extra);
+      const init: RequestInit = { method, headers };
       if (body !== undefined) init.body = body;
       if (signal) init.signal = signal;
       const res = await fetch(this.base + path, init);
       if (res.ok) return res;
-      const problem = await readProblem(res);
+      const problem = problemOf(res.status, res.statusText, await res.text().catch(() => ""));
       if (res.status !== 401) throw new ApiError(res.status, problem);
-      this.asking ??= this.askToken(token !== null || retry).finally(() => (this.asking = null));
-      const given = await this.asking;
-      if (!given) throw new ApiError(401, problem);
-      this.tokens.setItem(TOKEN_KEY, given);
+      await this.renewToken(token, retry, problem);
     }
+  }
+
+  /** A request's headers: the API version, the token kept (if any) and `extra`. */
+  private headers(extra: Record<string, string>): { headers: Record<string, string>; token: string | null } {
+    const token = this.tokens.getItem(TOKEN_KEY);
+    const headers: Record<string, string> = { "resecta-api-version": "v1", ...extra };
+    if (token) headers["authorization"] = `Bearer ${token}`;
+    return { headers, token };
+  }
+
+  /** After a 401 to a request sent with `token`: asks for the token (once at a time) and keeps
+   * it; throws the 401 when the person declines. */
+  private async renewToken(token: string | null, retry: boolean, problem: Problem): Promise<void> {
+    this.asking ??= this.askToken(token !== null || retry).finally(() => (this.asking = null));
+    const given = await this.asking;
+    if (!given) throw new ApiError(401, problem);
+    this.tokens.setItem(TOKEN_KEY, given);
   }
 }
 
@@ -341,12 +466,12 @@ export function base64Bytes(b64: string): Uint8Array {
   return out;
 }
 
-async function readProblem(res: Response): Promise<Problem> {
-  const text = await res.text().catch(() => "");
+/** The problem of an error answer's body (or one made of its status when it is not JSON). */
+function problemOf(status: number, statusText: string, text: string): Problem {
   try {
     return JSON.parse(text) as Problem;
   } catch {
-    return { status: res.status, title: res.statusText, detail: text.slice(0, 200) };
+    return { status, title: statusText, detail: text.slice(0, 200) };
   }
 }
 
