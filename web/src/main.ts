@@ -240,8 +240,8 @@ async function chooseSession(): Promise<string> {
   if (given) return given;
   const { sessions = [] } = await api.listSessions();
   if (sessions.length === 1) return sessions[0]!.id;
-  panel.setStatus(`${sessions.length} sessions: pick one`);
-  return panel.pickSession(sessions);
+  panel.setStatus(sessions.length ? `${sessions.length} sessions: pick one or make one` : "No session yet: make one");
+  return panel.pickSession(sessions, async (name) => (await api.createSession(name)).session.id);
 }
 
 let frame = 0;

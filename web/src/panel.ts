@@ -1,6 +1,7 @@
 // The side panel (session, plan version, verdicts, volumes, status) and the small forms: the
 // session picker and the bearer-token prompt. Plain DOM; text is always set as text.
 
+import { problemText } from "./api";
 import type { Session, VolumeReport } from "./api";
 import type { Plan } from "./plan";
 
@@ -72,8 +73,9 @@ export class Panel {
     );
   }
 
-  /** Lets the person pick one of `sessions`; resolves with its id. */
-  pickSession(sessions: Session[]): Promise<string> {
+  /** Lets the person pick one of `sessions`, or name a new one that `create` makes (resolving
+   * with its id); resolves with the id of the session to open. */
+  pickSession(sessions: Session[], create: (displayName: string) => Promise<string>): Promise<string> {
     return new Promise((resolve) => {
       const items = sessions.map((s) => {
         const b = h("button", { type: "button" }, s.displayName || s.id);
@@ -81,10 +83,34 @@ export class Panel {
         b.onclick = () => resolve(s.id);
         return h("li", {}, b);
       });
+      const name = h("input", { id: "new-session-name", required: "", autocomplete: "off" }) as HTMLInputElement;
+      const submit = h("button", { type: "submit" }, "Create and open") as HTMLButtonElement;
+      const said = h("p", { class: "bad", role: "alert" });
+      const form = h(
+        "form",
+        { class: "new-session", "aria-label": "New session" },
+        h("label", { for: "new-session-name" }, "Display name"),
+        name,
+        h("small", { class: "muted" }, "No patient identifiers if the server is shared."),
+        submit,
+        said,
+      ) as HTMLFormElement;
+      form.onsubmit = (e) => {
+        e.preventDefault();
+        submit.disabled = true;
+        said.textContent = "";
+        create(name.value.trim()).then(resolve, (err: unknown) => {
+          said.textContent = `Not created: ${problemText(err)}`;
+          submit.disabled = false;
+        });
+      };
       this.body.replaceChildren(
         h("h2", {}, "Sessions"),
         items.length ? h("ul", { class: "sessions" }, ...items) : h("p", { class: "muted" }, "The server holds no session."),
+        h("h2", {}, "New session"),
+        form,
       );
+      if (!items.length) name.focus();
     });
   }
 }
