@@ -5,6 +5,7 @@ import "./app.css";
 import { Api, ApiError } from "./api";
 import type { Edit, Vec3 } from "./api";
 import { GridEditor } from "./editor";
+import { Intake } from "./intake";
 import { askToken, Panel } from "./panel";
 import { Plan } from "./plan";
 import type { Change, PublicState } from "./plan";
@@ -31,6 +32,8 @@ declare global {
       focalPoint(): Vec3;
       /** The opacity and visibility surface `name` is drawn with. */
       look(name: string): { opacity: number; visible: boolean } | null;
+      /** The names of the models shown. */
+      models(): string[];
     };
   }
 }
@@ -40,6 +43,7 @@ const panel = new Panel(document.getElementById("panel")!);
 const view = document.getElementById("view")!;
 const scene = new Scene(view);
 const timer = new RepaintTimer();
+const intake = new Intake(panel.root.appendChild(document.createElement("section")), api);
 let plan: Plan | null = null;
 let editor: GridEditor | null = null;
 /** The newest plan version an edit of this page was answered with. */
@@ -216,6 +220,7 @@ window.resecta = {
   timings: () => timer.timings(),
   focalPoint: () => scene.focalPoint(),
   look: (name) => scene.look(name),
+  models: () => [...(plan?.models.keys() ?? [])],
 };
 
 panel.setActions(() => void history("undo"), () => void history("redo"));
@@ -293,6 +298,7 @@ async function main(): Promise<void> {
     snapshot(s, msg) {
       try {
         redraw(p, p.applySnapshot(s, msg));
+        intake.show(p.session);
         // Later snapshots (after an import, a resync) keep what the status line says.
         if (!opened || !p.models.size) panel.setStatus(p.models.size ? "Live" : "Live: no models yet (reconstruct them first)");
         opened = true;
