@@ -1,5 +1,6 @@
 """What the browser client's end-to-end tests share: `resecta serve --demo` with its session
-ready, and Debian's Chromium (software WebGL through SwiftShader) driven by Playwright."""
+ready, a server with no session, and Debian's Chromium (software WebGL through SwiftShader)
+driven by Playwright."""
 import shutil
 
 import pytest
@@ -24,6 +25,14 @@ def demo():
 
     sid = wait_for(ready, timeout=180)
     yield server, sid
+    server.stop()
+
+
+@pytest.fixture(scope="module")
+def empty():
+    """A server holding no session (in memory, no demo)."""
+    server = Server()
+    yield server
     server.stop()
 
 
