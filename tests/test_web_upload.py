@@ -9,6 +9,7 @@ import pytest
 import requests
 
 from browser_harness import browser, empty  # noqa: F401 (fixtures)
+from server_harness import Server
 
 PHANTOM_MODELS = ["parenchyma", "portal_1", "tumor_1"]
 
@@ -141,3 +142,33 @@ def test_an_upload_the_server_refuses_shows_its_problem(empty, browser, tmp_path
     assert said.inner_text() == f"Upload refused: {r.json()['detail']}"
     assert session(server, sid)["state"] == "SESSION_STATE_EMPTY"
     page.close()
+
+
+def test_the_upload_asks_for_the_token_as_the_other_calls_do(browser, phantom_file):
+    token = "intake-test-token-0123456789"
+    server = Server("--token", token)
+    try:
+        auth = {"authorization": f"Bearer {token}"}
+        sid = requests.post(f"{server.http_url}/v1/sessions", json={"displayName": "token"},
+                            headers=auth, timeout=30).json()["session"]["id"]
+        page = browser.new_page()
+        page.goto(f"{server.bound['page']}?session={sid}")
+
+        def give_token():
+            page.locator(".modal input[type=password]").fill(token)
+            page.get_by_role("button", name="Connect").click()
+
+        give_token()  # the watch stream's 401
+        page.locator(".intake form.upload").wait_for()
+        # The token forgotten: the upload's 401 asks for it again, and the upload goes through.
+        page.evaluate("sessionStorage.clear()")
+        page.locator(".intake input[type=file]").set_input_files(str(phantom_file))
+        page.get_by_role("button", name="Upload").click()
+        give_token()
+        page.locator(".intake .summary tbody tr").first.wait_for()
+        assert page.evaluate("sessionStorage.getItem('resecta.token')") == token
+        r = requests.get(f"{server.http_url}/v1/sessions/{sid}", headers=auth, timeout=30)
+        assert r.json()["session"]["state"] == "SESSION_STATE_LABEL_MAP"
+        page.close()
+    finally:
+        server.stop()
