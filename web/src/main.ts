@@ -300,7 +300,10 @@ async function main(): Promise<void> {
         redraw(p, p.applySnapshot(s, msg));
         intake.show(p.session);
         // Later snapshots (after an import, a resync) keep what the status line says.
-        if (!opened || !p.models.size) panel.setStatus(p.models.size ? "Live" : "Live: no models yet (reconstruct them first)");
+        const empty = p.session?.state === "SESSION_STATE_EMPTY";
+        if (!opened || !p.models.size) {
+          panel.setStatus(p.models.size ? "Live" : `Live: no ${empty ? "label map yet (upload one below)" : "models yet (reconstruct them below)"}`);
+        }
         opened = true;
       } catch (e) {
         panel.setStatus(`Bad snapshot: ${message(e)}`, "error");
