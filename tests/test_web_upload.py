@@ -62,8 +62,8 @@ def test_a_session_made_in_the_page_gets_a_label_map_and_models(empty, browser, 
     page.locator(".intake input[type=file]").set_input_files(str(phantom_file))
     page.get_by_text("phantom.nii.gz (1.3 KiB, NIfTI)").wait_for()
     assert page.get_by_label("Parenchyma").input_value() == "1"  # the server's default roles
-    assert page.get_by_label("Tumour").input_value() == "2"
-    page.get_by_label("Tumour").fill("2, 3")
+    assert page.get_by_label("Tumour", exact=True).input_value() == "2"
+    page.get_by_label("Tumour", exact=True).fill("2, 3")
     page.get_by_role("button", name="Upload").click()
     page.get_by_text("Label 3 is in two roles: Tumour and Portal vein").wait_for()
     page.get_by_label("Hepatic veins").fill("4, x")
@@ -73,7 +73,7 @@ def test_a_session_made_in_the_page_gets_a_label_map_and_models(empty, browser, 
     assert session(server, sid)["state"] == "SESSION_STATE_EMPTY"
 
     # Right roles: uploaded; the server's summary shows each label with its role and volume.
-    page.get_by_label("Tumour").fill("2")
+    page.get_by_label("Tumour", exact=True).fill("2")
     page.get_by_label("Hepatic veins").fill("4")
     page.get_by_role("button", name="Upload").click()
     page.get_by_text("48 × 40 × 26 voxels of 2.00 × 2.00 × 3.00 mm").wait_for()

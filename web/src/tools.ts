@@ -103,7 +103,7 @@ export class Tools {
   private readonly resectionTools = h("section", { "aria-label": "selected resection", hidden: "" });
   // A new resection.
   private readonly newName = input({ type: "text", required: "", maxlength: "128", autocomplete: "off" });
-  private readonly tumour = select("Tumour", []);
+  private readonly tumour = select("Tumour to remove", []);
   private readonly end = [0, 1, 2].map((k) => input({ type: "number", step: "any", required: "", "aria-label": `end point ${"RAS"[k]}` }));
   private readonly creator = h("details", { class: "new" });
   // Structures and files.
