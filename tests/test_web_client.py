@@ -67,3 +67,18 @@ def test_the_page_is_served_with_a_same_origin_policy(demo):
     again = requests.get(server.bound["page"], headers={"if-none-match": r.headers["etag"]},
                          timeout=30)
     assert again.status_code == 304
+
+
+def test_all_sessions_lists_the_only_session_and_offers_a_new_one(demo, browser):
+    server, sid = demo
+    page, errors = open_page(browser, server)
+    page.get_by_role("link", name="All sessions").click()
+    page.wait_for_url("**/?sessions")
+    page.get_by_role("button", name="demo patient (phantom)").wait_for()
+    page.get_by_label("Display name").wait_for()
+    # Picking it opens it again.
+    page.get_by_role("button", name="demo patient (phantom)").click()
+    page.wait_for_function(f"() => window.resecta.state() && window.resecta.state().sessionId === '{sid}'",
+                           timeout=60_000)
+    assert not errors, errors
+    page.close()

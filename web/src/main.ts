@@ -241,10 +241,11 @@ document.addEventListener("keydown", (e) => {
 
 /** The session of `?session=ID`, else the only one, else the one picked from the list. */
 async function chooseSession(): Promise<string> {
-  const given = new URLSearchParams(location.search).get("session");
+  const query = new URLSearchParams(location.search);
+  const given = query.get("session");
   if (given) return given;
   const { sessions = [] } = await api.listSessions();
-  if (sessions.length === 1) return sessions[0]!.id;
+  if (sessions.length === 1 && !query.has("sessions")) return sessions[0]!.id; // `?sessions`: the list
   panel.setStatus(sessions.length ? `${sessions.length} sessions: pick one or make one` : "No session yet: make one");
   return panel.pickSession(sessions, async (name) => (await api.createSession(name)).session.id);
 }

@@ -36,7 +36,8 @@ export class Panel {
   onSelect: (name: string) => void = () => {};
 
   constructor(readonly root: HTMLElement) {
-    root.replaceChildren(h("h1", {}, "resecta"), this.status, this.actions, this.body);
+    const all = h("a", { href: "?sessions", class: "all-sessions", title: "The server's sessions, and a form for a new one" }, "All sessions");
+    root.replaceChildren(h("header", {}, h("h1", {}, "resecta"), all), this.status, this.actions, this.body);
   }
 
   /** Shows the undo and redo buttons (with their keyboard shortcuts in the tooltip). */
