@@ -1,6 +1,6 @@
 //! Resection planning (thesis ch. 7, Paper II): plans of Bézier resections, their initialisation
 //! from a tumour and an end point, edits with undo/redo and replay, live safety margins, slice
-//! projections and volumetry, and the `resecta-plan/1` file format.
+//! projections, label-map slices and volumetry, and the `resecta-plan/1` file format.
 
 pub mod anatomy;
 #[cfg(test)]
@@ -10,6 +10,7 @@ pub mod error;
 pub mod history;
 pub mod init;
 mod inside;
+pub mod label_slice;
 pub mod plan;
 pub mod resection;
 pub mod surface;
@@ -22,6 +23,7 @@ pub use engine::{
 pub use error::PlanError;
 pub use history::{Change, History, LogEntry, Staged};
 pub use init::{Initialisation, initialise, plane_from, slicing_plane};
+pub use label_slice::{LabelSlice, SliceAxis, label_slice};
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
 pub use resecta_margin::{MarginClass, Verdict};
 pub use resecta_volumetry::{IncompleteCut, Volumetry};
