@@ -158,6 +158,7 @@ def test_both_faces_report_the_limits_the_document_states(tmp_path):
         "minSpacingMm": bound("RawLabelMapHeader", "spacing", "minimum", items=True),
         "maxSpacingMm": bound("RawLabelMapHeader", "spacing", items=True),
         "maxOriginMm": bound("RawLabelMapHeader", "origin", items=True),
+        "maxLabelSlicePixelMm": bound("GetLabelSliceRequest", "pixelMm"),
         "maxResections": schemas["PlanDocument"]["properties"]["resections"]["maxItems"],
     }
     for name, value in stated.items():

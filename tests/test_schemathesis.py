@@ -89,6 +89,8 @@ DOCUMENTED = [
      "a name of multi-byte characters is refused sooner"),
     ("ImportPlan", "INVALID_ARGUMENT", r"name must be 1\.\.=\d+ bytes",
      "a name of multi-byte characters is refused sooner"),
+    ("GetLabelSlice", "INVALID_ARGUMENT", r"position_mm \S+ is outside the label map's extent",
+     "`positionMm` must lie within the label map's extent along the axis"),
 ]
 
 

@@ -1,16 +1,17 @@
 """Resection edits with base versions, undo/redo, stale versions, volumes, plans, exports and
-slices, against the real server."""
+slices and label slices, against the real server."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 import resecta_client as rc
 
-from .conftest import read_ply
+from .conftest import ROLES, read_ply
 
 END = (-30.0, 0.0, 0.0)
 
@@ -122,3 +123,28 @@ def test_volumes_plan_round_trip_export_and_slices(ready: rc.Session) -> None:
     sl = s.slices("r1", axial=z, sagittal=float(np.mean(ply["x"])), resection=True)
     assert sl.axial and sl.sagittal and not sl.coronal
     assert all(np.allclose(p.points[:, 2], z, atol=1e-3) for p in sl.axial)
+
+
+def test_label_slice(client: rc.Client, phantom: Path) -> None:
+    s = client.create_session("label-slice")
+    with pytest.raises(rc.FailedPrecondition) as e:
+        s.label_slice("axial", 0.0)
+    assert e.value.code == "NO_LABEL_MAP"
+    s.upload_label_map_file(phantom, ROLES)
+    # The small phantom's tumour: a ball of 8 mm about (10, 5, 0).
+    sl = s.label_slice("axial", 0.0, pixel_mm=0.5)
+    assert sl.pixel_mm == 0.5 and sl.column_axis == (1, 0, 0) and sl.row_axis == (0, 1, 0)
+    assert sl.min_position_mm < 0.0 < sl.max_position_mm
+    rows, cols = np.nonzero(sl.labels == 2)
+    area = rows.size * 0.25
+    assert area == pytest.approx(np.pi * 8**2, rel=0.15)
+    centre = sl.point(rows.mean(), cols.mean())
+    assert np.allclose(centre, (10.0, 5.0, 0.0), atol=1.0)
+    assert {1, 2} <= set(np.unique(sl.labels).tolist())
+    sag = s.label_slice(rc.SliceAxis.SAGITTAL, 10.0)
+    assert sag.column_axis == (0, 1, 0) and sag.row_axis == (0, 0, 1) and (sag.labels == 2).any()
+    with pytest.raises(rc.InvalidArgument) as e:
+        s.label_slice("coronal", sl.max_position_mm + 1.0)
+    assert "position_mm" in str(e.value)
+    with pytest.raises(rc.InvalidArgument):
+        s.label_slice("axial", 0.0, pixel_mm=0.0)

@@ -23,6 +23,7 @@ from .types import (
     ControlGroup,
     EditResult,
     LabelMapSummary,
+    LabelSlice,
     Method,
     ModelFormat,
     ModelInfo,
@@ -30,6 +31,7 @@ from .types import (
     Reconstruction,
     ServerInfo,
     SessionInfo,
+    SliceAxis,
     Slices,
     Target,
     Volumes,
@@ -568,6 +570,20 @@ class Session:
             session_id=self.id, axial=axial, coronal=coronal, sagittal=sagittal, **which
         )
         return Slices.from_pb(self.client._call("GetSlices", request))
+
+    def label_slice(
+        self, axis: str | SliceAxis, position_mm: float, *, pixel_mm: float | None = None
+    ) -> LabelSlice:
+        """One plane of the label map as a raster of labels: `axis` ``"axial"`` (RAS z =
+        `position_mm`), ``"coronal"`` (y) or ``"sagittal"`` (x); pixels of `pixel_mm` (default:
+        the smallest voxel spacing), coarsened to at most `max_label_slice_side` per side."""
+        request = pb.GetLabelSliceRequest(
+            session_id=self.id,
+            axis=SliceAxis.parse(axis).to_pb(),
+            position_mm=position_mm,
+            pixel_mm=pixel_mm,
+        )
+        return LabelSlice.from_pb(self.client._call("GetLabelSlice", request))
 
     # --- watch --------------------------------------------------------------------------------
 

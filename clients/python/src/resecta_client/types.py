@@ -128,6 +128,19 @@ class ControlGroup(_Named):
         return resection_pb2.ControlGroup, "CONTROL_GROUP"
 
 
+class SliceAxis(_Named):
+    """The RAS axis a label slice's plane is normal to: axial (z; columns +x, rows +y), coronal
+    (y; columns +x, rows +z), sagittal (x; columns +y, rows +z)."""
+
+    AXIAL = "axial"
+    CORONAL = "coronal"
+    SAGITTAL = "sagittal"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return planning_service_pb2.SliceAxis, "SLICE_AXIS"
+
+
 class MarginClass(enum.IntEnum):
     """Per-vertex margin class of a resection surface (`SurfaceState.classes`)."""
 
@@ -532,3 +545,37 @@ class Slices:
         return cls(
             *(tuple(Polyline.from_pb(p) for p in getattr(m, k)) for k in ("axial", "coronal", "sagittal"))
         )
+
+
+@dataclass(frozen=True, eq=False)
+class LabelSlice:
+    """One plane of the label map resampled by nearest neighbour: `labels` (height, width)
+    uint16, the centre of pixel (r, c) at ``origin + c·pixel_mm·column_axis +
+    r·pixel_mm·row_axis`` (RAS mm); `min_position_mm`..`max_position_mm` is the label map's
+    extent along the axis."""
+
+    labels: npt.NDArray[np.uint16]
+    pixel_mm: float
+    origin: tuple[float, float, float]
+    column_axis: tuple[float, float, float]
+    row_axis: tuple[float, float, float]
+    min_position_mm: float
+    max_position_mm: float
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.GetLabelSliceResponse) -> LabelSlice:
+        labels = np.frombuffer(m.labels, dtype="<u2").astype(np.uint16).reshape(m.height, m.width)
+        return cls(
+            labels,
+            m.pixel_mm,
+            _xyz(m.origin),
+            _xyz(m.column_axis),
+            _xyz(m.row_axis),
+            m.min_position_mm,
+            m.max_position_mm,
+        )
+
+    def point(self, row: float, column: float) -> F64:
+        """RAS of the centre of pixel (row, column), mm."""
+        o, c, r = (np.asarray(v) for v in (self.origin, self.column_axis, self.row_axis))
+        return o + (column * c + row * r) * self.pixel_mm

@@ -23,6 +23,7 @@ _runtime_version.ValidateProtobufRuntimeVersion(
 _sym_db = _symbol_database.Default()
 
 
+from . import common_pb2 as resecta_dot_v1_dot_common__pb2
 from . import label_map_pb2 as resecta_dot_v1_dot_label__map__pb2
 from . import reconstruction_pb2 as resecta_dot_v1_dot_reconstruction__pb2
 from . import resection_pb2 as resecta_dot_v1_dot_resection__pb2
@@ -32,71 +33,77 @@ from . import volumes_pb2 as resecta_dot_v1_dot_volumes__pb2
 from . import watch_pb2 as resecta_dot_v1_dot_watch__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n!resecta/v1/planning_service.proto\x12\nresecta.v1\x1a\x1aresecta/v1/label_map.proto\x1a\x1fresecta/v1/reconstruction.proto\x1a\x1aresecta/v1/resection.proto\x1a\x18resecta/v1/session.proto\x1a\x18resecta/v1/surface.proto\x1a\x18resecta/v1/volumes.proto\x1a\x16resecta/v1/watch.proto\"\x16\n\x14GetServerInfoRequest\"\xfd\x04\n\x0cServerLimits\x12\x12\n\nmax_voxels\x18\x01 \x01(\x04\x12\x14\n\x0cmax_sessions\x18\x02 \x01(\r\x12\x18\n\x10max_upload_bytes\x18\x03 \x01(\x04\x12\x17\n\x0fmax_chunk_bytes\x18\x04 \x01(\r\x12\x19\n\x11max_message_bytes\x18\x05 \x01(\r\x12\x16\n\x0emax_resections\x18\x06 \x01(\r\x12\x1a\n\x12max_control_points\x18\x07 \x01(\r\x12\x16\n\x0emax_resolution\x18\x08 \x01(\r\x12\x1e\n\x16session_idle_timeout_s\x18\t \x01(\x04\x12\x18\n\x10max_memory_bytes\x18\n \x01(\x04\x12\x1a\n\x12min_control_points\x18\x0b \x01(\r\x12\x16\n\x0emin_resolution\x18\x0c \x01(\r\x12\x15\n\rmax_margin_mm\x18\r \x01(\x01\x12\x13\n\x0bmax_band_mm\x18\x0e \x01(\x01\x12\x16\n\x0emax_name_bytes\x18\x0f \x01(\r\x12\x19\n\x11max_coordinate_mm\x18\x10 \x01(\x01\x12\x18\n\x10max_rotation_deg\x18\x11 \x01(\x01\x12\x1e\n\x16max_display_name_chars\x18\x12 \x01(\r\x12\x16\n\x0emax_plan_bytes\x18\x13 \x01(\r\x12\x15\n\rmin_psr_depth\x18\x14 \x01(\r\x12\x15\n\rmax_psr_depth\x18\x15 \x01(\r\x12\x16\n\x0emin_spacing_mm\x18\x16 \x01(\x01\x12\x16\n\x0emax_spacing_mm\x18\x17 \x01(\x01\x12\x15\n\rmax_extent_mm\x18\x18 \x01(\x01\x12\x15\n\rmax_origin_mm\x18\x19 \x01(\x01\"\x84\x01\n\x15GetServerInfoResponse\x12\x16\n\x0eserver_version\x18\x01 \x01(\t\x12\x13\n\x0b\x61pi_version\x18\x02 \x01(\t\x12\x14\n\x0c\x63\x61pabilities\x18\x03 \x03(\t\x12(\n\x06limits\x18\x04 \x01(\x0b\x32\x18.resecta.v1.ServerLimits\",\n\x14\x43reateSessionRequest\x12\x14\n\x0c\x64isplay_name\x18\x01 \x01(\t\"=\n\x15\x43reateSessionResponse\x12$\n\x07session\x18\x01 \x01(\x0b\x32\x13.resecta.v1.Session\"\x15\n\x13ListSessionsRequest\"=\n\x14ListSessionsResponse\x12%\n\x08sessions\x18\x01 \x03(\x0b\x32\x13.resecta.v1.Session\"\'\n\x11GetSessionRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\":\n\x12GetSessionResponse\x12$\n\x07session\x18\x01 \x01(\x0b\x32\x13.resecta.v1.Session\"*\n\x14\x44\x65leteSessionRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\x17\n\x15\x44\x65leteSessionResponse\"\x8d\x01\n\x15UploadLabelMapRequest\x12,\n\x03raw\x18\x01 \x01(\x0b\x32\x1d.resecta.v1.RawLabelMapHeaderH\x00\x12.\n\x04\x66ile\x18\x02 \x01(\x0b\x32\x1e.resecta.v1.FileLabelMapHeaderH\x00\x12\x0c\n\x04\x64\x61ta\x18\x03 \x01(\x0c\x42\x08\n\x06header\"H\n\x16UploadLabelMapResponse\x12.\n\tlabel_map\x18\x01 \x01(\x0b\x32\x1b.resecta.v1.LabelMapSummary\"\x8b\x01\n\x12ReconstructRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x30\n\x06method\x18\x02 \x01(\x0e\x32 .resecta.v1.ReconstructionMethod\x12/\n\x07options\x18\x03 \x01(\x0b\x32\x1e.resecta.v1.ReconstructOptions\"\xa8\x01\n\x13ReconstructResponse\x12\x33\n\x08progress\x18\x01 \x01(\x0b\x32\x1f.resecta.v1.ReconstructProgressH\x00\x12&\n\x05model\x18\x02 \x01(\x0b\x32\x15.resecta.v1.ModelInfoH\x00\x12+\n\x04\x64one\x18\x03 \x01(\x0b\x32\x1b.resecta.v1.ReconstructDoneH\x00\x42\x07\n\x05\x65vent\"\x8f\x06\n\x0b\x45\x64itRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x14\n\x0c\x62\x61se_version\x18\x02 \x01(\x04\x12;\n\x13init_from_end_point\x18\x03 \x01(\x0b\x32\x1c.resecta.v1.InitFromEndPointH\x00\x12\x34\n\x0finit_from_plane\x18\x04 \x01(\x0b\x32\x19.resecta.v1.InitFromPlaneH\x00\x12\x38\n\x11set_control_point\x18\x05 \x01(\x0b\x32\x1b.resecta.v1.SetControlPointH\x00\x12:\n\x12set_control_points\x18\x06 \x01(\x0b\x32\x1c.resecta.v1.SetControlPointsH\x00\x12+\n\nmove_group\x18\x07 \x01(\x0b\x32\x15.resecta.v1.MoveGroupH\x00\x12*\n\ttranslate\x18\x08 \x01(\x0b\x32\x15.resecta.v1.TranslateH\x00\x12$\n\x06rotate\x18\t \x01(\x0b\x32\x12.resecta.v1.RotateH\x00\x12+\n\nset_margin\x18\n \x01(\x0b\x32\x15.resecta.v1.SetMarginH\x00\x12\'\n\x08set_band\x18\x0b \x01(\x0b\x32\x13.resecta.v1.SetBandH\x00\x12\x33\n\x0eset_resolution\x18\x0c \x01(\x0b\x32\x19.resecta.v1.SetResolutionH\x00\x12+\n\nset_target\x18\r \x01(\x0b\x32\x15.resecta.v1.SetTargetH\x00\x12\x37\n\x10\x64\x65lete_resection\x18\x0e \x01(\x0b\x32\x1b.resecta.v1.DeleteResectionH\x00\x12 \n\x04undo\x18\x0f \x01(\x0b\x32\x10.resecta.v1.UndoH\x00\x12 \n\x04redo\x18\x10 \x01(\x0b\x32\x10.resecta.v1.RedoH\x00\x12\x31\n\radd_resection\x18\x11 \x01(\x0b\x32\x18.resecta.v1.AddResectionH\x00\x42\x06\n\x04\x65\x64it\"f\n\x0c\x45\x64itResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\x12/\n\nresections\x18\x02 \x03(\x0b\x32\x1b.resecta.v1.ResectionStatus\x12\x0f\n\x07removed\x18\x03 \x03(\t\"\'\n\x11GetVolumesRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"U\n\x12GetVolumesResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\x12)\n\x07volumes\x18\x02 \x01(\x0b\x32\x18.resecta.v1.VolumeReport\"\'\n\x11\x45xportPlanRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"=\n\x12\x45xportPlanResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\x12\x11\n\tplan_json\x18\x02 \x01(\t\"P\n\x11ImportPlanRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x11\n\tplan_json\x18\x02 \x01(\t\x12\x14\n\x0c\x62\x61se_version\x18\x03 \x01(\x04\"*\n\x12ImportPlanResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\"\x82\x01\n\x12\x45xportModelRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0f\n\x05model\x18\x02 \x01(\tH\x00\x12\x13\n\tresection\x18\x03 \x01(\tH\x00\x12\'\n\x06\x66ormat\x18\x04 \x01(\x0e\x32\x17.resecta.v1.ModelFormatB\t\n\x07surface\"8\n\x13\x45xportModelResponse\x12\x13\n\x0btotal_bytes\x18\x01 \x01(\x04\x12\x0c\n\x04\x64\x61ta\x18\x02 \x01(\x0c\"\xbb\x01\n\x10GetSlicesRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0f\n\x05model\x18\x02 \x01(\tH\x00\x12\x13\n\tresection\x18\x03 \x01(\tH\x00\x12\x12\n\x05\x61xial\x18\x04 \x01(\x01H\x01\x88\x01\x01\x12\x14\n\x07\x63oronal\x18\x05 \x01(\x01H\x02\x88\x01\x01\x12\x15\n\x08sagittal\x18\x06 \x01(\x01H\x03\x88\x01\x01\x42\t\n\x07surfaceB\x08\n\x06_axialB\n\n\x08_coronalB\x0b\n\t_sagittal\"\x87\x01\n\x11GetSlicesResponse\x12#\n\x05\x61xial\x18\x01 \x03(\x0b\x32\x14.resecta.v1.Polyline\x12%\n\x07\x63oronal\x18\x02 \x03(\x0b\x32\x14.resecta.v1.Polyline\x12&\n\x08sagittal\x18\x03 \x03(\x0b\x32\x14.resecta.v1.Polyline\"u\n\x0cWatchRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x16\n\tsince_seq\x18\x02 \x01(\x04H\x00\x88\x01\x01\x12\x12\n\nallow_zstd\x18\x03 \x01(\x08\x12\x17\n\x0f\x61llow_quantized\x18\x04 \x01(\x08\x42\x0c\n\n_since_seq\"\xb6\x01\n\rWatchResponse\x12\x0b\n\x03seq\x18\x01 \x01(\x04\x12\x14\n\x0cplan_version\x18\x02 \x01(\x04\x12(\n\x08snapshot\x18\x03 \x01(\x0b\x32\x14.resecta.v1.SnapshotH\x00\x12\"\n\x05\x64\x65lta\x18\x04 \x01(\x0b\x32\x11.resecta.v1.DeltaH\x00\x12+\n\x07volumes\x18\x05 \x01(\x0b\x32\x18.resecta.v1.VolumeReportH\x00\x42\x07\n\x05\x65vent2\xde\x08\n\x0fPlanningService\x12T\n\rGetServerInfo\x12 .resecta.v1.GetServerInfoRequest\x1a!.resecta.v1.GetServerInfoResponse\x12T\n\rCreateSession\x12 .resecta.v1.CreateSessionRequest\x1a!.resecta.v1.CreateSessionResponse\x12Q\n\x0cListSessions\x12\x1f.resecta.v1.ListSessionsRequest\x1a .resecta.v1.ListSessionsResponse\x12K\n\nGetSession\x12\x1d.resecta.v1.GetSessionRequest\x1a\x1e.resecta.v1.GetSessionResponse\x12T\n\rDeleteSession\x12 .resecta.v1.DeleteSessionRequest\x1a!.resecta.v1.DeleteSessionResponse\x12Y\n\x0eUploadLabelMap\x12!.resecta.v1.UploadLabelMapRequest\x1a\".resecta.v1.UploadLabelMapResponse(\x01\x12P\n\x0bReconstruct\x12\x1e.resecta.v1.ReconstructRequest\x1a\x1f.resecta.v1.ReconstructResponse0\x01\x12\x39\n\x04\x45\x64it\x12\x17.resecta.v1.EditRequest\x1a\x18.resecta.v1.EditResponse\x12K\n\nGetVolumes\x12\x1d.resecta.v1.GetVolumesRequest\x1a\x1e.resecta.v1.GetVolumesResponse\x12K\n\nExportPlan\x12\x1d.resecta.v1.ExportPlanRequest\x1a\x1e.resecta.v1.ExportPlanResponse\x12K\n\nImportPlan\x12\x1d.resecta.v1.ImportPlanRequest\x1a\x1e.resecta.v1.ImportPlanResponse\x12P\n\x0b\x45xportModel\x12\x1e.resecta.v1.ExportModelRequest\x1a\x1f.resecta.v1.ExportModelResponse0\x01\x12H\n\tGetSlices\x12\x1c.resecta.v1.GetSlicesRequest\x1a\x1d.resecta.v1.GetSlicesResponse\x12>\n\x05Watch\x12\x18.resecta.v1.WatchRequest\x1a\x19.resecta.v1.WatchResponse0\x01\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n!resecta/v1/planning_service.proto\x12\nresecta.v1\x1a\x17resecta/v1/common.proto\x1a\x1aresecta/v1/label_map.proto\x1a\x1fresecta/v1/reconstruction.proto\x1a\x1aresecta/v1/resection.proto\x1a\x18resecta/v1/session.proto\x1a\x18resecta/v1/surface.proto\x1a\x18resecta/v1/volumes.proto\x1a\x16resecta/v1/watch.proto\"\x16\n\x14GetServerInfoRequest\"\xbd\x05\n\x0cServerLimits\x12\x12\n\nmax_voxels\x18\x01 \x01(\x04\x12\x14\n\x0cmax_sessions\x18\x02 \x01(\r\x12\x18\n\x10max_upload_bytes\x18\x03 \x01(\x04\x12\x17\n\x0fmax_chunk_bytes\x18\x04 \x01(\r\x12\x19\n\x11max_message_bytes\x18\x05 \x01(\r\x12\x16\n\x0emax_resections\x18\x06 \x01(\r\x12\x1a\n\x12max_control_points\x18\x07 \x01(\r\x12\x16\n\x0emax_resolution\x18\x08 \x01(\r\x12\x1e\n\x16session_idle_timeout_s\x18\t \x01(\x04\x12\x18\n\x10max_memory_bytes\x18\n \x01(\x04\x12\x1a\n\x12min_control_points\x18\x0b \x01(\r\x12\x16\n\x0emin_resolution\x18\x0c \x01(\r\x12\x15\n\rmax_margin_mm\x18\r \x01(\x01\x12\x13\n\x0bmax_band_mm\x18\x0e \x01(\x01\x12\x16\n\x0emax_name_bytes\x18\x0f \x01(\r\x12\x19\n\x11max_coordinate_mm\x18\x10 \x01(\x01\x12\x18\n\x10max_rotation_deg\x18\x11 \x01(\x01\x12\x1e\n\x16max_display_name_chars\x18\x12 \x01(\r\x12\x16\n\x0emax_plan_bytes\x18\x13 \x01(\r\x12\x15\n\rmin_psr_depth\x18\x14 \x01(\r\x12\x15\n\rmax_psr_depth\x18\x15 \x01(\r\x12\x16\n\x0emin_spacing_mm\x18\x16 \x01(\x01\x12\x16\n\x0emax_spacing_mm\x18\x17 \x01(\x01\x12\x15\n\rmax_extent_mm\x18\x18 \x01(\x01\x12\x15\n\rmax_origin_mm\x18\x19 \x01(\x01\x12\x1c\n\x14max_label_slice_side\x18\x1a \x01(\r\x12 \n\x18max_label_slice_pixel_mm\x18\x1b \x01(\x01\"\x84\x01\n\x15GetServerInfoResponse\x12\x16\n\x0eserver_version\x18\x01 \x01(\t\x12\x13\n\x0b\x61pi_version\x18\x02 \x01(\t\x12\x14\n\x0c\x63\x61pabilities\x18\x03 \x03(\t\x12(\n\x06limits\x18\x04 \x01(\x0b\x32\x18.resecta.v1.ServerLimits\",\n\x14\x43reateSessionRequest\x12\x14\n\x0c\x64isplay_name\x18\x01 \x01(\t\"=\n\x15\x43reateSessionResponse\x12$\n\x07session\x18\x01 \x01(\x0b\x32\x13.resecta.v1.Session\"\x15\n\x13ListSessionsRequest\"=\n\x14ListSessionsResponse\x12%\n\x08sessions\x18\x01 \x03(\x0b\x32\x13.resecta.v1.Session\"\'\n\x11GetSessionRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\":\n\x12GetSessionResponse\x12$\n\x07session\x18\x01 \x01(\x0b\x32\x13.resecta.v1.Session\"*\n\x14\x44\x65leteSessionRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"\x17\n\x15\x44\x65leteSessionResponse\"\x8d\x01\n\x15UploadLabelMapRequest\x12,\n\x03raw\x18\x01 \x01(\x0b\x32\x1d.resecta.v1.RawLabelMapHeaderH\x00\x12.\n\x04\x66ile\x18\x02 \x01(\x0b\x32\x1e.resecta.v1.FileLabelMapHeaderH\x00\x12\x0c\n\x04\x64\x61ta\x18\x03 \x01(\x0c\x42\x08\n\x06header\"H\n\x16UploadLabelMapResponse\x12.\n\tlabel_map\x18\x01 \x01(\x0b\x32\x1b.resecta.v1.LabelMapSummary\"\x8b\x01\n\x12ReconstructRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x30\n\x06method\x18\x02 \x01(\x0e\x32 .resecta.v1.ReconstructionMethod\x12/\n\x07options\x18\x03 \x01(\x0b\x32\x1e.resecta.v1.ReconstructOptions\"\xa8\x01\n\x13ReconstructResponse\x12\x33\n\x08progress\x18\x01 \x01(\x0b\x32\x1f.resecta.v1.ReconstructProgressH\x00\x12&\n\x05model\x18\x02 \x01(\x0b\x32\x15.resecta.v1.ModelInfoH\x00\x12+\n\x04\x64one\x18\x03 \x01(\x0b\x32\x1b.resecta.v1.ReconstructDoneH\x00\x42\x07\n\x05\x65vent\"\x8f\x06\n\x0b\x45\x64itRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x14\n\x0c\x62\x61se_version\x18\x02 \x01(\x04\x12;\n\x13init_from_end_point\x18\x03 \x01(\x0b\x32\x1c.resecta.v1.InitFromEndPointH\x00\x12\x34\n\x0finit_from_plane\x18\x04 \x01(\x0b\x32\x19.resecta.v1.InitFromPlaneH\x00\x12\x38\n\x11set_control_point\x18\x05 \x01(\x0b\x32\x1b.resecta.v1.SetControlPointH\x00\x12:\n\x12set_control_points\x18\x06 \x01(\x0b\x32\x1c.resecta.v1.SetControlPointsH\x00\x12+\n\nmove_group\x18\x07 \x01(\x0b\x32\x15.resecta.v1.MoveGroupH\x00\x12*\n\ttranslate\x18\x08 \x01(\x0b\x32\x15.resecta.v1.TranslateH\x00\x12$\n\x06rotate\x18\t \x01(\x0b\x32\x12.resecta.v1.RotateH\x00\x12+\n\nset_margin\x18\n \x01(\x0b\x32\x15.resecta.v1.SetMarginH\x00\x12\'\n\x08set_band\x18\x0b \x01(\x0b\x32\x13.resecta.v1.SetBandH\x00\x12\x33\n\x0eset_resolution\x18\x0c \x01(\x0b\x32\x19.resecta.v1.SetResolutionH\x00\x12+\n\nset_target\x18\r \x01(\x0b\x32\x15.resecta.v1.SetTargetH\x00\x12\x37\n\x10\x64\x65lete_resection\x18\x0e \x01(\x0b\x32\x1b.resecta.v1.DeleteResectionH\x00\x12 \n\x04undo\x18\x0f \x01(\x0b\x32\x10.resecta.v1.UndoH\x00\x12 \n\x04redo\x18\x10 \x01(\x0b\x32\x10.resecta.v1.RedoH\x00\x12\x31\n\radd_resection\x18\x11 \x01(\x0b\x32\x18.resecta.v1.AddResectionH\x00\x42\x06\n\x04\x65\x64it\"f\n\x0c\x45\x64itResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\x12/\n\nresections\x18\x02 \x03(\x0b\x32\x1b.resecta.v1.ResectionStatus\x12\x0f\n\x07removed\x18\x03 \x03(\t\"\'\n\x11GetVolumesRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"U\n\x12GetVolumesResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\x12)\n\x07volumes\x18\x02 \x01(\x0b\x32\x18.resecta.v1.VolumeReport\"\'\n\x11\x45xportPlanRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\"=\n\x12\x45xportPlanResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\x12\x11\n\tplan_json\x18\x02 \x01(\t\"P\n\x11ImportPlanRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x11\n\tplan_json\x18\x02 \x01(\t\x12\x14\n\x0c\x62\x61se_version\x18\x03 \x01(\x04\"*\n\x12ImportPlanResponse\x12\x14\n\x0cplan_version\x18\x01 \x01(\x04\"\x82\x01\n\x12\x45xportModelRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0f\n\x05model\x18\x02 \x01(\tH\x00\x12\x13\n\tresection\x18\x03 \x01(\tH\x00\x12\'\n\x06\x66ormat\x18\x04 \x01(\x0e\x32\x17.resecta.v1.ModelFormatB\t\n\x07surface\"8\n\x13\x45xportModelResponse\x12\x13\n\x0btotal_bytes\x18\x01 \x01(\x04\x12\x0c\n\x04\x64\x61ta\x18\x02 \x01(\x0c\"\xbb\x01\n\x10GetSlicesRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x0f\n\x05model\x18\x02 \x01(\tH\x00\x12\x13\n\tresection\x18\x03 \x01(\tH\x00\x12\x12\n\x05\x61xial\x18\x04 \x01(\x01H\x01\x88\x01\x01\x12\x14\n\x07\x63oronal\x18\x05 \x01(\x01H\x02\x88\x01\x01\x12\x15\n\x08sagittal\x18\x06 \x01(\x01H\x03\x88\x01\x01\x42\t\n\x07surfaceB\x08\n\x06_axialB\n\n\x08_coronalB\x0b\n\t_sagittal\"\x87\x01\n\x11GetSlicesResponse\x12#\n\x05\x61xial\x18\x01 \x03(\x0b\x32\x14.resecta.v1.Polyline\x12%\n\x07\x63oronal\x18\x02 \x03(\x0b\x32\x14.resecta.v1.Polyline\x12&\n\x08sagittal\x18\x03 \x03(\x0b\x32\x14.resecta.v1.Polyline\"\x88\x01\n\x14GetLabelSliceRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12#\n\x04\x61xis\x18\x02 \x01(\x0e\x32\x15.resecta.v1.SliceAxis\x12\x13\n\x0bposition_mm\x18\x03 \x01(\x01\x12\x15\n\x08pixel_mm\x18\x04 \x01(\x01H\x00\x88\x01\x01\x42\x0b\n\t_pixel_mm\"\xf7\x01\n\x15GetLabelSliceResponse\x12\r\n\x05width\x18\x01 \x01(\r\x12\x0e\n\x06height\x18\x02 \x01(\r\x12\x10\n\x08pixel_mm\x18\x03 \x01(\x01\x12 \n\x06origin\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12%\n\x0b\x63olumn_axis\x18\x05 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\"\n\x08row_axis\x18\x06 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x06labels\x18\x07 \x01(\x0c\x12\x17\n\x0fmin_position_mm\x18\x08 \x01(\x01\x12\x17\n\x0fmax_position_mm\x18\t \x01(\x01\"u\n\x0cWatchRequest\x12\x12\n\nsession_id\x18\x01 \x01(\t\x12\x16\n\tsince_seq\x18\x02 \x01(\x04H\x00\x88\x01\x01\x12\x12\n\nallow_zstd\x18\x03 \x01(\x08\x12\x17\n\x0f\x61llow_quantized\x18\x04 \x01(\x08\x42\x0c\n\n_since_seq\"\xb6\x01\n\rWatchResponse\x12\x0b\n\x03seq\x18\x01 \x01(\x04\x12\x14\n\x0cplan_version\x18\x02 \x01(\x04\x12(\n\x08snapshot\x18\x03 \x01(\x0b\x32\x14.resecta.v1.SnapshotH\x00\x12\"\n\x05\x64\x65lta\x18\x04 \x01(\x0b\x32\x11.resecta.v1.DeltaH\x00\x12+\n\x07volumes\x18\x05 \x01(\x0b\x32\x18.resecta.v1.VolumeReportH\x00\x42\x07\n\x05\x65vent*n\n\tSliceAxis\x12\x1a\n\x16SLICE_AXIS_UNSPECIFIED\x10\x00\x12\x14\n\x10SLICE_AXIS_AXIAL\x10\x01\x12\x16\n\x12SLICE_AXIS_CORONAL\x10\x02\x12\x17\n\x13SLICE_AXIS_SAGITTAL\x10\x03\x32\xb4\t\n\x0fPlanningService\x12T\n\rGetServerInfo\x12 .resecta.v1.GetServerInfoRequest\x1a!.resecta.v1.GetServerInfoResponse\x12T\n\rCreateSession\x12 .resecta.v1.CreateSessionRequest\x1a!.resecta.v1.CreateSessionResponse\x12Q\n\x0cListSessions\x12\x1f.resecta.v1.ListSessionsRequest\x1a .resecta.v1.ListSessionsResponse\x12K\n\nGetSession\x12\x1d.resecta.v1.GetSessionRequest\x1a\x1e.resecta.v1.GetSessionResponse\x12T\n\rDeleteSession\x12 .resecta.v1.DeleteSessionRequest\x1a!.resecta.v1.DeleteSessionResponse\x12Y\n\x0eUploadLabelMap\x12!.resecta.v1.UploadLabelMapRequest\x1a\".resecta.v1.UploadLabelMapResponse(\x01\x12P\n\x0bReconstruct\x12\x1e.resecta.v1.ReconstructRequest\x1a\x1f.resecta.v1.ReconstructResponse0\x01\x12\x39\n\x04\x45\x64it\x12\x17.resecta.v1.EditRequest\x1a\x18.resecta.v1.EditResponse\x12K\n\nGetVolumes\x12\x1d.resecta.v1.GetVolumesRequest\x1a\x1e.resecta.v1.GetVolumesResponse\x12K\n\nExportPlan\x12\x1d.resecta.v1.ExportPlanRequest\x1a\x1e.resecta.v1.ExportPlanResponse\x12K\n\nImportPlan\x12\x1d.resecta.v1.ImportPlanRequest\x1a\x1e.resecta.v1.ImportPlanResponse\x12P\n\x0b\x45xportModel\x12\x1e.resecta.v1.ExportModelRequest\x1a\x1f.resecta.v1.ExportModelResponse0\x01\x12H\n\tGetSlices\x12\x1c.resecta.v1.GetSlicesRequest\x1a\x1d.resecta.v1.GetSlicesResponse\x12T\n\rGetLabelSlice\x12 .resecta.v1.GetLabelSliceRequest\x1a!.resecta.v1.GetLabelSliceResponse\x12>\n\x05Watch\x12\x18.resecta.v1.WatchRequest\x1a\x19.resecta.v1.WatchResponse0\x01\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'resecta.v1.planning_service_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_GETSERVERINFOREQUEST']._serialized_start=240
-  _globals['_GETSERVERINFOREQUEST']._serialized_end=262
-  _globals['_SERVERLIMITS']._serialized_start=265
-  _globals['_SERVERLIMITS']._serialized_end=902
-  _globals['_GETSERVERINFORESPONSE']._serialized_start=905
-  _globals['_GETSERVERINFORESPONSE']._serialized_end=1037
-  _globals['_CREATESESSIONREQUEST']._serialized_start=1039
-  _globals['_CREATESESSIONREQUEST']._serialized_end=1083
-  _globals['_CREATESESSIONRESPONSE']._serialized_start=1085
-  _globals['_CREATESESSIONRESPONSE']._serialized_end=1146
-  _globals['_LISTSESSIONSREQUEST']._serialized_start=1148
-  _globals['_LISTSESSIONSREQUEST']._serialized_end=1169
-  _globals['_LISTSESSIONSRESPONSE']._serialized_start=1171
-  _globals['_LISTSESSIONSRESPONSE']._serialized_end=1232
-  _globals['_GETSESSIONREQUEST']._serialized_start=1234
-  _globals['_GETSESSIONREQUEST']._serialized_end=1273
-  _globals['_GETSESSIONRESPONSE']._serialized_start=1275
-  _globals['_GETSESSIONRESPONSE']._serialized_end=1333
-  _globals['_DELETESESSIONREQUEST']._serialized_start=1335
-  _globals['_DELETESESSIONREQUEST']._serialized_end=1377
-  _globals['_DELETESESSIONRESPONSE']._serialized_start=1379
-  _globals['_DELETESESSIONRESPONSE']._serialized_end=1402
-  _globals['_UPLOADLABELMAPREQUEST']._serialized_start=1405
-  _globals['_UPLOADLABELMAPREQUEST']._serialized_end=1546
-  _globals['_UPLOADLABELMAPRESPONSE']._serialized_start=1548
-  _globals['_UPLOADLABELMAPRESPONSE']._serialized_end=1620
-  _globals['_RECONSTRUCTREQUEST']._serialized_start=1623
-  _globals['_RECONSTRUCTREQUEST']._serialized_end=1762
-  _globals['_RECONSTRUCTRESPONSE']._serialized_start=1765
-  _globals['_RECONSTRUCTRESPONSE']._serialized_end=1933
-  _globals['_EDITREQUEST']._serialized_start=1936
-  _globals['_EDITREQUEST']._serialized_end=2719
-  _globals['_EDITRESPONSE']._serialized_start=2721
-  _globals['_EDITRESPONSE']._serialized_end=2823
-  _globals['_GETVOLUMESREQUEST']._serialized_start=2825
-  _globals['_GETVOLUMESREQUEST']._serialized_end=2864
-  _globals['_GETVOLUMESRESPONSE']._serialized_start=2866
-  _globals['_GETVOLUMESRESPONSE']._serialized_end=2951
-  _globals['_EXPORTPLANREQUEST']._serialized_start=2953
-  _globals['_EXPORTPLANREQUEST']._serialized_end=2992
-  _globals['_EXPORTPLANRESPONSE']._serialized_start=2994
-  _globals['_EXPORTPLANRESPONSE']._serialized_end=3055
-  _globals['_IMPORTPLANREQUEST']._serialized_start=3057
-  _globals['_IMPORTPLANREQUEST']._serialized_end=3137
-  _globals['_IMPORTPLANRESPONSE']._serialized_start=3139
-  _globals['_IMPORTPLANRESPONSE']._serialized_end=3181
-  _globals['_EXPORTMODELREQUEST']._serialized_start=3184
-  _globals['_EXPORTMODELREQUEST']._serialized_end=3314
-  _globals['_EXPORTMODELRESPONSE']._serialized_start=3316
-  _globals['_EXPORTMODELRESPONSE']._serialized_end=3372
-  _globals['_GETSLICESREQUEST']._serialized_start=3375
-  _globals['_GETSLICESREQUEST']._serialized_end=3562
-  _globals['_GETSLICESRESPONSE']._serialized_start=3565
-  _globals['_GETSLICESRESPONSE']._serialized_end=3700
-  _globals['_WATCHREQUEST']._serialized_start=3702
-  _globals['_WATCHREQUEST']._serialized_end=3819
-  _globals['_WATCHRESPONSE']._serialized_start=3822
-  _globals['_WATCHRESPONSE']._serialized_end=4004
-  _globals['_PLANNINGSERVICE']._serialized_start=4007
-  _globals['_PLANNINGSERVICE']._serialized_end=5125
+  _globals['_SLICEAXIS']._serialized_start=4484
+  _globals['_SLICEAXIS']._serialized_end=4594
+  _globals['_GETSERVERINFOREQUEST']._serialized_start=265
+  _globals['_GETSERVERINFOREQUEST']._serialized_end=287
+  _globals['_SERVERLIMITS']._serialized_start=290
+  _globals['_SERVERLIMITS']._serialized_end=991
+  _globals['_GETSERVERINFORESPONSE']._serialized_start=994
+  _globals['_GETSERVERINFORESPONSE']._serialized_end=1126
+  _globals['_CREATESESSIONREQUEST']._serialized_start=1128
+  _globals['_CREATESESSIONREQUEST']._serialized_end=1172
+  _globals['_CREATESESSIONRESPONSE']._serialized_start=1174
+  _globals['_CREATESESSIONRESPONSE']._serialized_end=1235
+  _globals['_LISTSESSIONSREQUEST']._serialized_start=1237
+  _globals['_LISTSESSIONSREQUEST']._serialized_end=1258
+  _globals['_LISTSESSIONSRESPONSE']._serialized_start=1260
+  _globals['_LISTSESSIONSRESPONSE']._serialized_end=1321
+  _globals['_GETSESSIONREQUEST']._serialized_start=1323
+  _globals['_GETSESSIONREQUEST']._serialized_end=1362
+  _globals['_GETSESSIONRESPONSE']._serialized_start=1364
+  _globals['_GETSESSIONRESPONSE']._serialized_end=1422
+  _globals['_DELETESESSIONREQUEST']._serialized_start=1424
+  _globals['_DELETESESSIONREQUEST']._serialized_end=1466
+  _globals['_DELETESESSIONRESPONSE']._serialized_start=1468
+  _globals['_DELETESESSIONRESPONSE']._serialized_end=1491
+  _globals['_UPLOADLABELMAPREQUEST']._serialized_start=1494
+  _globals['_UPLOADLABELMAPREQUEST']._serialized_end=1635
+  _globals['_UPLOADLABELMAPRESPONSE']._serialized_start=1637
+  _globals['_UPLOADLABELMAPRESPONSE']._serialized_end=1709
+  _globals['_RECONSTRUCTREQUEST']._serialized_start=1712
+  _globals['_RECONSTRUCTREQUEST']._serialized_end=1851
+  _globals['_RECONSTRUCTRESPONSE']._serialized_start=1854
+  _globals['_RECONSTRUCTRESPONSE']._serialized_end=2022
+  _globals['_EDITREQUEST']._serialized_start=2025
+  _globals['_EDITREQUEST']._serialized_end=2808
+  _globals['_EDITRESPONSE']._serialized_start=2810
+  _globals['_EDITRESPONSE']._serialized_end=2912
+  _globals['_GETVOLUMESREQUEST']._serialized_start=2914
+  _globals['_GETVOLUMESREQUEST']._serialized_end=2953
+  _globals['_GETVOLUMESRESPONSE']._serialized_start=2955
+  _globals['_GETVOLUMESRESPONSE']._serialized_end=3040
+  _globals['_EXPORTPLANREQUEST']._serialized_start=3042
+  _globals['_EXPORTPLANREQUEST']._serialized_end=3081
+  _globals['_EXPORTPLANRESPONSE']._serialized_start=3083
+  _globals['_EXPORTPLANRESPONSE']._serialized_end=3144
+  _globals['_IMPORTPLANREQUEST']._serialized_start=3146
+  _globals['_IMPORTPLANREQUEST']._serialized_end=3226
+  _globals['_IMPORTPLANRESPONSE']._serialized_start=3228
+  _globals['_IMPORTPLANRESPONSE']._serialized_end=3270
+  _globals['_EXPORTMODELREQUEST']._serialized_start=3273
+  _globals['_EXPORTMODELREQUEST']._serialized_end=3403
+  _globals['_EXPORTMODELRESPONSE']._serialized_start=3405
+  _globals['_EXPORTMODELRESPONSE']._serialized_end=3461
+  _globals['_GETSLICESREQUEST']._serialized_start=3464
+  _globals['_GETSLICESREQUEST']._serialized_end=3651
+  _globals['_GETSLICESRESPONSE']._serialized_start=3654
+  _globals['_GETSLICESRESPONSE']._serialized_end=3789
+  _globals['_GETLABELSLICEREQUEST']._serialized_start=3792
+  _globals['_GETLABELSLICEREQUEST']._serialized_end=3928
+  _globals['_GETLABELSLICERESPONSE']._serialized_start=3931
+  _globals['_GETLABELSLICERESPONSE']._serialized_end=4178
+  _globals['_WATCHREQUEST']._serialized_start=4180
+  _globals['_WATCHREQUEST']._serialized_end=4297
+  _globals['_WATCHRESPONSE']._serialized_start=4300
+  _globals['_WATCHRESPONSE']._serialized_end=4482
+  _globals['_PLANNINGSERVICE']._serialized_start=4597
+  _globals['_PLANNINGSERVICE']._serialized_end=5801
 # @@protoc_insertion_point(module_scope)

@@ -105,6 +105,11 @@ class PlanningServiceStub:
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetSlicesRequest.SerializeToString,
                 response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetSlicesResponse.FromString,
                 _registered_method=True)
+        self.GetLabelSlice = channel.unary_unary(
+                '/resecta.v1.PlanningService/GetLabelSlice',
+                request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceRequest.SerializeToString,
+                response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceResponse.FromString,
+                _registered_method=True)
         self.Watch = channel.unary_stream(
                 '/resecta.v1.PlanningService/Watch',
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.WatchRequest.SerializeToString,
@@ -226,6 +231,16 @@ class PlanningServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def GetLabelSlice(self, request, context):
+        """One plane of the session's label map resampled as a raster of labels (nearest neighbour),
+        for the 2D slice views: the label map itself never travels. INVALID_ARGUMENT for a position
+        outside the label map's extent along the axis; FAILED_PRECONDITION (NO_LABEL_MAP) before a
+        label map is loaded.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
     def Watch(self, request, context):
         """Follows a session: a snapshot first (or, with `since_seq`, the events after it when the
         server still has them), then a delta per plan change and volumes when they are recomputed.
@@ -306,6 +321,11 @@ def add_PlanningServiceServicer_to_server(servicer, server):
                     servicer.GetSlices,
                     request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetSlicesRequest.FromString,
                     response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetSlicesResponse.SerializeToString,
+            ),
+            'GetLabelSlice': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetLabelSlice,
+                    request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceRequest.FromString,
+                    response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceResponse.SerializeToString,
             ),
             'Watch': grpc.unary_stream_rpc_method_handler(
                     servicer.Watch,
@@ -669,6 +689,33 @@ class PlanningService:
             '/resecta.v1.PlanningService/GetSlices',
             resecta_dot_v1_dot_planning__service__pb2.GetSlicesRequest.SerializeToString,
             resecta_dot_v1_dot_planning__service__pb2.GetSlicesResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetLabelSlice(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/resecta.v1.PlanningService/GetLabelSlice',
+            resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceRequest.SerializeToString,
+            resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceResponse.FromString,
             options,
             channel_credentials,
             insecure,

@@ -193,6 +193,12 @@ impl PlanningService for Fake {
     ) -> Result<Response<GetSlicesResponse>, Status> {
         Err(Status::unimplemented("get_slices"))
     }
+    async fn get_label_slice(
+        &self,
+        _: Request<GetLabelSliceRequest>,
+    ) -> Result<Response<GetLabelSliceResponse>, Status> {
+        Err(Status::unimplemented("get_label_slice"))
+    }
     type WatchStream = BoxStream<WatchResponse>;
     async fn watch(
         &self,

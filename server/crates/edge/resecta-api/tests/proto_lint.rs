@@ -405,6 +405,7 @@ fn service_has_the_operations_with_their_stream_kinds() {
         ("ImportPlan", (false, false)),
         ("ExportModel", (false, true)),
         ("GetSlices", (false, false)),
+        ("GetLabelSlice", (false, false)),
         ("Watch", (false, true)),
     ];
     assert_eq!(kinds, expected.into_iter().collect());

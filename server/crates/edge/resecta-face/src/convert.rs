@@ -10,8 +10,8 @@ use resecta_geom::{Mat3, Real, Role, RoleMap};
 use resecta_io::mesh::MeshFormat;
 use resecta_plan::resection::ResectionKind;
 use resecta_plan::{
-    Group, IncompleteCut, PlanEvent, Resection, SlicePositions, SliceProjections, Target, Verdict,
-    VolumeReport,
+    Group, IncompleteCut, LabelSlice, PlanEvent, Resection, SliceAxis, SlicePositions,
+    SliceProjections, Target, Verdict, VolumeReport,
 };
 use resecta_session::api::{
     DEFAULT_GRID, DataType, EditOp, EditOutcome, FileFormat, LabelMapSummary, ModelInfo,
@@ -432,6 +432,21 @@ pub fn slice_positions(r: &pb::GetSlicesRequest) -> Wire<SlicePositions> {
     })
 }
 
+/// A label slice's plane and pixel size: the axis known, the numbers finite (their ranges
+/// depend on the label map and are the operation's to check).
+pub fn label_slice_request(r: &pb::GetLabelSliceRequest) -> Wire<(SliceAxis, Real, Option<Real>)> {
+    let axis = match known("axis", r.axis)? {
+        pb::SliceAxis::Axial => SliceAxis::Axial,
+        pb::SliceAxis::Coronal => SliceAxis::Coronal,
+        pb::SliceAxis::Sagittal => SliceAxis::Sagittal,
+        pb::SliceAxis::Unspecified => {
+            return Err(WireError::invalid("axis", "must not be UNSPECIFIED"));
+        }
+    };
+    let pixel = r.pixel_mm.map(|v| finite("pixel_mm", v)).transpose()?;
+    Ok((axis, finite("position_mm", r.position_mm)?, pixel))
+}
+
 // ---- outbound --------------------------------------------------------------------------------
 
 fn vec3(p: [Real; 3]) -> pb::Vec3 {
@@ -660,5 +675,19 @@ pub fn slices(s: &SliceProjections) -> pb::GetSlicesResponse {
         axial: lines(&s.axial),
         coronal: lines(&s.coronal),
         sagittal: lines(&s.sagittal),
+    }
+}
+
+pub fn label_slice(s: &LabelSlice) -> pb::GetLabelSliceResponse {
+    pb::GetLabelSliceResponse {
+        width: u32::try_from(s.width).unwrap_or(u32::MAX),
+        height: u32::try_from(s.height).unwrap_or(u32::MAX),
+        pixel_mm: s.pixel_mm,
+        origin: Some(vec3(s.origin.into())),
+        column_axis: Some(vec3(s.column_axis.into())),
+        row_axis: Some(vec3(s.row_axis.into())),
+        labels: s.labels.iter().flat_map(|l| l.to_le_bytes()).collect(),
+        min_position_mm: s.extent[0],
+        max_position_mm: s.extent[1],
     }
 }

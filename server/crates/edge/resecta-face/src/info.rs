@@ -13,6 +13,7 @@ pub mod limits {
     pub use resecta_plan::MAX_RESECTIONS;
     pub use resecta_plan::anatomy::TARGET_POINT_SNAP_MM;
     pub use resecta_plan::init::MIN_END_DISTANCE_MM;
+    pub use resecta_plan::label_slice::{MAX_LABEL_SLICE_PIXEL_MM, MAX_LABEL_SLICE_SIDE};
     pub use resecta_plan::plan::MAX_PLAN_BYTES;
     pub use resecta_plan::resection::{
         MAX_ANGLE_DEG, MAX_COORDINATE_MM, MAX_MARGIN_MM, MAX_NAME_LEN, MAX_RESOLUTION,
@@ -67,6 +68,8 @@ pub fn server_info(service: &Service) -> pb::GetServerInfoResponse {
             max_spacing_mm: *SPACING_MM.end(),
             max_extent_mm: MAX_EXTENT_MM,
             max_origin_mm: MAX_ORIGIN_MM,
+            max_label_slice_side: saturating_u32(MAX_LABEL_SLICE_SIDE),
+            max_label_slice_pixel_mm: MAX_LABEL_SLICE_PIXEL_MM,
         }),
     }
 }

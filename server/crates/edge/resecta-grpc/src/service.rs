@@ -279,6 +279,20 @@ impl PlanningService for Planning {
         Ok(Response::new(convert::slices(&slices)))
     }
 
+    async fn get_label_slice(
+        &self,
+        request: Request<pb::GetLabelSliceRequest>,
+    ) -> Result<Response<pb::GetLabelSliceResponse>, Status> {
+        let r = request.get_ref();
+        let (axis, position, pixel) = convert::label_slice_request(r).or_status()?;
+        let slice = self
+            .service
+            .label_slice(&r.session_id, axis, position, pixel)
+            .await
+            .or_status()?;
+        Ok(Response::new(convert::label_slice(&slice)))
+    }
+
     type WatchStream = BoxStream<pb::WatchResponse>;
 
     async fn watch(

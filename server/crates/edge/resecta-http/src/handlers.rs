@@ -333,6 +333,22 @@ pub async fn slices(
     Ok(axum::Json(convert::slices(&s)))
 }
 
+/// `GetLabelSlice`: the query is the `GetLabelSliceRequest`
+/// (`axis=SLICE_AXIS_AXIAL&positionMm=…&pixelMm=…`); the labels come base64-encoded.
+pub async fn label_slice(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    ProtoQuery(mut req): ProtoQuery<pb::GetLabelSliceRequest>,
+) -> JsonAnswer<pb::GetLabelSliceResponse> {
+    session_id(&mut req.session_id, id)?;
+    let (axis, position, pixel) = convert::label_slice_request(&req)?;
+    let s = app
+        .service
+        .label_slice(&req.session_id, axis, position, pixel)
+        .await?;
+    Ok(axum::Json(convert::label_slice(&s)))
+}
+
 // ---- watch ---------------------------------------------------------------------------------
 
 /// `Watch` as server-sent events: the query is the `WatchRequest` (`sinceSeq`, `allowZstd`,

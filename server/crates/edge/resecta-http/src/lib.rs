@@ -31,6 +31,7 @@
 //! | `GET`, `PUT /v1/sessions/{id}/plan` | `ExportPlan`, `ImportPlan` | → `ExportPlanResponse`; `ImportPlanRequest` → `ImportPlanResponse` |
 //! | `GET /v1/sessions/{id}/models/{name}?format=MODEL_FORMAT_VTP` | `ExportModel` | → the mesh file as the body |
 //! | `GET /v1/sessions/{id}/slices?resection=…&axial=…` | `GetSlices` | → `GetSlicesResponse` |
+//! | `GET /v1/sessions/{id}/label-slice?axis=…&positionMm=…` | `GetLabelSlice` | → `GetLabelSliceResponse` |
 //! | `GET /v1/sessions/{id}/watch?sinceSeq=…` | `Watch` | → SSE of `WatchResponse` (`snapshot`, `delta`, `volumes`), `id` = seq, `Last-Event-ID` resumes |
 //!
 //! Errors map [`resecta_session::ErrorKind`] and `resecta_face::WireError` once (see
@@ -248,6 +249,12 @@ fn table() -> Vec<Route> {
             "/v1/sessions/{id}/slices",
             Some("GetSlices"),
             h::slices,
+        ),
+        route(
+            Get,
+            "/v1/sessions/{id}/label-slice",
+            Some("GetLabelSlice"),
+            h::label_slice,
         ),
         route(Get, "/v1/sessions/{id}/watch", Some("Watch"), h::watch),
     ]

@@ -210,6 +210,8 @@ async fn every_rpc_answers_the_same_on_both_faces() {
             (l.max_extent_mm, l.max_origin_mm),
             (k::MAX_EXTENT_MM, k::MAX_ORIGIN_MM)
         );
+        assert_eq!(l.max_label_slice_side as usize, k::MAX_LABEL_SLICE_SIDE);
+        assert_eq!(l.max_label_slice_pixel_mm, k::MAX_LABEL_SLICE_PIXEL_MM);
         let idle = config().idle_expiry.map_or(0, |d| d.as_secs());
         assert!(idle > 0);
         assert_eq!(l.session_idle_timeout_s, idle);
@@ -497,6 +499,29 @@ async fn every_rpc_answers_the_same_on_both_faces() {
     .json();
     assert_same("GetSlices", &pj(&g), &h);
     assert!(h["axial"].as_array().is_some_and(|a| !a.is_empty()), "{h}");
+
+    walked("GetLabelSlice");
+    let g = grpc
+        .get_label_slice(pb::GetLabelSliceRequest {
+            session_id: a.clone(),
+            axis: pb::SliceAxis::Coronal.into(),
+            position_mm: 0.0,
+            pixel_mm: Some(2.0),
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let h = get(
+        http,
+        &format!("/v1/sessions/{b}/label-slice?axis=SLICE_AXIS_CORONAL&positionMm=0&pixelMm=2"),
+    )
+    .await
+    .json();
+    assert_same("GetLabelSlice", &pj(&g), &h);
+    assert!(
+        g.labels.chunks(2).any(|l| l != [0, 0]),
+        "the plane cuts the liver"
+    );
 
     // Watch: the first snapshot (its parts) of each session.
     walked("Watch");

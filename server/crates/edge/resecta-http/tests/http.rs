@@ -1061,6 +1061,10 @@ async fn the_document_states_the_limits_the_server_reports_and_enforces() {
             "RawLabelMapHeader/properties/origin/items/maximum",
             "maxOriginMm",
         ),
+        (
+            "GetLabelSliceRequest/properties/pixelMm/maximum",
+            "maxLabelSlicePixelMm",
+        ),
     ] {
         assert_eq!(
             n(stated(pointer)),

@@ -25,7 +25,9 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use resecta_geom::RoleMap;
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
-use resecta_plan::{SlicePositions, SliceProjections, slice_projections};
+use resecta_plan::{
+    LabelSlice, SliceAxis, SlicePositions, SliceProjections, label_slice, slice_projections,
+};
 use resecta_store::SessionStore;
 
 use crate::api::{API_VERSION, LabelMapSource, LabelMapSummary, Limits, ServerInfo, Versioned};
@@ -39,7 +41,7 @@ use crate::log;
 use crate::pools::{self, Priority};
 use crate::registry::Registry;
 use crate::state::{
-    Loaded, Session, SetUp, State, damaged, loaded_mut, models_bytes, spawn_planner,
+    Loaded, Session, SetUp, State, damaged, loaded_mut, models_bytes, no_label_map, spawn_planner,
 };
 use crate::support::{blocking, internal};
 use crate::watch::WatchStream;
@@ -423,6 +425,21 @@ impl Service {
         let planner = loaded.ready().await?;
         let mesh = planner.state(name)?.mesh()?;
         Ok(slice_projections(&mesh, &at)?)
+    }
+
+    /// One plane of the label map as a raster of labels (nearest neighbour), computed off the
+    /// runtime and without holding the session, so edits go on meanwhile.
+    pub async fn label_slice(
+        &self,
+        id: &str,
+        axis: SliceAxis,
+        position_mm: f64,
+        pixel_mm: Option<f64>,
+    ) -> Result<LabelSlice> {
+        let (_, st) = self.open(id).await?;
+        let labels = Arc::clone(&st.loaded.as_ref().ok_or_else(no_label_map)?.labels);
+        drop(st);
+        blocking(move || Ok(label_slice(&labels, axis, position_mm, pixel_mm)?)).await
     }
 
     /// The session's event stream: from `since` when the server still holds what followed it,

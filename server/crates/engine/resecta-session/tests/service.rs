@@ -9,7 +9,7 @@ use std::time::Duration;
 use resecta_delta::{DecodeLimits, SurfaceFrame, apply_delta, decode_mesh};
 use resecta_geom::RoleMap;
 use resecta_margin::FAR_TOLERANCE_MM;
-use resecta_plan::PlanEvent;
+use resecta_plan::{PlanEvent, SliceAxis, label_slice};
 use resecta_session::api::{
     EditOp, FileFormat, LabelMapSource, ModelInfo, RawLabelMap, ReconMethod, ReconOptions,
     ReconstructEvent, SessionState, SurfaceKind, WatchBody, WatchEvent,
@@ -1125,4 +1125,44 @@ async fn sessions_restored_in_the_background_plan_like_an_eager_planner() {
     let listed = service.list_sessions().await.unwrap();
     let older = listed.iter().find(|s| s.id == ids[0]).unwrap();
     assert_eq!(older.plan_version, 3);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn label_slices_need_a_label_map_and_a_position_inside_it() {
+    let labels = phantom();
+    let service = Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    );
+    let id = service.create_session("Slices").await.unwrap().id;
+    let none = service
+        .label_slice(&id, SliceAxis::Axial, 0.0, None)
+        .await
+        .unwrap_err();
+    assert_eq!(none.kind(), ErrorKind::FailedPrecondition);
+    assert_eq!(none.code(), "NO_LABEL_MAP");
+    service
+        .upload_label_map(
+            &id,
+            LabelMapSource::Raw(RawLabelMap::of(&labels)),
+            RoleMap::default(),
+        )
+        .await
+        .unwrap();
+    // The operation answers what the geometry computes on the label map it was given.
+    let s = service
+        .label_slice(&id, SliceAxis::Coronal, 1.5, Some(1.0))
+        .await
+        .unwrap();
+    assert_eq!(
+        s,
+        label_slice(&labels, SliceAxis::Coronal, 1.5, Some(1.0)).unwrap()
+    );
+    assert!(s.labels.contains(&1));
+    let far = service
+        .label_slice(&id, SliceAxis::Coronal, s.extent[1] + 1.0, None)
+        .await
+        .unwrap_err();
+    assert_eq!(far.kind(), ErrorKind::InvalidArgument);
+    assert!(far.to_string().contains("position_mm"), "{far}");
 }

@@ -21,12 +21,13 @@ pub const SESSION_FIELD: &str = "sessionId";
 
 /// Enums whose zero value (`*_UNSPECIFIED`) is never valid on the wire: refused in requests
 /// (`convert::known`) or never sent. They are offered without it.
-pub const NO_ZERO: [&str; 6] = [
+pub const NO_ZERO: [&str; 7] = [
     "resecta.v1.DataType",
     "resecta.v1.LabelMapFormat",
     "resecta.v1.ControlGroup",
     "resecta.v1.ModelFormat",
     "resecta.v1.SessionState",
+    "resecta.v1.SliceAxis",
     "resecta.v1.SurfaceKind",
 ];
 
@@ -117,6 +118,10 @@ pub fn field(message: &str, field: &str) -> Option<Value> {
         ("Resection", "name") => new_name(),
         ("Resection", "gridM" | "gridN") => side(),
         ("Resection", "controlPoints") => control_points(),
+        ("GetLabelSliceRequest", "positionMm") => finite(),
+        ("GetLabelSliceRequest", "pixelMm") => {
+            json!({"exclusiveMinimum": 0, "maximum": MAX_LABEL_SLICE_PIXEL_MM})
+        }
         ("ImportPlanRequest", "planJson") => json!({
             "minLength": 1, "contentMediaType": "application/json",
             "contentSchema": {"$ref": "#/components/schemas/PlanDocument"},
@@ -154,6 +159,7 @@ pub fn required(message: &str) -> &'static [&'static str] {
         "ImportPlanRequest" => &["planJson"],
         "ExportModelRequest" => &["format"],
         "GetSlicesRequest" => &["resection"],
+        "GetLabelSliceRequest" => &["axis"],
         _ => &[],
     }
 }
@@ -192,6 +198,7 @@ pub fn note(message: &str) -> Option<String> {
         "Translate" => "The moved points must stay within the coordinate range.".to_owned(),
         "Rotate" => "`axis` must be non-zero, and the rotated points must stay within the coordinate range.".to_owned(),
         "Resection" => "In a request, `controlPoints` holds exactly gridM·gridN points.".to_owned(),
+        "GetLabelSliceRequest" => format!("`positionMm` must lie within the label map's extent along the axis (the answer's `minPositionMm`..=`maxPositionMm`; 400 otherwise). The pixel size is raised so that neither side of the raster exceeds {MAX_LABEL_SLICE_SIDE} pixels. 409 `NO_LABEL_MAP` before a label map is loaded."),
         "EditRequest" => "Every edit but init and add names an existing resection (404 otherwise); undo and redo need something to undo or redo (409 otherwise); a non-zero `baseVersion` other than the plan's version is 409 `STALE_VERSION`.".to_owned(),
         _ => return None,
     })
