@@ -154,6 +154,32 @@ export interface WatchResponse {
   volumes?: VolumeReport;
 }
 
+export type SliceAxis = "SLICE_AXIS_AXIAL" | "SLICE_AXIS_CORONAL" | "SLICE_AXIS_SAGITTAL";
+
+/** `GetLabelSliceResponse`: pixel (r, c) centred at origin + c·pixelMm·columnAxis + r·pixelMm·rowAxis. */
+export interface LabelSliceResponse {
+  width?: number;
+  height?: number;
+  pixelMm?: number;
+  origin?: Partial<Vec3>;
+  columnAxis?: Partial<Vec3>;
+  rowAxis?: Partial<Vec3>;
+  labels?: string; // base64 of u16 little-endian, row-major
+  minPositionMm?: number;
+  maxPositionMm?: number;
+}
+
+export interface SlicePolyline {
+  points?: string; // base64 of f32 little-endian x, y, z per point
+  closed?: boolean;
+}
+
+export interface SlicesResponse {
+  axial?: SlicePolyline[];
+  coronal?: SlicePolyline[];
+  sagittal?: SlicePolyline[];
+}
+
 export interface EditResponse {
   planVersion?: string;
   resections?: { resection?: Resection; verdict?: Verdict }[];
@@ -279,6 +305,18 @@ export class Api {
   }
   volumes(id: string): Promise<{ planVersion?: string; volumes?: VolumeReport }> {
     return this.json("GET", `/v1/sessions/${enc(id)}/volumes`);
+  }
+  /** One plane of the label map as a raster (`pixelMm` absent: the finest voxel spacing). */
+  labelSlice(id: string, axis: SliceAxis, positionMm: number, pixelMm?: number): Promise<LabelSliceResponse> {
+    const q = new URLSearchParams({ axis, positionMm: String(positionMm) });
+    if (pixelMm !== undefined) q.set("pixelMm", String(pixelMm));
+    return this.json("GET", `/v1/sessions/${enc(id)}/label-slice?${q}`);
+  }
+  /** A resection's contours on the planes given (RAS z, y, x mm). */
+  slices(id: string, resection: string, at: { axial?: number; coronal?: number; sagittal?: number }): Promise<SlicesResponse> {
+    const q = new URLSearchParams({ resection });
+    for (const [k, v] of Object.entries(at)) if (v !== undefined) q.set(k, String(v));
+    return this.json("GET", `/v1/sessions/${enc(id)}/slices?${q}`);
   }
 
   /** Follows a session's watch stream until `close()`: whole snapshots (parts joined), deltas

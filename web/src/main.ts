@@ -9,8 +9,10 @@ import { Intake } from "./intake";
 import { askToken, Panel } from "./panel";
 import { Plan } from "./plan";
 import type { Change, PublicState } from "./plan";
-import { Scene } from "./scene";
+import { PALETTE, Scene } from "./scene";
 import type { ScreenPoint } from "./scene";
+import { SliceView } from "./sliceview";
+import type { SliceState } from "./sliceview";
 import { RepaintTimer } from "./timings";
 import type { Timings } from "./timings";
 import { Tools } from "./tools";
@@ -34,6 +36,8 @@ declare global {
       look(name: string): { opacity: number; visible: boolean } | null;
       /** The names of the models shown. */
       models(): string[];
+      /** The slice view's plane, raster size, contours drawn and last picked point. */
+      slice(): SliceState | null;
     };
   }
 }
@@ -44,6 +48,9 @@ const view = document.getElementById("view")!;
 const scene = new Scene(view);
 const timer = new RepaintTimer();
 const intake = new Intake(panel.root.appendChild(document.createElement("section")), api);
+const sliceView = new SliceView(document.getElementById("slice")!, api, PALETTE, PALETTE["resection"]![0], (e) =>
+  panel.setStatus(`Slice view: ${message(e)}`, "error"),
+);
 let plan: Plan | null = null;
 let editor: GridEditor | null = null;
 /** The newest plan version an edit of this page was answered with. */
@@ -144,7 +151,7 @@ const tools = new Tools({
   pickEndPoint() {
     pickingEndPoint = true;
     view.style.cursor = "crosshair";
-    panel.setStatus("Click the liver in the 3D view where the resection should end (Esc: cancel)", "busy");
+    panel.setStatus("Click the liver in the 3D view or the slice view where the resection should end (Esc: cancel)", "busy");
   },
   setLook(name, look) {
     scene.setLook(name, look);
@@ -202,13 +209,21 @@ view.addEventListener(
     const names = plan ? [...plan.models.values()].filter((m) => m.kind === "parenchyma").map((m) => m.name) : [];
     const p = scene.pickSurface(e.clientX, e.clientY, names.length ? names : scene.names());
     if (!p) return panel.setStatus("That is not on the liver: click its surface (Esc: cancel)", "busy");
-    pickingEndPoint = false;
-    view.style.cursor = "";
-    tools.setEndPoint(p);
-    panel.setStatus("End point set: choose the tumour and Create");
+    endPointPicked(p);
   },
   { capture: true },
 );
+
+/** The new resection's end point, clicked on the 3D view or the slice view while picking. */
+function endPointPicked(p: Vec3): void {
+  pickingEndPoint = false;
+  view.style.cursor = "";
+  tools.setEndPoint(p);
+  panel.setStatus("End point set: choose the tumour and Create");
+}
+sliceView.onPick = (p) => {
+  if (pickingEndPoint) endPointPicked(p);
+};
 
 window.resecta = {
   state,
@@ -221,6 +236,7 @@ window.resecta = {
   focalPoint: () => scene.focalPoint(),
   look: (name) => scene.look(name),
   models: () => [...(plan?.models.keys() ?? [])],
+  slice: () => sliceView.state(),
 };
 
 panel.setActions(() => void history("undo"), () => void history("redo"));
@@ -269,6 +285,7 @@ function redraw(p: Plan, change: Change): void {
   panel.show(p);
   tools.update(p, panel.selected);
   if (marked) showClosest(marked, false);
+  sliceView.planChanged([...p.resections.keys()], editor?.selected ?? null);
   requestRender();
 }
 
@@ -288,6 +305,7 @@ async function main(): Promise<void> {
   const e = (editor = new GridEditor(api, p, scene, view, requestRender, (err) => panel.setStatus(`Edit failed: ${message(err)}`, "error")));
   panel.onSelect = (name) => {
     e.select(name);
+    sliceView.select(name);
     panel.selected = name;
     panel.show(p);
     tools.update(p, name);
@@ -295,11 +313,16 @@ async function main(): Promise<void> {
   panel.setStatus("Loading the session…", "busy");
   let lost = false;
   let opened = false;
+  let sliceKey = ""; // the label map the slice view shows
   const stream = api.watch(id, {
     snapshot(s, msg) {
       try {
         redraw(p, p.applySnapshot(s, msg));
         intake.show(p.session);
+        const labelMap = p.session?.labelMap;
+        const key = labelMap ? JSON.stringify(labelMap) : "";
+        if (key !== sliceKey && p.session && labelMap) sliceView.open(p.session, [...p.resections.keys()]);
+        sliceKey = key;
         // Later snapshots (after an import, a resync) keep what the status line says.
         const empty = p.session?.state === "SESSION_STATE_EMPTY";
         if (!opened || !p.models.size) {

@@ -206,7 +206,7 @@ export class Tools {
   }
 
   private buildCreator(): void {
-    const pick = button("Pick on the 3D view", "Click the liver in the 3D view where the resection should end", () => this.act.pickEndPoint());
+    const pick = button("Pick on a view", "Click the liver in the 3D view or the slice view where the resection should end", () => this.act.pickEndPoint());
     const form = h("form", { novalidate: "" }, labelled("Name", this.newName), labelled("Tumour", this.tumour),
       h("div", { class: "row" }, h("span", {}, "End point"), ...this.end, h("span", { class: "unit" }, "mm")),
       h("div", { class: "row" }, pick, h("button", { type: "submit" }, "Create")));
