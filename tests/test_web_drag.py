@@ -4,12 +4,40 @@ demo resection edits the plan on `resecta serve --demo`; Ctrl+Z and Ctrl+Y undo 
 a drag elsewhere rotates the camera and edits nothing."""
 import json
 import math
+import sys
+import threading
 
 import pytest
 import requests
 
 from browser_harness import browser, demo, open_page  # noqa: F401 (fixtures)
+from conftest import ROOT
 from server_harness import wait_for
+
+
+class PythonWatcher:
+    """A `resecta_client` (gRPC) watching the session in a thread: the plan versions and the
+    resections each delta changed, as the Slicer module would see them."""
+
+    def __init__(self, server, sid):
+        sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))
+        from resecta_client import Client
+
+        self.client = Client(server.grpc_addr)
+        self.watch = self.client.session(sid).watch()
+        self.deltas = []  # (plan_version, changed names)
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        for u in self.watch:
+            if u.kind == "delta":
+                self.deltas.append((u.plan_version, set(u.changed)))
+
+    def close(self):
+        self.watch.stop()
+        self.thread.join(timeout=10)
+        self.client.close()
 
 
 def state(page):
@@ -44,6 +72,7 @@ def test_a_mouse_drag_moves_a_control_point_and_undo_redo_follow(demo, browser):
     v0 = int(before["planVersion"])
     grid = before["resections"]["r1"]["controlPoints"]
     assert len(grid) == 16
+    watcher = PythonWatcher(server, sid)
 
     # A drag away from the grid rotates the camera: the point is drawn elsewhere, no edit.
     at0 = page.evaluate("window.resecta.screenPosition('r1', 1, 2)")
@@ -82,6 +111,9 @@ def test_a_mouse_drag_moves_a_control_point_and_undo_redo_follow(demo, browser):
                            timeout=15_000)
     end = page.evaluate("window.resecta.screenPosition('r1', 1, 2)")
     assert math.hypot(end["x"] - (at["x"] + 40), end["y"] - (at["y"] - 30)) < 2.0
+    # A Python client watching the session saw the drag's edits, the last one included.
+    wait_for(lambda: any(v >= v1 and "r1" in changed for v, changed in watcher.deltas), timeout=15)
+    watcher.close()
 
     # Ctrl+Z undoes the last edit, Ctrl+Y redoes it: each moves the plan version on.
     page.keyboard.press("Control+z")

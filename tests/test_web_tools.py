@@ -80,6 +80,24 @@ def test_moves_rotations_margin_and_band_edit_the_selected_resection(page):
     assert state(page)["planVersion"] == version
 
 
+def test_an_edit_against_a_stale_version_is_refused_with_a_clear_message(page):
+    """The page sends its edits against the newest version it knows; when another client got
+    there first the server refuses (409) and the page says what happened. The race is made
+    here by rewriting the edit's base version on its way out."""
+    def stale(route):
+        body = json.loads(route.request.post_data)
+        body["baseVersion"] = "1"
+        route.continue_(post_data=json.dumps(body))
+
+    before = state(page)["planVersion"]
+    page.route("**/edits", stale)
+    press(page, "P")
+    page.wait_for_function("() => document.querySelector('.status').textContent"
+                           ".includes('The plan changed meanwhile')")
+    page.unroute("**/edits")
+    assert state(page)["planVersion"] == before
+
+
 def centroid(points):
     return [sum(p[c] for p in points) / len(points) for c in "xyz"]
 
