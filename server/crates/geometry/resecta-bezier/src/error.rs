@@ -35,4 +35,14 @@ pub enum BezierError {
     MissingOutput(&'static str),
     #[error("mesh: {0}")]
     Mesh(#[from] resecta_geom::GeomError),
+    /// The device an evaluator runs on failed (e.g. a lost GPU); the CPU evaluator can take over.
+    #[error("evaluation device failed: {0}")]
+    Device(String),
+}
+
+impl BezierError {
+    /// Whether the evaluating device failed (rather than the input being invalid).
+    pub fn is_device(&self) -> bool {
+        matches!(self, Self::Device(_))
+    }
 }

@@ -20,7 +20,13 @@
 //!   [`MleEvaluator`] (Sec. 8.4; setters invalidate only affected levels, [`MleCounters`];
 //!   `evaluate`, `evaluate_into`, `evaluate_points_into`, `evaluate_points_soa_into`,
 //!   `basis_tables`).
-//! - [`eval_point`]: S, ∂S/∂u, ∂S/∂v, ∂²S/∂u∂v at one (u, v). Normals: see [`normals`].
+//! - [`eval_point`]: S, ∂S/∂u, ∂S/∂v, ∂²S/∂u∂v at one (u, v). Normals: see [`normals`];
+//!   [`NormalTolerance`] (the regular-normal test) and [`repair_normals`] (degenerate samples)
+//!   for evaluators elsewhere.
+//! - [`SurfaceEvaluator`]: the seam a planner evaluates through (points + unit normals, f64,
+//!   fallible with [`BezierError::Device`]); [`MleEvaluator<f64>`] implements it; a
+//!   [`SurfaceEngine`] makes one per surface ([`SurfaceEngine::cpu`] by default, GPU engines in
+//!   `resecta-gpu`).
 //! - [`to_trimesh`]: 2·(RU−1)·(RV−1) triangles oriented along ∂u×∂v ([`grid_triangles`]).
 //! - Benchmarks: [`Method`] {Brf, Mat, Mle}, [`Prepared`] (`new`, `run`, `output`),
 //!   [`write_ceiling`].
@@ -31,6 +37,7 @@
 pub mod basis;
 pub mod brf;
 pub mod error;
+pub mod evaluator;
 pub mod mat;
 pub mod mesh;
 pub mod method;
@@ -42,11 +49,12 @@ pub mod types;
 pub use basis::{basis_at, bernstein, bernstein_table, binomial, binomial_row, powi};
 pub use brf::{brf_into, evaluate_brf};
 pub use error::BezierError;
+pub use evaluator::{SurfaceEngine, SurfaceEvaluator, cpu_evaluator};
 pub use mat::{MatEvaluator, power_basis_matrix};
 pub use mesh::{grid_triangles, to_trimesh};
 pub use method::{Method, Prepared, write_ceiling};
 pub use mle::{MleCounters, MleEvaluator};
-pub use normals::{PointEval, eval_point};
+pub use normals::{NormalTolerance, PointEval, eval_point, repair_normals};
 pub use scalar::{BezierScalar, P3};
 pub use types::{
     ControlNet, MAX_CONTROL_POINTS, MAX_RESOLUTION, MAX_SAMPLES, Outputs, Resolution, SurfaceGrid,

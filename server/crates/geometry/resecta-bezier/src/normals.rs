@@ -79,6 +79,37 @@ fn unit<T: BezierScalar>(n: P3<T>, tol: T) -> Option<P3<T>> {
     (len > tol && len.is_finite()).then(|| scale3(n, T::ONE / len))
 }
 
+/// The tolerances of the regular-normal test for `net` (see the module doc): a derivative is
+/// "≈ 0" when its length is ≤ `small`, the two are parallel when `|∂u×∂v| ≤ root_eps·|∂u|·|∂v|`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NormalTolerance<T> {
+    /// √ε·L, L the diagonal of the control points' bounding box.
+    pub small: T,
+    /// √ε of `T`.
+    pub root_eps: T,
+}
+
+impl<T: BezierScalar> NormalTolerance<T> {
+    /// The tolerances for `net` in `T`'s precision.
+    pub fn of(net: &ControlNet<T>) -> Self {
+        let (lo, hi) = net.bounds();
+        let root_eps = T::EPSILON.sqrt();
+        Self {
+            small: root_eps * norm3(sub3(hi, lo)),
+            root_eps,
+        }
+    }
+
+    /// The unit normal `∂u×∂v/|…|`, or `None` where the sample is degenerate.
+    pub fn regular(&self, du: P3<T>, dv: P3<T>) -> Option<P3<T>> {
+        let (la, lb) = (norm3(du), norm3(dv));
+        if la <= self.small || lb <= self.small {
+            return None;
+        }
+        unit(cross3(du, dv), self.root_eps * la * lb)
+    }
+}
+
 /// Fills `normals` from `du`, `dv` (all RU·RV, index `a·RV + b`), repairing degenerate samples
 /// as described in the module doc.
 pub(crate) fn finish_normals<T: BezierScalar>(
@@ -88,21 +119,11 @@ pub(crate) fn finish_normals<T: BezierScalar>(
     dv: &[P3<T>],
     normals: &mut [P3<T>],
 ) {
-    let (lo, hi) = net.bounds();
-    let scale = norm3(sub3(hi, lo));
-    let root_eps = T::EPSILON.sqrt();
-    let small = root_eps * scale;
-    let regular = |a: P3<T>, b: P3<T>| -> Option<P3<T>> {
-        let (la, lb) = (norm3(a), norm3(b));
-        if la <= small || lb <= small {
-            return None;
-        }
-        unit(cross3(a, b), root_eps * la * lb)
-    };
+    let tol = NormalTolerance::of(net);
     let degenerate: Vec<usize> = normals
         .par_iter_mut()
         .enumerate()
-        .filter_map(|(k, out)| match regular(du[k], dv[k]) {
+        .filter_map(|(k, out)| match tol.regular(du[k], dv[k]) {
             Some(nrm) => {
                 *out = nrm;
                 None
@@ -113,18 +134,42 @@ pub(crate) fn finish_normals<T: BezierScalar>(
             }
         })
         .collect();
+    repair(net, res, &degenerate, normals);
+}
+
+/// Steps 1–3 of the module doc for normals computed elsewhere (e.g. on a GPU) by
+/// [`NormalTolerance::regular`], with the zero vector at every degenerate sample: replaces each
+/// zero normal by its border limit or its neighbours' mean (or leaves it zero).
+pub fn repair_normals<T: BezierScalar>(
+    net: &ControlNet<T>,
+    res: Resolution,
+    normals: &mut [P3<T>],
+) {
+    let zero = [T::ZERO; 3];
+    let degenerate: Vec<usize> = (0..normals.len()).filter(|&k| normals[k] == zero).collect();
+    repair(net, res, &degenerate, normals);
+}
+
+/// Repairs the samples `degenerate` (zero in `normals`), steps 1–3 of the module doc.
+fn repair<T: BezierScalar>(
+    net: &ControlNet<T>,
+    res: Resolution,
+    degenerate: &[usize],
+    normals: &mut [P3<T>],
+) {
     if degenerate.is_empty() {
         return;
     }
+    let small = NormalTolerance::of(net).small;
     let (ru, rv) = (res.ru(), res.rv());
     let half = T::from_f64(0.5);
     let mut is_bad = vec![false; ru * rv];
-    for &k in &degenerate {
+    for &k in degenerate {
         is_bad[k] = true;
     }
     // Step 1: second-derivative limit on borders.
     let mut still = Vec::new();
-    for &k in &degenerate {
+    for &k in degenerate {
         let (a, b) = (k / rv, k % rv);
         let (u, v): (T, T) = (param(a, ru), param(b, rv));
         let e = eval_point(net, u, v);

@@ -356,8 +356,9 @@ impl<T: BezierScalar> SurfaceGrid<T> {
         (a < self.resolution.ru && b < self.resolution.rv)
             .then(|| self.points[a * self.resolution.rv + b])
     }
+    /// Mutable (points, ∂S/∂u, ∂S/∂v, normals), for evaluators outside this crate.
     #[allow(clippy::type_complexity)]
-    pub(crate) fn parts_mut(
+    pub fn parts_mut(
         &mut self,
     ) -> (
         &mut [P3<T>],

@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use rayon::prelude::*;
-use resecta_bezier::ControlNet;
+use resecta_bezier::{ControlNet, SurfaceEngine};
 use resecta_geom::{Plane, Real, TriMesh, Vec3, Volume};
 use resecta_margin::{
     MarginClass, MarginField, MarginMemo, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict,
@@ -152,12 +152,25 @@ pub struct Planner {
     /// Tumours picked by each target seen (selection scans tumour voxels: once per target).
     selections: Vec<(Target, Vec<usize>)>,
     volumetry: Option<Volumetry>,
+    /// Makes each resection's surface evaluator.
+    engine: SurfaceEngine,
     pub flr_threshold_pct: Real,
 }
 
 impl Planner {
-    /// A planner for `plan` (roles must match the anatomy's) on `anatomy`.
+    /// A planner for `plan` (roles must match the anatomy's) on `anatomy`, its surfaces
+    /// evaluated on the CPU.
     pub fn new(anatomy: Arc<Anatomy>, plan: Plan) -> Result<Self, PlanError> {
+        Self::with_engine(anatomy, plan, SurfaceEngine::cpu())
+    }
+
+    /// Like [`Planner::new`], its surfaces evaluated by `engine`'s evaluators (each falls back
+    /// to the CPU when its device fails, see [`LiveSurface`]).
+    pub fn with_engine(
+        anatomy: Arc<Anatomy>,
+        plan: Plan,
+        engine: SurfaceEngine,
+    ) -> Result<Self, PlanError> {
         anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
         let mut planner = Self {
             anatomy,
@@ -166,6 +179,7 @@ impl Planner {
             targets: BTreeMap::new(),
             selections: Vec::new(),
             volumetry: None,
+            engine,
             flr_threshold_pct: DEFAULT_FLR_THRESHOLD_PCT,
         };
         planner.refresh_all()?;
@@ -174,7 +188,16 @@ impl Planner {
 
     /// Continues a persisted session: the base plan and its log.
     pub fn resume(anatomy: Arc<Anatomy>, history: History) -> Result<Self, PlanError> {
-        let mut planner = Self::new(anatomy, history.base().clone())?;
+        Self::resume_with_engine(anatomy, history, SurfaceEngine::cpu())
+    }
+
+    /// Like [`Planner::resume`] with the surfaces evaluated by `engine`.
+    pub fn resume_with_engine(
+        anatomy: Arc<Anatomy>,
+        history: History,
+        engine: SurfaceEngine,
+    ) -> Result<Self, PlanError> {
+        let mut planner = Self::with_engine(anatomy, history.base().clone(), engine)?;
         planner.history = history;
         planner.states.clear();
         planner.refresh_all()?;
@@ -184,6 +207,10 @@ impl Planner {
     /// The shared anatomy (for a new planner on the same patient).
     pub fn anatomy_shared(&self) -> Arc<Anatomy> {
         Arc::clone(&self.anatomy)
+    }
+    /// The engine that makes the surface evaluators (for a new planner on the same device).
+    pub fn surface_engine(&self) -> &SurfaceEngine {
+        &self.engine
     }
     pub fn anatomy(&self) -> &Anatomy {
         &self.anatomy
@@ -339,7 +366,7 @@ impl Planner {
                 (s.surface, s.inside, s.margins, s.memo)
             }
             None => (
-                LiveSurface::new(r)?,
+                LiveSurface::with_engine(r, &self.engine)?,
                 Vec::new(),
                 SurfaceMargins::default(),
                 MarginMemo::default(),

@@ -3,7 +3,8 @@
 //! recomputed), the triangulated mesh, and slice projections (thesis Sec. 7.3.4).
 
 use resecta_bezier::{
-    ControlNet, MleEvaluator, Outputs, P3, Resolution, SurfaceGrid, eval_point, grid_triangles,
+    BezierError, ControlNet, Outputs, P3, Resolution, SurfaceEngine, SurfaceEvaluator, SurfaceGrid,
+    cpu_evaluator, eval_point, grid_triangles,
 };
 use resecta_geom::{Plane, Polyline, Real, TriMesh, Vec3, slice};
 use serde::{Deserialize, Serialize};
@@ -11,11 +12,15 @@ use serde::{Deserialize, Serialize};
 use crate::error::PlanError;
 use crate::resection::Resection;
 
-/// A resection surface kept up to date across edits.
+/// A resection surface kept up to date across edits, evaluated by its engine's evaluator. When
+/// that evaluator's device fails, the surface moves to the CPU evaluator and evaluates again
+/// (the edit succeeds) and counts it ([`LiveSurface::device_fallbacks`]).
 #[derive(Debug)]
 pub struct LiveSurface {
-    evaluator: MleEvaluator<Real>,
+    evaluator: Box<dyn SurfaceEvaluator>,
     grid: SurfaceGrid<Real>,
+    fallbacks: u32,
+    device_error: Option<BezierError>,
 }
 
 fn to_vec3(p: &P3<Real>) -> Vec3 {
@@ -23,13 +28,29 @@ fn to_vec3(p: &P3<Real>) -> Vec3 {
 }
 
 impl LiveSurface {
-    /// Evaluates the resection's surface.
+    /// Evaluates the resection's surface on the CPU.
     pub fn new(r: &Resection) -> Result<Self, PlanError> {
+        Self::with_engine(r, &SurfaceEngine::cpu())
+    }
+
+    /// Evaluates the resection's surface with an evaluator of `engine` (the CPU's when the
+    /// engine's device fails).
+    pub fn with_engine(r: &Resection, engine: &SurfaceEngine) -> Result<Self, PlanError> {
         let res = Resolution::new(r.resolution[0], r.resolution[1])?;
-        let mut evaluator = MleEvaluator::new(r.net()?, res);
-        let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
-        evaluator.evaluate_into(&mut grid)?;
-        Ok(Self { evaluator, grid })
+        let net = r.net()?;
+        let mut surface = Self {
+            evaluator: cpu_evaluator(net.clone(), res),
+            grid: SurfaceGrid::zeroed(res, Outputs::Normals),
+            fallbacks: 0,
+            device_error: None,
+        };
+        match engine.make(net, res) {
+            Ok(e) => surface.evaluator = e,
+            Err(e) if e.is_device() => surface.fall_back(e),
+            Err(e) => return Err(e.into()),
+        }
+        surface.evaluate()?;
+        Ok(surface)
     }
 
     /// Re-evaluates after an edit; reuses buffers and the basis tables when the grid size and
@@ -39,14 +60,56 @@ impl LiveSurface {
         if self.evaluator.net().dims() != (r.grid[0], r.grid[1]) {
             self.evaluator.set_net(r.net()?);
         } else {
-            self.evaluator.set_control_points(&r.control_points)?;
+            let (old, new) = (self.evaluator.net().points(), &r.control_points);
+            let moved: Vec<usize> = if old.len() == new.len() {
+                (0..old.len()).filter(|&k| old[k] != new[k]).collect()
+            } else {
+                vec![usize::MAX] // refused by set_control_points
+            };
+            // A drag moves one point: hand over only that one (a GPU uploads only it).
+            match moved[..] {
+                [] => {}
+                [k] if k < new.len() => {
+                    let n = r.grid[1];
+                    self.evaluator.set_control_point(k / n, k % n, new[k])?;
+                }
+                _ => self.evaluator.set_control_points(new)?,
+            }
         }
         if self.evaluator.resolution() != res {
             self.evaluator.set_resolution(res);
             self.grid = SurfaceGrid::zeroed(res, Outputs::Normals);
         }
-        self.evaluator.evaluate_into(&mut self.grid)?;
-        Ok(())
+        self.evaluate()
+    }
+
+    fn fall_back(&mut self, error: BezierError) {
+        self.evaluator = cpu_evaluator(self.evaluator.net().clone(), self.evaluator.resolution());
+        self.fallbacks += 1;
+        self.device_error = Some(error);
+    }
+
+    fn evaluate(&mut self) -> Result<(), PlanError> {
+        match self.evaluator.evaluate_into(&mut self.grid) {
+            Err(e) if e.is_device() => {
+                self.fall_back(e);
+                Ok(self.evaluator.evaluate_into(&mut self.grid)?)
+            }
+            r => Ok(r?),
+        }
+    }
+
+    /// Where the surface is evaluated now (`"cpu"`, `"wgpu"`, …).
+    pub fn backend(&self) -> &'static str {
+        self.evaluator.backend()
+    }
+    /// How often a device failure moved this surface to the CPU evaluator.
+    pub fn device_fallbacks(&self) -> u32 {
+        self.fallbacks
+    }
+    /// The last device failure that did, if any.
+    pub fn device_error(&self) -> Option<&BezierError> {
+        self.device_error.as_ref()
     }
 
     /// [ru, rv].

@@ -500,3 +500,115 @@ fn volumes_on_the_voxels_indexed_with_the_anatomy_equal_those_indexed_afresh() {
     assert_eq!(format!("{prebuilt:?}"), format!("{afresh:?}"));
     assert!(prebuilt.resections[0].resected_ml.unwrap() > 0.0);
 }
+
+/// A CPU evaluator that reports a device failure on its `fail_at`-th evaluation and counts
+/// the single-point updates it is handed.
+#[derive(Debug)]
+struct Flaky {
+    inner: resecta_bezier::MleEvaluator<f64>,
+    evaluations: usize,
+    fail_at: usize,
+    single: Arc<std::sync::atomic::AtomicUsize>,
+}
+
+impl resecta_bezier::SurfaceEvaluator for Flaky {
+    fn backend(&self) -> &'static str {
+        "flaky"
+    }
+    fn net(&self) -> &resecta_bezier::ControlNet<f64> {
+        self.inner.net()
+    }
+    fn resolution(&self) -> resecta_bezier::Resolution {
+        self.inner.resolution()
+    }
+    fn set_net(&mut self, net: resecta_bezier::ControlNet<f64>) {
+        self.inner.set_net(net);
+    }
+    fn set_control_points(&mut self, p: &[[f64; 3]]) -> Result<(), resecta_bezier::BezierError> {
+        self.inner.set_control_points(p)
+    }
+    fn set_control_point(
+        &mut self,
+        i: usize,
+        j: usize,
+        p: [f64; 3],
+    ) -> Result<(), resecta_bezier::BezierError> {
+        self.single
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        self.inner.set_control_point(i, j, p)
+    }
+    fn set_resolution(&mut self, r: resecta_bezier::Resolution) {
+        self.inner.set_resolution(r);
+    }
+    fn evaluate_into(
+        &mut self,
+        grid: &mut resecta_bezier::SurfaceGrid<f64>,
+    ) -> Result<(), resecta_bezier::BezierError> {
+        self.evaluations += 1;
+        if self.evaluations == self.fail_at {
+            return Err(resecta_bezier::BezierError::Device("lost".into()));
+        }
+        self.inner.evaluate_into(grid)
+    }
+}
+
+#[test]
+fn a_device_failure_moves_the_surface_to_the_cpu_and_the_edit_succeeds() {
+    use resecta_bezier::SurfaceEngine;
+    let single = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+    let s = Arc::clone(&single);
+    let engine = SurfaceEngine::new("flaky", move |net, res| {
+        Ok(Box::new(Flaky {
+            inner: resecta_bezier::MleEvaluator::new(net, res),
+            evaluations: 0,
+            fail_at: 3,
+            single: Arc::clone(&s),
+        }))
+    });
+    let mut plan = Plan::new(spec().roles);
+    plan.apply(&PlanEvent::AddResection {
+        resection: plane_x("r1", 12.0, 70.0),
+    })
+    .unwrap();
+    let mut flaky = Planner::with_engine(anatomy(), plan.clone(), engine).unwrap();
+    let mut cpu = Planner::new(anatomy(), plan).unwrap();
+    assert_eq!(flaky.surface_engine().backend(), "flaky");
+    for step in 0..3 {
+        let edit = PlanEvent::SetControlPoint {
+            name: "r1".into(),
+            i: 1,
+            j: 2,
+            point: [14.0 + step as Real, -23.0, 23.0],
+        };
+        flaky.edit(edit.clone()).unwrap();
+        cpu.edit(edit).unwrap();
+        let (f, c) = (flaky.state("r1").unwrap(), cpu.state("r1").unwrap());
+        // Evaluation 3 (the second edit) fails: from then on the CPU evaluates.
+        let (backend, fallbacks) = if step == 0 { ("flaky", 0) } else { ("cpu", 1) };
+        assert_eq!(f.surface.backend(), backend, "step {step}");
+        assert_eq!(f.surface.device_fallbacks(), fallbacks, "step {step}");
+        assert_eq!(f.surface.grid(), c.surface.grid(), "step {step}");
+        assert_eq!(f.margins.class, c.margins.class);
+        assert_eq!(f.verdict, c.verdict);
+    }
+    let err = flaky.state("r1").unwrap().surface.device_error().unwrap();
+    assert!(err.is_device(), "{err}");
+    // One moved point is handed over as one point (the first two edits reach the flaky one).
+    assert_eq!(single.load(std::sync::atomic::Ordering::Relaxed), 2);
+}
+
+#[test]
+fn an_engine_that_cannot_make_an_evaluator_for_its_device_leaves_the_cpu_to_it() {
+    let engine = resecta_bezier::SurfaceEngine::new("gone", |_, _| {
+        Err(resecta_bezier::BezierError::Device("no adapter".into()))
+    });
+    let mut plan = Plan::new(spec().roles);
+    plan.apply(&PlanEvent::AddResection {
+        resection: plane_x("r1", 12.0, 70.0),
+    })
+    .unwrap();
+    let p = Planner::with_engine(anatomy(), plan, engine).unwrap();
+    let s = &p.state("r1").unwrap().surface;
+    assert_eq!((s.backend(), s.device_fallbacks()), ("cpu", 1));
+    assert_eq!(s.points().len(), 40 * 40);
+}
