@@ -11,7 +11,7 @@ struct Params {
     row_start: u32,  // first output row (u index) computed by this dispatch
     row_end: u32,    // one past the last row computed
     band_start: u32, // first row held by the bound output buffer
-    _pad: u32,
+    band_rows: u32,  // rows held by the bound output buffer (one block of the normals output)
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
@@ -103,6 +103,108 @@ fn surface_points(@builtin(global_invocation_id) gid: vec3<u32>) {
             surface[o] = acc[r].x;
             surface[o + 1u] = acc[r].y;
             surface[o + 2u] = acc[r].z;
+        }
+    }
+}
+
+// ---- Derivatives and unit normals in the same two-pass scheme. -------------------------
+// ∂S/∂u(a, b) = (M−1) Σ_{i<M−1} B'^u_i(a) (Q_{i+1}(b) − Q_i(b)) reuses Q;
+// ∂S/∂v(a, b) = Σ_i B^u_i(a) R_i(b) with R_i(b) = (N−1) Σ_{j<N−1} (P_i,j+1 − P_ij) B'^v_j(b).
+// B'^u ((M−1)×RU) and B'^v ((N−1)×RV) are the degree-reduced bases (level 2 of `basis`).
+// Pass 1a': Q and R, thread (b, i).
+@group(0) @binding(4) var<storage, read> bvd: array<real>;         // (N−1)×RV
+@group(0) @binding(5) var<storage, read_write> r_out: array<real>; // 3×M×RV
+
+@compute @workgroup_size(64)
+fn partial_sums_d(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    let i = gid.y;
+    if b >= params.rv || i >= params.m { return; }
+    let x = i * params.rv + b;
+    let plane = params.m * params.rv;
+    var acc = vec3<real>(real(0.0));
+    var accd = vec3<real>(real(0.0));
+    var prev = vec3<real>(real(0.0));
+    for (var j = 0u; j < params.n; j++) {
+        let p = 3u * (i * params.n + j);
+        let cur = vec3<real>(ctrl[p], ctrl[p + 1u], ctrl[p + 2u]);
+        acc += cur * bv[j * params.rv + b];
+        if j > 0u {
+            accd += (cur - prev) * bvd[(j - 1u) * params.rv + b];
+        }
+        prev = cur;
+    }
+    accd *= real(params.n - 1u);
+    q_out[x] = acc.x;
+    q_out[plane + x] = acc.y;
+    q_out[2u * plane + x] = acc.z;
+    r_out[x] = accd.x;
+    r_out[plane + x] = accd.y;
+    r_out[2u * plane + x] = accd.z;
+}
+
+// Pass 1b': points, ∂S/∂u, ∂S/∂v and unit normals of ROWS rows of column b, written as four
+// blocks of the band (each 3·band_rows·RV, AoS xyz). Degenerate samples get the zero normal,
+// repaired on the host (`resecta_bezier::repair_normals`).
+@group(0) @binding(4) var<storage, read> r: array<real>;    // 3×M×RV (pass 1a')
+@group(0) @binding(5) var<storage, read> bud: array<real>;  // (M−1)×RU
+@group(0) @binding(6) var<storage, read> tol: array<real>;  // [small, root_eps]
+
+// `resecta_bezier::NormalTolerance::regular`: ∂u×∂v/|…|, zero when either derivative is ≈ 0
+// or the two are parallel.
+fn unit_normal(du: vec3<real>, dv: vec3<real>) -> vec3<real> {
+    let la = length(du);
+    let lb = length(dv);
+    if la <= tol[0] || lb <= tol[0] { return vec3<real>(real(0.0)); }
+    let c = cross(du, dv);
+    let lc = length(c);
+    if lc > tol[1] * la * lb { return c * (real(1.0) / lc); }
+    return vec3<real>(real(0.0));
+}
+
+fn store(o: u32, v: vec3<real>) {
+    surface[o] = v.x;
+    surface[o + 1u] = v.y;
+    surface[o + 2u] = v.z;
+}
+
+@compute @workgroup_size(64)
+fn surface_normals(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let b = gid.x;
+    let a0 = params.row_start + gid.y * ROWS;
+    if b >= params.rv || a0 >= params.row_end { return; }
+    let plane = params.m * params.rv;
+    let last = params.row_end - 1u;
+    var s: array<vec3<real>, ROWS>;
+    var su: array<vec3<real>, ROWS>;
+    var sv: array<vec3<real>, ROWS>;
+    var qprev = vec3<real>(real(0.0));
+    for (var i = 0u; i < params.m; i++) {
+        let k = i * params.rv + b;
+        let qi = vec3<real>(q[k], q[plane + k], q[2u * plane + k]);
+        let ri = vec3<real>(r[k], r[plane + k], r[2u * plane + k]);
+        let row = i * params.ru;
+        for (var t = 0u; t < ROWS; t++) {
+            let a = min(a0 + t, last);
+            let w = bu[row + a];
+            s[t] += qi * w;
+            sv[t] += ri * w;
+            if i > 0u {
+                su[t] += (qi - qprev) * bud[row - params.ru + a];
+            }
+        }
+        qprev = qi;
+    }
+    let block = 3u * params.band_rows * params.rv;
+    for (var t = 0u; t < ROWS; t++) {
+        let a = a0 + t;
+        if a <= last {
+            let o = 3u * ((a - params.band_start) * params.rv + b);
+            let du = su[t] * real(params.m - 1u);
+            store(o, s[t]);
+            store(block + o, du);
+            store(2u * block + o, sv[t]);
+            store(3u * block + o, unit_normal(du, sv[t]));
         }
     }
 }

@@ -17,12 +17,22 @@
 //! GPU layouts: B^u is M×RU and B^v is N×RV (basis-function major: consecutive threads read
 //! consecutive memory); Q is SoA `[c][i][b]`; the surface is AoS `xyz` with index `a·RV + b`,
 //! byte-identical to `&[P3<T>]`.
+//!
+//! Normals ([`GpuMle::evaluate_normals_into`]) use the same two passes with the
+//! degree-reduced bases B'^u, B'^v (level 2 of degree M−2, N−2): pass 1a' computes Q and
+//! R = ΔvP·B'^vᵀ, pass 1b' computes S, ∂S/∂u = (M−1)·B'^u·ΔQ (Q reused), ∂S/∂v = B^u·R and the
+//! unit normal ∂S/∂u × ∂S/∂v with `resecta_bezier::NormalTolerance`'s test in `T`; degenerate
+//! samples come back as zero and are repaired on the host by `resecta_bezier::repair_normals`,
+//! so the result is the CPU's. Each band then holds four blocks (points, ∂S/∂u, ∂S/∂v,
+//! normals), read back together. The control net stays on the GPU: moved points
+//! ([`GpuMle::set_control_point`]) are uploaded alone.
 
 use std::ops::Range;
 use std::time::{Duration, Instant};
 
 use resecta_bezier::{
-    BezierError, ControlNet, MleCounters, MleEvaluator, P3, Resolution, binomial_row,
+    BezierError, ControlNet, MleCounters, MleEvaluator, NormalTolerance, Outputs, P3, Resolution,
+    SurfaceGrid, binomial_row, repair_normals,
 };
 use wgpu::util::DeviceExt;
 
@@ -56,10 +66,12 @@ struct Params {
     row_start: u32,
     row_end: u32,
     band_start: u32,
-    _pad: u32,
+    band_rows: u32,
 }
 
-/// One output buffer holding rows `rows` of the surface (AoS xyz, `RV` points per row).
+/// One output buffer holding rows `rows` of the surface (AoS xyz, `RV` points per row), then,
+/// once normals were evaluated, ∂S/∂u, ∂S/∂v and the normals of those rows in three more
+/// blocks of the same size.
 #[derive(Debug)]
 pub struct OutputBand {
     rows: Range<usize>,
@@ -79,6 +91,30 @@ impl OutputBand {
     }
 }
 
+/// Control points changed on the host since the last upload.
+#[derive(Debug)]
+enum Dirty {
+    None,
+    /// These flat indices only.
+    Points(Vec<usize>),
+    All,
+}
+
+/// What the normals path adds: its pipelines, the degree-reduced level 3–2, R = ΔvP·B'^vᵀ,
+/// the normal tolerances, and its bind groups (level 1a', then one per band).
+#[derive(Debug)]
+struct Normals {
+    partial: wgpu::ComputePipeline,
+    surface: wgpu::ComputePipeline,
+    /// B'^u ((M−1)×RU), B'^v ((N−1)×RV; `None` on isotropy), R (3×M×RV).
+    bud: wgpu::Buffer,
+    bvd: Option<wgpu::Buffer>,
+    r: wgpu::Buffer,
+    /// `[small, root_eps]` of `NormalTolerance`, written per evaluation.
+    tol: wgpu::Buffer,
+    binds: Vec<wgpu::BindGroup>,
+}
+
 /// Level-2 tables and what else depends only on M×N and the resolution.
 #[derive(Debug)]
 struct Level2 {
@@ -91,7 +127,8 @@ struct Level2 {
     uniform: wgpu::Buffer,
 }
 
-/// Stateful GPU multi-level evaluator (points only), mirroring `MleEvaluator`.
+/// Stateful GPU multi-level evaluator (points, or points, derivatives and unit normals),
+/// mirroring `MleEvaluator`.
 #[derive(Debug)]
 pub struct GpuMle<T: GpuScalar> {
     ctx: GpuContext,
@@ -103,7 +140,11 @@ pub struct GpuMle<T: GpuScalar> {
     level3: Option<wgpu::Buffer>,
     level2: Option<Level2>,
     ctrl: Option<wgpu::Buffer>,
-    ctrl_dirty: bool,
+    dirty: Dirty,
+    uploaded: u64,
+    /// Output blocks per band: 1 (points) until normals are asked for, then 4.
+    blocks: usize,
+    normals: Option<Normals>,
     bands: Vec<OutputBand>,
     /// Level-1a bind group, then one level-1b bind group per band (empty when stale).
     bind_groups: Vec<wgpu::BindGroup>,
@@ -145,7 +186,10 @@ impl<T: GpuScalar> GpuMle<T> {
             level3: None,
             level2: None,
             ctrl: None,
-            ctrl_dirty: true,
+            dirty: Dirty::All,
+            uploaded: 0,
+            blocks: 1,
+            normals: None,
             bands: Vec::new(),
             bind_groups: Vec::new(),
             band_limit: ctx.max_binding(),
@@ -164,29 +208,39 @@ impl<T: GpuScalar> GpuMle<T> {
     pub fn resolution(&self) -> Resolution {
         self.resolution
     }
-    /// Level computation counts (`level2_derivative` stays 0: points only).
+    /// Level computation counts (`level2_derivative` counts the normals path's set-ups).
     pub fn counters(&self) -> MleCounters {
         self.counters
     }
     /// Requirement A: new coordinates, same M×N; levels 2–3 stay on the GPU.
     pub fn set_control_points(&mut self, points: &[P3<T>]) -> Result<(), BezierError> {
         self.net.set_points(points)?;
-        self.ctrl_dirty = true;
+        self.dirty = Dirty::All;
         Ok(())
     }
-    /// Requirement A for one point.
+    /// Requirement A for one point: the next evaluation uploads only the points moved so.
     pub fn set_control_point(&mut self, i: usize, j: usize, p: P3<T>) -> Result<(), BezierError> {
         self.net.set(i, j, p)?;
-        self.ctrl_dirty = true;
+        let k = i * self.net.n() + j;
+        match &mut self.dirty {
+            Dirty::Points(ks) if !ks.contains(&k) => ks.push(k),
+            Dirty::None => self.dirty = Dirty::Points(vec![k]),
+            Dirty::Points(_) | Dirty::All => {}
+        }
         Ok(())
+    }
+    /// Control-point bytes uploaded to the device so far.
+    pub fn uploaded_bytes(&self) -> u64 {
+        self.uploaded
     }
     /// Requirement B: a new resolution drops level 2 and the output buffers.
     pub fn set_resolution(&mut self, resolution: Resolution) {
         if resolution != self.resolution {
             self.resolution = resolution;
             self.level2 = None;
+            self.normals = None;
             self.bands.clear();
-            self.bind_groups.clear();
+            self.drop_binds();
         }
     }
     /// Requirement C: another M×N drops levels 3 and 2; same M×N acts like A.
@@ -194,11 +248,19 @@ impl<T: GpuScalar> GpuMle<T> {
         if net.dims() != self.net.dims() {
             self.level3 = None;
             self.level2 = None;
+            self.normals = None;
             self.ctrl = None;
-            self.bind_groups.clear();
+            self.drop_binds();
         }
         self.net = net;
-        self.ctrl_dirty = true;
+        self.dirty = Dirty::All;
+    }
+
+    fn drop_binds(&mut self) {
+        self.bind_groups.clear();
+        if let Some(d) = &mut self.normals {
+            d.binds.clear();
+        }
     }
 
     /// Caps the bytes per output band (at most the device's storage binding size; at least
@@ -206,7 +268,7 @@ impl<T: GpuScalar> GpuMle<T> {
     pub fn set_band_limit(&mut self, bytes: u64) {
         self.band_limit = bytes.min(self.ctx.max_binding());
         self.bands.clear();
-        self.bind_groups.clear();
+        self.drop_binds();
     }
 
     /// Output bands (empty before the first evaluation after a resolution change).
@@ -231,7 +293,7 @@ impl<T: GpuScalar> GpuMle<T> {
         Ok(())
     }
 
-    fn params(&self, rows: Range<usize>, band_start: usize) -> Params {
+    fn params(&self, rows: Range<usize>, band: Range<usize>) -> Params {
         let (m, n) = self.net.dims();
         Params {
             m: u32_of(m),
@@ -240,8 +302,8 @@ impl<T: GpuScalar> GpuMle<T> {
             rv: u32_of(self.resolution.rv()),
             row_start: u32_of(rows.start),
             row_end: u32_of(rows.end),
-            band_start: u32_of(band_start),
-            _pad: 0,
+            band_start: u32_of(band.start),
+            band_rows: u32_of(band.len()),
         }
     }
 
@@ -271,26 +333,32 @@ impl<T: GpuScalar> GpuMle<T> {
         }
         if self.level2.is_none() {
             self.build_level2()?;
-            self.bind_groups.clear();
+            self.drop_binds();
         }
         if self.ctrl.is_none() {
             let size = bytes_of::<T>(3 * m * n);
             self.ctrl =
                 Some(self.buffer("bezier-ctrl", size, storage | wgpu::BufferUsages::COPY_DST));
-            self.ctrl_dirty = true;
-            self.bind_groups.clear();
+            self.dirty = Dirty::All;
+            self.drop_binds();
         }
-        if self.ctrl_dirty {
-            if let Some(ctrl) = &self.ctrl {
-                let pts = self.net.points().as_flattened();
+        if let Some(ctrl) = &self.ctrl {
+            let pts = self.net.points();
+            let mut write = |k: usize, p: &[P3<T>]| {
+                let bytes: &[u8] = bytemuck::cast_slice(p.as_flattened());
                 self.ctx
                     .queue
-                    .write_buffer(ctrl, 0, bytemuck::cast_slice(pts));
+                    .write_buffer(ctrl, bytes_of::<P3<T>>(k), bytes);
+                self.uploaded += bytes.len() as u64;
+            };
+            match std::mem::replace(&mut self.dirty, Dirty::None) {
+                Dirty::None => {}
+                Dirty::Points(ks) => ks.iter().for_each(|&k| write(k, &pts[k..=k])),
+                Dirty::All => write(0, pts),
             }
-            self.ctrl_dirty = false;
         }
         if self.bands.is_empty() {
-            let row_bytes = bytes_of::<T>(3 * rv);
+            let row_bytes = bytes_of::<T>(3 * rv * self.blocks);
             self.check_size("one surface row", row_bytes)?;
             let rows_per_band = usize::try_from(self.band_limit / row_bytes)
                 .unwrap_or(usize::MAX)
@@ -320,7 +388,7 @@ impl<T: GpuScalar> GpuMle<T> {
                 self.bands.push(band);
                 start = end;
             }
-            self.bind_groups.clear();
+            self.drop_binds();
         }
         if self.bind_groups.is_empty() {
             let (Some(l2), Some(ctrl)) = (&self.level2, &self.ctrl) else {
@@ -364,19 +432,52 @@ impl<T: GpuScalar> GpuMle<T> {
             return Err(GpuError::Pipeline("level 3 missing".into()));
         };
         self.counters.level2 += 1;
-        let iso = m == n && ru == rv;
-        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
-        self.check_size("B^u", bytes_of::<T>(m * ru))?;
-        self.check_size("B^v", bytes_of::<T>(n * rv))?;
         self.check_size("Q", bytes_of::<T>(3 * m * rv))?;
-        let bu = self.buffer("bezier-bu", bytes_of::<T>(m * ru), storage);
-        let bv = (!iso).then(|| self.buffer("bezier-bv", bytes_of::<T>(n * rv), storage));
+        let (bu, bv) = self.bernstein_tables(m, n, binom)?;
         let uniform = self
             .ctx
             .device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some("bezier-basis-params"),
-                contents: bytemuck::bytes_of(&self.params(0..ru, 0)),
+                contents: bytemuck::bytes_of(&self.params(0..ru, 0..ru)),
+                usage: wgpu::BufferUsages::UNIFORM,
+            });
+        let q = self.buffer(
+            "bezier-q",
+            bytes_of::<T>(3 * m * rv),
+            wgpu::BufferUsages::STORAGE,
+        );
+        self.level2 = Some(Level2 { bu, bv, q, uniform });
+        Ok(())
+    }
+
+    /// Bernstein tables of `mm` functions along u and `nn` along v (basis-function major) from
+    /// the binomials `binom` (`[C(mm−1, ·) | C(nn−1, ·)]`); B^v is `None` on isotropy (B^u
+    /// serves as both).
+    fn bernstein_tables(
+        &self,
+        mm: usize,
+        nn: usize,
+        binom: &wgpu::Buffer,
+    ) -> Result<(wgpu::Buffer, Option<wgpu::Buffer>), GpuError> {
+        let (ru, rv) = (self.resolution.ru(), self.resolution.rv());
+        let iso = mm == nn && ru == rv;
+        let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
+        self.check_size("B^u", bytes_of::<T>(mm * ru))?;
+        self.check_size("B^v", bytes_of::<T>(nn * rv))?;
+        let bu = self.buffer("bezier-bu", bytes_of::<T>(mm * ru), storage);
+        let bv = (!iso).then(|| self.buffer("bezier-bv", bytes_of::<T>(nn * rv), storage));
+        let params = Params {
+            m: u32_of(mm),
+            n: u32_of(nn),
+            ..self.params(0..ru, 0..ru)
+        };
+        let uniform = self
+            .ctx
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("bezier-basis-params"),
+                contents: bytemuck::bytes_of(&params),
                 usage: wgpu::BufferUsages::UNIFORM,
             });
         let bind = self
@@ -393,7 +494,7 @@ impl<T: GpuScalar> GpuMle<T> {
                     entry(3, bv.as_ref().unwrap_or(&bu)),
                 ],
             });
-        let work = (m * ru).max(if iso { 0 } else { n * rv });
+        let work = (mm * ru).max(if iso { 0 } else { nn * rv });
         let groups = u32_of(work.div_ceil(BASIS_GROUP as usize));
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         {
@@ -403,13 +504,7 @@ impl<T: GpuScalar> GpuMle<T> {
             pass.dispatch_workgroups(groups, if iso { 1 } else { 2 }, 1);
         }
         self.ctx.queue.submit([enc.finish()]);
-        let q = self.buffer(
-            "bezier-q",
-            bytes_of::<T>(3 * m * rv),
-            wgpu::BufferUsages::STORAGE,
-        );
-        self.level2 = Some(Level2 { bu, bv, q, uniform });
-        Ok(())
+        Ok((bu, bv))
     }
 
     /// Encodes level 1 for `rows`: 1a (Q = P·B^vᵀ) once, 1b per band (clipped); with `copy`,
@@ -441,7 +536,7 @@ impl<T: GpuScalar> GpuMle<T> {
             if lo >= hi {
                 continue;
             }
-            let params = self.params(lo..hi, band.rows.start);
+            let params = self.params(lo..hi, band.rows.clone());
             self.ctx
                 .queue
                 .write_buffer(&band.uniform, 0, bytemuck::bytes_of(&params));
@@ -519,6 +614,173 @@ impl<T: GpuScalar> GpuMle<T> {
             dst[at..at + src.len()].copy_from_slice(src);
             at += src.len();
         })
+    }
+
+    /// Builds what the normals path adds to [`GpuMle::ensure`] (after it): pipelines, the
+    /// degree-reduced tables, R, and its bind groups; writes the normal tolerances.
+    fn ensure_normals(&mut self) -> Result<(), GpuError> {
+        let (m, n) = self.net.dims();
+        let rv = self.resolution.rv();
+        if self.normals.is_none() {
+            self.counters.level2_derivative += 1;
+            let src = shader_source::<T>();
+            let partial = self
+                .ctx
+                .compute_pipeline("bezier-partial-d", &src, "partial_sums_d")?;
+            let surface = self
+                .ctx
+                .compute_pipeline("bezier-normals", &src, "surface_normals")?;
+            let binoms: Vec<T> = binomial_row(m - 1)
+                .into_iter()
+                .chain(binomial_row(n - 1))
+                .map(|c| T::from_f64(c as f64))
+                .collect();
+            let binom = self
+                .ctx
+                .device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("bezier-level3-d"),
+                    contents: bytemuck::cast_slice(&binoms),
+                    usage: wgpu::BufferUsages::STORAGE,
+                });
+            let (bud, bvd) = self.bernstein_tables(m - 1, n - 1, &binom)?;
+            let r = self.buffer(
+                "bezier-r",
+                bytes_of::<T>(3 * m * rv),
+                wgpu::BufferUsages::STORAGE,
+            );
+            let tol = self.buffer(
+                "bezier-tol",
+                bytes_of::<T>(2),
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            );
+            self.normals = Some(Normals {
+                partial,
+                surface,
+                bud,
+                bvd,
+                r,
+                tol,
+                binds: Vec::new(),
+            });
+        }
+        let (Some(l2), Some(ctrl), Some(d)) = (&self.level2, &self.ctrl, &mut self.normals) else {
+            return Err(GpuError::Pipeline("levels missing".into()));
+        };
+        let tol = NormalTolerance::of(&self.net);
+        self.ctx
+            .queue
+            .write_buffer(&d.tol, 0, bytemuck::cast_slice(&[tol.small, tol.root_eps]));
+        if d.binds.is_empty() {
+            let device = &self.ctx.device;
+            let partial = device.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some("bezier-partial-d"),
+                layout: &d.partial.get_bind_group_layout(0),
+                entries: &[
+                    entry(0, &l2.uniform),
+                    entry(1, ctrl),
+                    entry(2, l2.bv.as_ref().unwrap_or(&l2.bu)),
+                    entry(3, &l2.q),
+                    entry(4, d.bvd.as_ref().unwrap_or(&d.bud)),
+                    entry(5, &d.r),
+                ],
+            });
+            let layout = d.surface.get_bind_group_layout(0);
+            let bands = self.bands.iter().map(|band| {
+                device.create_bind_group(&wgpu::BindGroupDescriptor {
+                    label: Some("bezier-normals"),
+                    layout: &layout,
+                    entries: &[
+                        entry(0, &band.uniform),
+                        entry(1, &l2.q),
+                        entry(2, &l2.bu),
+                        entry(3, &band.buffer),
+                        entry(4, &d.r),
+                        entry(5, &d.bud),
+                        entry(6, &d.tol),
+                    ],
+                })
+            });
+            d.binds = std::iter::once(partial).chain(bands).collect();
+        }
+        Ok(())
+    }
+
+    /// Points, ∂S/∂u, ∂S/∂v and unit normals of all samples into `grid` (made with
+    /// [`Outputs::Normals`] at this resolution), with one read-back; degenerate normals are
+    /// repaired on the host as the CPU does (`resecta_bezier::repair_normals`).
+    pub fn evaluate_normals_into(&mut self, grid: &mut SurfaceGrid<T>) -> Result<(), GpuError> {
+        let res = self.resolution;
+        if grid.resolution() != res {
+            return Err(BezierError::BufferLength {
+                expected: res.len(),
+                got: grid.resolution().len(),
+            }
+            .into());
+        }
+        if grid.outputs() != Outputs::Normals {
+            return Err(BezierError::MissingOutput("normals").into());
+        }
+        if self.blocks != 4 {
+            self.blocks = 4;
+            self.bands.clear();
+            self.drop_binds();
+        }
+        self.ensure()?;
+        self.ensure_normals()?;
+        self.counters.level1 += 1;
+        let (Some(d), Some((partial, band_binds))) = (
+            &self.normals,
+            self.normals.as_ref().and_then(|d| d.binds.split_first()),
+        ) else {
+            return Err(GpuError::Pipeline("normal bind groups missing".into()));
+        };
+        let (m, _) = self.net.dims();
+        let rv = res.rv();
+        let columns = u32_of(rv.div_ceil(GROUP as usize));
+        let mut enc = self.ctx.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&d.partial);
+            pass.set_bind_group(0, partial, &[]);
+            pass.dispatch_workgroups(columns, u32_of(m), 1);
+        }
+        for (band, bind) in self.bands.iter().zip(band_binds) {
+            let params = self.params(band.rows.clone(), band.rows.clone());
+            self.ctx
+                .queue
+                .write_buffer(&band.uniform, 0, bytemuck::bytes_of(&params));
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&d.surface);
+                pass.set_bind_group(0, bind, &[]);
+                let groups = u32_of(band.rows.len().div_ceil(ROWS as usize));
+                pass.dispatch_workgroups(columns, groups, 1);
+            }
+            enc.copy_buffer_to_buffer(&band.buffer, 0, &band.staging, 0, band.buffer.size());
+        }
+        self.ctx.queue.submit([enc.finish()]);
+        let maps: Vec<_> = self
+            .bands
+            .iter()
+            .map(|b| (&b.staging, 0..b.staging.size()))
+            .collect();
+        let (points, du, dv, normals) = grid.parts_mut();
+        let (Some(du), Some(dv), Some(normals)) = (du, dv, normals) else {
+            return Err(BezierError::MissingOutput("derivatives").into());
+        };
+        let mut outs = [points, du, dv, normals];
+        let bands = &self.bands;
+        self.ctx.read_back(&maps, |k, bytes| {
+            let rows = &bands[k].rows;
+            let block = bytes.len() / 4;
+            for (out, src) in outs.iter_mut().zip(bytes.chunks_exact(block)) {
+                let dst = out[rows.start * rv..rows.end * rv].as_flattened_mut();
+                bytemuck::cast_slice_mut::<T, u8>(dst).copy_from_slice(src);
+            }
+        })?;
+        repair_normals(&self.net, res, outs[3]);
+        Ok(())
     }
 
     /// Runs level 1 and leaves the result on the GPU (see [`GpuMle::bands`]); submitted, not

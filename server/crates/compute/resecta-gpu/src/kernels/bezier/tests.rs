@@ -1,7 +1,8 @@
 //! GPU vs CPU (`resecta_bezier` MLE and BRF) on the test device (lavapipe in CI).
 
 use resecta_bezier::{
-    ControlNet, MleEvaluator, Outputs, P3, Resolution, bernstein_table, binomial_row, evaluate_brf,
+    ControlNet, MleEvaluator, Outputs, P3, Resolution, SurfaceGrid, bernstein_table, binomial_row,
+    evaluate_brf,
 };
 
 use super::{BezierBackend, GpuMle, GpuPrepared, shader_source};
@@ -88,7 +89,7 @@ fn wgsl_validates_with_naga() {
         );
         v.validate(&module)
             .unwrap_or_else(|e| panic!("{name}: {e:?}"));
-        assert_eq!(module.entry_points.len(), 3);
+        assert_eq!(module.entry_points.len(), 5);
     }
     assert!(shader_source::<f64>().contains("alias real = f64;"));
     // Without the f64 capability the f64 variant must be rejected (it really uses f64).
@@ -425,4 +426,193 @@ fn prepared_runs_and_times() {
     let dt = p.evaluator().evaluate_timed(&mut out).unwrap();
     assert!(dt.as_nanos() > 0);
     assert_eq!(p.evaluator().counters().level2, 1);
+}
+
+/// Largest differences (points and derivatives in mm, normals unitless) of a GPU grid from
+/// the CPU's f64 grid.
+#[derive(Debug, Clone, Copy)]
+struct GridDiff {
+    points: f64,
+    derivatives: f64,
+    normals: f64,
+}
+
+fn grid_diff<T: GpuScalar>(gpu: &SurfaceGrid<T>, cpu: &SurfaceGrid<f64>) -> GridDiff {
+    let wide = |a: &[P3<T>]| -> Vec<P3<f64>> { a.iter().map(|p| p.map(|c| c.to_f64())).collect() };
+    let pair = |a: Option<&[P3<T>]>, b: Option<&[P3<f64>]>| max_diff(&wide(a.unwrap()), b.unwrap());
+    GridDiff {
+        points: max_diff(&wide(gpu.points()), cpu.points()),
+        derivatives: pair(gpu.du(), cpu.du()).max(pair(gpu.dv(), cpu.dv())),
+        normals: pair(gpu.normals(), cpu.normals()),
+    }
+}
+
+fn cpu_grid(net: &ControlNet<f64>, res: Resolution) -> SurfaceGrid<f64> {
+    MleEvaluator::new(net.clone(), res).evaluate(Outputs::Normals)
+}
+
+/// GPU normals of `net` at `ru`×`rv` in `T` against the CPU's f64, and the evaluator.
+fn gpu_vs_cpu<T: GpuScalar>(net: &ControlNet<f64>, ru: usize, rv: usize) -> Option<GridDiff> {
+    let ctx = context()?;
+    let res = Resolution::new(ru, rv).unwrap();
+    let mut g = GpuMle::<T>::new(&ctx, net.cast(), res).unwrap();
+    let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+    g.evaluate_normals_into(&mut grid).unwrap();
+    Some(grid_diff(&grid, &cpu_grid(net, res)))
+}
+
+/// A 4×4 net with the edge u = 0 collapsed to one point (∂S/∂v = 0 there: the limit normal)
+/// and, when `apex`, the edge v = 1 collapsed to the same point (∂S/∂u = 0 there, and both
+/// vanish at the corner: the neighbours' normal).
+fn collapsed(apex: bool) -> ControlNet<f64> {
+    ControlNet::from_fn(4, 4, |i, j| {
+        if i == 0 || (apex && j == 3) {
+            return [0.0, 0.0, 30.0];
+        }
+        let (u, v) = (i as f64 / 3.0, j as f64 / 3.0);
+        [
+            40.0 * u * (v - 0.5),
+            40.0 * u * (0.5 - v).abs() + 20.0 * u,
+            30.0 - 25.0 * u,
+        ]
+    })
+    .unwrap()
+}
+
+fn normal_cases() -> Vec<(&'static str, ControlNet<f64>, usize, usize)> {
+    let mut rng = Rng(21);
+    vec![
+        ("4x4 @ 40x40", random_net(&mut rng, 4, 4), 40, 40),
+        ("5x7 @ 37x53", random_net(&mut rng, 5, 7), 37, 53),
+        ("2x9 @ 3x64", random_net(&mut rng, 2, 9), 3, 64),
+        ("6x6 @ 200x200", random_net(&mut rng, 6, 6), 200, 200),
+        ("collapsed edge @ 40x40", collapsed(false), 40, 40),
+        ("collapsed edges @ 33x41", collapsed(true), 33, 41),
+    ]
+}
+
+/// f64: 1e-9 mm in points and derivatives, 1e-9 in unit normals (seen: ≤ 1e-12).
+#[test]
+fn normals_match_cpu_f64() {
+    if !f64_ok() {
+        return;
+    }
+    for (name, net, ru, rv) in normal_cases() {
+        let d = gpu_vs_cpu::<f64>(&net, ru, rv).unwrap();
+        eprintln!("f64 {name}: {d:?}");
+        assert!(
+            d.points <= 1e-9 && d.derivatives <= 1e-9 && d.normals <= 1e-9,
+            "f64 {name}: {d:?}"
+        );
+    }
+}
+
+/// f32 against the CPU: points within 2e-5 of the net's scale and derivatives within 2e-5 of
+/// 60× it (seen: ≤ 1.7e-5 mm and ≤ 1.4e-4 mm on a ±50 mm net) against the f64 CPU; normals
+/// within 1e-4 of the f32 CPU's (seen ≤ 3e-5). Against the f64 CPU the normals are within
+/// 4e-5 except where two collapsed edges meet (seen 0.96): f32's √ε thresholds classify
+/// samples there otherwise, in the CPU's f32 evaluator as on the GPU.
+#[test]
+fn normals_match_cpu_f32() {
+    for (name, net, ru, rv) in normal_cases() {
+        let Some(d) = gpu_vs_cpu::<f32>(&net, ru, rv) else {
+            return;
+        };
+        let res = Resolution::new(ru, rv).unwrap();
+        let Some(ctx) = context() else { return };
+        let mut g = GpuMle::<f32>::new(&ctx, net.cast(), res).unwrap();
+        let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+        g.evaluate_normals_into(&mut grid).unwrap();
+        let cpu32 = MleEvaluator::new(net.cast::<f32>(), res).evaluate(Outputs::Normals);
+        let dn32 = max_diff(grid.normals().unwrap(), cpu32.normals().unwrap());
+        eprintln!("f32 {name}: {d:?}, normals vs CPU f32 {dn32:e}");
+        let s = scale(&net);
+        assert!(
+            d.points <= 2e-5 * s && d.derivatives <= 2e-5 * 60.0 * s && dn32 <= 1e-4,
+            "f32 {name} (scale {s}): {d:?}, normals vs CPU f32 {dn32:e}"
+        );
+    }
+}
+
+#[test]
+fn collapsed_edge_normals_are_the_cpu_limit_normals() {
+    if !f64_ok() {
+        return;
+    }
+    let net = collapsed(false);
+    let res = Resolution::new(40, 40).unwrap();
+    let Some(ctx) = context() else { return };
+    let mut g = GpuMle::<f64>::new(&ctx, net.clone(), res).unwrap();
+    let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+    g.evaluate_normals_into(&mut grid).unwrap();
+    let normals = grid.normals().unwrap();
+    // Row u = 0 is one point: ∂S/∂v vanishes there, yet every normal is a unit vector.
+    assert!(
+        grid.dv().unwrap()[..40]
+            .iter()
+            .all(|d| d.iter().all(|c| c.abs() < 1e-12))
+    );
+    for n in normals {
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        assert!((len - 1.0).abs() < 1e-12, "{n:?}");
+    }
+    assert_eq!(normals[..40], cpu_grid(&net, res).normals().unwrap()[..40]);
+}
+
+#[test]
+fn an_edited_point_uploads_alone_and_matches_a_fresh_cpu_evaluation() {
+    if !f64_ok() {
+        return;
+    }
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(5);
+    let mut net = random_net::<f64>(&mut rng, 5, 7);
+    let res = Resolution::new(37, 53).unwrap();
+    let mut g = GpuMle::<f64>::new(&ctx, net.clone(), res).unwrap();
+    let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+    g.evaluate_normals_into(&mut grid).unwrap();
+    assert_eq!(g.uploaded_bytes(), 5 * 7 * 24);
+    for (i, j) in [(2, 3), (0, 6), (4, 0)] {
+        let p = [rng.unit() * 80.0 - 40.0, 12.5, -7.0];
+        net.set(i, j, p).unwrap();
+        let before = g.uploaded_bytes();
+        g.set_control_point(i, j, p).unwrap();
+        g.evaluate_normals_into(&mut grid).unwrap();
+        assert_eq!(g.uploaded_bytes() - before, 24, "one point, xyz f64");
+        let d = grid_diff(&grid, &cpu_grid(&net, res));
+        assert!(d.points <= 1e-9 && d.normals <= 1e-9, "({i}, {j}): {d:?}");
+    }
+    // Points after normals share the bands; a new resolution and net are honoured too.
+    let mut pts = vec![[0.0; 3]; res.len()];
+    g.evaluate_points_into(&mut pts).unwrap();
+    assert!(max_diff(&pts, grid.points()) <= 1e-12);
+    let net2 = random_net::<f64>(&mut rng, 3, 8);
+    let res2 = Resolution::new(20, 31).unwrap();
+    g.set_net(net2.clone());
+    g.set_resolution(res2);
+    let mut grid2 = SurfaceGrid::zeroed(res2, Outputs::Normals);
+    g.evaluate_normals_into(&mut grid2).unwrap();
+    let d = grid_diff(&grid2, &cpu_grid(&net2, res2));
+    assert!(d.points <= 1e-9 && d.normals <= 1e-9, "{d:?}");
+    assert!(
+        g.evaluate_normals_into(&mut grid).is_err(),
+        "wrong resolution"
+    );
+}
+
+#[test]
+fn normals_split_into_bands_match_one_band() {
+    if !f64_ok() {
+        return;
+    }
+    let Some(ctx) = context() else { return };
+    let net = random_net::<f64>(&mut Rng(9), 4, 5);
+    let res = Resolution::new(45, 30).unwrap();
+    let mut g = GpuMle::<f64>::new(&ctx, net.clone(), res).unwrap();
+    g.set_band_limit(4 * 3 * 8 * 30 * 7); // 7 rows of the four outputs per band
+    let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+    g.evaluate_normals_into(&mut grid).unwrap();
+    assert_eq!(g.bands().len(), 7);
+    let d = grid_diff(&grid, &cpu_grid(&net, res));
+    assert!(d.points <= 1e-9 && d.normals <= 1e-9, "{d:?}");
 }
