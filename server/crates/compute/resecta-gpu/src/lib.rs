@@ -4,14 +4,19 @@
 //!   [`GpuContext::new`] (honours `WGPU_BACKEND`, requests `SHADER_F64` when offered).
 //! - [`kernels::bezier`]: multi-level Bézier evaluation (thesis ch. 8, Algorithms 7–8) as
 //!   [`GpuMle`], mirroring `resecta_bezier::MleEvaluator`; [`BezierBackend`] picks GPU or CPU;
-//!   [`GpuPrepared`] for benchmarks.
+//!   [`GpuPrepared`] for benchmarks. Points only, or with ∂S/∂u, ∂S/∂v and unit normals
+//!   ([`GpuMle::evaluate_normals_into`]); a moved control point uploads only itself.
+//! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
+//!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
 
 pub mod cooperation;
 pub mod device;
 pub mod kernels;
+pub mod surface;
 
 pub use cooperation::{Cooperative, DdcReport, Profile};
 pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
+pub use surface::{GpuSurface, gpu_engine};
