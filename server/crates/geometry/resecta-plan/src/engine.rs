@@ -152,8 +152,9 @@ pub struct Planner {
     /// Tumours picked by each target seen (selection scans tumour voxels: once per target).
     selections: Vec<(Target, Vec<usize>)>,
     volumetry: Option<Volumetry>,
-    /// Makes each resection's surface evaluator.
+    /// Makes each resection's surface evaluator; the CPU's after a device failure.
     engine: SurfaceEngine,
+    device_fallbacks: u32,
     pub flr_threshold_pct: Real,
 }
 
@@ -180,6 +181,7 @@ impl Planner {
             selections: Vec::new(),
             volumetry: None,
             engine,
+            device_fallbacks: 0,
             flr_threshold_pct: DEFAULT_FLR_THRESHOLD_PCT,
         };
         planner.refresh_all()?;
@@ -211,6 +213,11 @@ impl Planner {
     /// The engine that makes the surface evaluators (for a new planner on the same device).
     pub fn surface_engine(&self) -> &SurfaceEngine {
         &self.engine
+    }
+    /// How often a surface's device failed since this planner was made; the first failure
+    /// moves the planner to the CPU engine (its other surfaces move at their own next failure).
+    pub fn device_fallbacks(&self) -> u32 {
+        self.device_fallbacks
     }
     pub fn anatomy(&self) -> &Anatomy {
         &self.anatomy
@@ -360,6 +367,7 @@ impl Planner {
         prev: Option<ResectionState>,
     ) -> Result<ResectionState, PlanError> {
         let target = self.target_model(&r.target)?;
+        let before = prev.as_ref().map_or(0, |s| s.surface.device_fallbacks());
         let (surface, mut inside, mut margins, mut memo) = match prev {
             Some(mut s) => {
                 s.surface.update(r)?;
@@ -372,6 +380,10 @@ impl Planner {
                 MarginMemo::default(),
             ),
         };
+        if surface.device_fallbacks() > before {
+            self.device_fallbacks += 1;
+            self.engine = SurfaceEngine::cpu();
+        }
         let points = surface.points();
         let anatomy = &self.anatomy;
         if points.len() < PARALLEL_INSIDE {

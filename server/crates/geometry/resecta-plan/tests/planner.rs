@@ -593,6 +593,9 @@ fn a_device_failure_moves_the_surface_to_the_cpu_and_the_edit_succeeds() {
     }
     let err = flaky.state("r1").unwrap().surface.device_error().unwrap();
     assert!(err.is_device(), "{err}");
+    // The planner moved to the CPU: its next surfaces are made there.
+    assert_eq!(flaky.device_fallbacks(), 1);
+    assert_eq!(flaky.surface_engine().backend(), "cpu");
     // One moved point is handed over as one point (the first two edits reach the flaky one).
     assert_eq!(single.load(std::sync::atomic::Ordering::Relaxed), 2);
 }
@@ -610,5 +613,6 @@ fn an_engine_that_cannot_make_an_evaluator_for_its_device_leaves_the_cpu_to_it()
     let p = Planner::with_engine(anatomy(), plan, engine).unwrap();
     let s = &p.state("r1").unwrap().surface;
     assert_eq!((s.backend(), s.device_fallbacks()), ("cpu", 1));
+    assert_eq!(p.device_fallbacks(), 1);
     assert_eq!(s.points().len(), 40 * 40);
 }
