@@ -18,6 +18,28 @@ pub struct ServerInfo {
     pub api_version: &'static str,
     pub capabilities: Vec<String>,
     pub limits: Limits,
+    pub compute: ComputeInfo,
+}
+
+/// Where the planners evaluate their surfaces, as chosen at start.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ComputeInfo {
+    /// `"cpu"` or `"wgpu"`.
+    pub backend: String,
+    /// The GPU adapter's name (empty on the CPU).
+    pub adapter: String,
+    /// Whether the GPU evaluates in f64 (`SHADER_F64`); f32 otherwise.
+    pub f64: bool,
+}
+
+impl Default for ComputeInfo {
+    fn default() -> Self {
+        Self {
+            backend: "cpu".into(),
+            adapter: String::new(),
+            f64: true,
+        }
+    }
 }
 
 #[derive(Debug, Clone)]

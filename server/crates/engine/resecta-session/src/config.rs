@@ -2,8 +2,10 @@
 
 use std::time::Duration;
 
+use resecta_bezier::SurfaceEngine;
 use resecta_delta::EncodeOptions;
 
+use crate::api::ComputeInfo;
 use crate::watch::RingBounds;
 
 /// Limits and tuning of a [`Service`](crate::Service).
@@ -35,6 +37,11 @@ pub struct ServiceConfig {
     /// Capabilities reported by [`Service::info`](crate::Service::info) (the edges add theirs,
     /// e.g. "tls").
     pub capabilities: Vec<String>,
+    /// Makes the surface evaluators of every session's planner (the CPU's by default); a
+    /// session whose device fails continues on the CPU.
+    pub surface_engine: SurfaceEngine,
+    /// What [`Service::info`](crate::Service::info) reports of `surface_engine`.
+    pub compute: ComputeInfo,
 }
 
 impl Default for ServiceConfig {
@@ -55,6 +62,8 @@ impl Default for ServiceConfig {
             volumes_during_drags_per_s: 4.0,
             psr_depth: 7,
             capabilities: Vec::new(),
+            surface_engine: SurfaceEngine::cpu(),
+            compute: ComputeInfo::default(),
         }
     }
 }

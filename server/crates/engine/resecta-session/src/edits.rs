@@ -13,7 +13,7 @@ use crate::error::{Result, SessionError};
 use crate::log;
 use crate::pools::{self, Priority};
 use crate::service::Service;
-use crate::state::{loaded_mut, no_label_map};
+use crate::state::{self, loaded_mut, no_label_map};
 use crate::support::{InFlight, blocking, internal};
 
 /// Edits of surfaces of at most this many samples run on one thread (`pools`: no fork-join).
@@ -75,7 +75,10 @@ impl Service {
             Priority::Interactive
         };
         let (mut planner, result) = pools::run(priority, move || {
-            let r = apply_edit(&mut planner, op).and_then(|(change, record)| {
+            let fallbacks = planner.device_fallbacks();
+            let r = apply_edit(&mut planner, op);
+            state::log_device_fallback(&planner, fallbacks);
+            let r = r.and_then(|(change, record)| {
                 match hub.publish_edit(version + 1, planner.plan(), planner.states(), &change) {
                     Ok(()) => Ok((change, record)),
                     Err(e) => {
@@ -137,9 +140,9 @@ impl Service {
                 "the plan's role map differs from the loaded label map's".into(),
             ));
         }
-        let anatomy = {
+        let (anatomy, engine) = {
             let planner = loaded.ready().await?;
-            planner.anatomy_shared()
+            (planner.anatomy_shared(), planner.surface_engine().clone())
         };
         // Refused before any surface is computed when the memory budget has no room for the
         // new surfaces, which are computed beside the present ones. (The store takes the record
@@ -150,7 +153,7 @@ impl Service {
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
         let (planner, new_version) = blocking(move || {
-            let planner = Planner::new(anatomy, plan)?;
+            let planner = Planner::with_engine(anatomy, plan, engine)?;
             let v = store.append(&key, version, &[record])?;
             Ok((planner, v))
         })

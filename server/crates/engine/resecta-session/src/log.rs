@@ -164,8 +164,11 @@ pub(crate) fn store_models(store: &dyn SessionStore, key: &str, blob: &Blob) -> 
 pub(crate) fn roll_back(planner: &mut Planner, id: &str) {
     let h = planner.history();
     let log = h.log();
-    let restored = History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)])
-        .and_then(|h| Planner::resume(planner.anatomy_shared(), h));
+    let restored =
+        History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)]).and_then(|h| {
+            let engine = planner.surface_engine().clone();
+            Planner::resume_with_engine(planner.anatomy_shared(), h, engine)
+        });
     match restored {
         Ok(p) => *planner = p,
         Err(r) => {

@@ -109,6 +109,7 @@ impl Service {
                 max_upload_bytes: self.config.max_upload_bytes,
                 max_memory_bytes: self.config.max_memory_bytes,
             },
+            compute: self.config.compute.clone(),
         }
     }
 
@@ -186,6 +187,7 @@ impl Service {
                 roles,
                 history: Some(history),
                 deleted: Arc::clone(&s.deleted),
+                engine: self.config.surface_engine.clone(),
             };
             let pending =
                 spawn_planner(setup, Priority::SetUp, Some((Arc::clone(&s.hub), version)));
@@ -341,6 +343,7 @@ impl Service {
             roles: summary.roles.clone(),
             history: None,
             deleted: Arc::clone(&s.deleted),
+            engine: self.config.surface_engine.clone(),
         };
         let pending = spawn_planner(setup, Priority::SetUp, None);
         let store = Arc::clone(&self.store);

@@ -4,6 +4,7 @@
 use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 
+use resecta_bezier::SurfaceEngine;
 use resecta_geom::{LabelMap, RoleMap, TriMesh};
 use resecta_plan::{Anatomy, History, Plan, PlanError, Planner};
 use resecta_recon::ReconError;
@@ -53,6 +54,8 @@ pub(crate) struct SetUp {
     pub(crate) roles: RoleMap,
     pub(crate) history: Option<History>,
     pub(crate) deleted: Arc<AtomicBool>,
+    /// Makes the planner's surface evaluators.
+    pub(crate) engine: SurfaceEngine,
 }
 
 /// Sets its flag when dropped: a set-up nobody waits for any more stops at its next check.
@@ -180,10 +183,11 @@ pub(crate) fn spawn_planner(
             roles,
             history,
             deleted,
+            engine,
         } = job;
         let cancelled = || flag.load(Ordering::Acquire) || deleted.load(Ordering::Acquire);
         let t = std::time::Instant::now();
-        let built = build_planner(&labels, roles, history, &cancelled);
+        let built = build_planner(&labels, roles, history, engine, &cancelled);
         tracing::debug!(
             ms = t.elapsed().as_secs_f64() * 1e3,
             ok = built.is_ok(),
@@ -203,6 +207,7 @@ fn build_planner(
     labels: &LabelMap,
     roles: RoleMap,
     history: Option<History>,
+    engine: SurfaceEngine,
     cancelled: &(dyn Fn() -> bool + Sync),
 ) -> Result<Planner> {
     let stopped = |e: PlanError| {
@@ -217,10 +222,24 @@ fn build_planner(
         return Err(SessionError::Cancelled);
     }
     let planner = match history {
-        Some(h) => Planner::resume(anatomy, h)?,
-        None => Planner::new(anatomy, Plan::new(roles))?,
+        Some(h) => Planner::resume_with_engine(anatomy, h, engine)?,
+        None => Planner::with_engine(anatomy, Plan::new(roles), engine)?,
     };
+    log_device_fallback(&planner, 0);
     Ok(planner)
+}
+
+/// Logs that `planner` moved to the CPU when its device failed since it had `before` failures.
+pub(crate) fn log_device_fallback(planner: &Planner, before: u32) {
+    if planner.device_fallbacks() > before {
+        let error = planner
+            .states()
+            .values()
+            .find_map(|s| s.surface.device_error())
+            .map(ToString::to_string)
+            .unwrap_or_default();
+        tracing::warn!(%error, "surface evaluation device failed; this session plans on the CPU");
+    }
 }
 
 pub(crate) fn loaded_mut(st: &mut State) -> Result<&mut Loaded> {

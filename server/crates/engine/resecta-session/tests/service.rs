@@ -1166,3 +1166,86 @@ async fn label_slices_need_a_label_map_and_a_position_inside_it() {
     assert_eq!(far.kind(), ErrorKind::InvalidArgument);
     assert!(far.to_string().contains("position_mm"), "{far}");
 }
+
+/// An evaluator whose device is lost from its second evaluation on.
+#[derive(Debug)]
+struct Lost(resecta_bezier::MleEvaluator<f64>, usize);
+
+impl resecta_bezier::SurfaceEvaluator for Lost {
+    fn backend(&self) -> &'static str {
+        "lost"
+    }
+    fn net(&self) -> &resecta_bezier::ControlNet<f64> {
+        self.0.net()
+    }
+    fn resolution(&self) -> resecta_bezier::Resolution {
+        self.0.resolution()
+    }
+    fn set_net(&mut self, net: resecta_bezier::ControlNet<f64>) {
+        self.0.set_net(net);
+    }
+    fn set_control_points(&mut self, p: &[[f64; 3]]) -> Result<(), resecta_bezier::BezierError> {
+        self.0.set_control_points(p)
+    }
+    fn set_control_point(
+        &mut self,
+        i: usize,
+        j: usize,
+        p: [f64; 3],
+    ) -> Result<(), resecta_bezier::BezierError> {
+        self.0.set_control_point(i, j, p)
+    }
+    fn set_resolution(&mut self, r: resecta_bezier::Resolution) {
+        self.0.set_resolution(r);
+    }
+    fn evaluate_into(
+        &mut self,
+        grid: &mut resecta_bezier::SurfaceGrid<f64>,
+    ) -> Result<(), resecta_bezier::BezierError> {
+        self.1 += 1;
+        if self.1 > 1 {
+            return Err(resecta_bezier::BezierError::Device("device lost".into()));
+        }
+        self.0.evaluate_into(grid)
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_lost_device_leaves_the_edits_to_the_cpu_and_info_reports_the_compute() {
+    let mut lost = config();
+    lost.surface_engine = resecta_bezier::SurfaceEngine::new("lost", |net, res| {
+        Ok(Box::new(Lost(
+            resecta_bezier::MleEvaluator::new(net, res),
+            0,
+        )))
+    });
+    lost.compute = resecta_session::api::ComputeInfo {
+        backend: "wgpu".into(),
+        adapter: "test adapter".into(),
+        f64: false,
+    };
+    let store = || Arc::new(MemoryStore::new(StoreOptions::default()));
+    let cpu = Arc::new(Service::new(store(), config()));
+    assert_eq!(cpu.info().compute.backend, "cpu");
+    let lost = Arc::new(Service::new(store(), lost));
+    let info = lost.info().compute;
+    assert_eq!(
+        (info.backend.as_str(), info.adapter.as_str(), info.f64),
+        ("wgpu", "test adapter", false)
+    );
+    let (a, b) = (
+        loaded_session(&lost, "Lost").await,
+        loaded_session(&cpu, "Cpu").await,
+    );
+    let mut versions = (0, 0);
+    for op in [init_op(), drag([-9.0, 5.0, 4.0]), drag([-8.0, 5.0, 4.0])] {
+        let x = lost.edit(&a, versions.0, op.clone()).await.unwrap();
+        let y = cpu.edit(&b, versions.1, op).await.unwrap();
+        versions = (x.plan_version, y.plan_version);
+        assert_eq!(
+            format!("{:?}", x.resections),
+            format!("{:?}", y.resections),
+            "the same verdicts on the CPU after the loss"
+        );
+    }
+}
