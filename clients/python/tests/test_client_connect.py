@@ -26,6 +26,8 @@ def test_server_info_and_receive_limit(client: rc.Client) -> None:
     # The channel's receive limit follows the server's largest message (above gRPC's 4 MiB).
     assert info.limits.max_message_bytes > 4 << 20
     assert client._receive == info.limits.max_message_bytes
+    # Without --gpu the planners evaluate on the CPU, in f64.
+    assert info.compute == rc.ComputeInfo("cpu", "", True)
 
 
 def test_token_required_and_checked() -> None:

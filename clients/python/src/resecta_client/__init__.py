@@ -32,6 +32,7 @@ from .errors import (
 from .geometry import compose, decompose, label_bytes
 from .scene import LiveScene, SceneUpdate, SurfaceState
 from .types import (
+    ComputeInfo,
     ControlGroup,
     DroppedComponents,
     EditResult,
@@ -69,6 +70,7 @@ __all__ = [
     "AuthError",
     "Cancelled",
     "Client",
+    "ComputeInfo",
     "ControlGroup",
     "DeadlineExceeded",
     "DroppedComponents",

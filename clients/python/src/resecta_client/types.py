@@ -201,20 +201,33 @@ class ServerLimits:
 
 
 @dataclass(frozen=True)
+class ComputeInfo:
+    """Where the server's planners evaluate surfaces: backend ``"cpu"`` or ``"wgpu"``, the GPU
+    adapter's name (empty on the CPU), and whether in 64-bit floats."""
+
+    backend: str
+    adapter: str
+    f64: bool
+
+
+@dataclass(frozen=True)
 class ServerInfo:
     """The server's identity, the API it speaks (``"resecta.v1"``), capabilities (``gpu``,
-    ``tls``, ``auth``, ``zstd``, ``quantized``, ``psr``) and limits."""
+    ``tls``, ``auth``, ``zstd``, ``quantized``, ``psr``), limits and compute backend."""
 
     server_version: str
     api_version: str
     capabilities: tuple[str, ...]
     limits: ServerLimits
+    compute: ComputeInfo
 
     @classmethod
     def from_pb(cls, m: planning_service_pb2.GetServerInfoResponse) -> ServerInfo:
         lim = m.limits
         limits = ServerLimits(**{f: getattr(lim, f) for f in ServerLimits.__dataclass_fields__})
-        return cls(m.server_version, m.api_version, tuple(m.capabilities), limits)
+        c = m.compute
+        compute = ComputeInfo(c.backend or "cpu", c.adapter, c.f64 if c.backend else True)
+        return cls(m.server_version, m.api_version, tuple(m.capabilities), limits, compute)
 
 
 @dataclass(frozen=True)

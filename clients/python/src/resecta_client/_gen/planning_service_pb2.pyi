@@ -90,16 +90,28 @@ class ServerLimits(_message.Message):
     def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ...) -> None: ...
 
 class GetServerInfoResponse(_message.Message):
-    __slots__ = ("server_version", "api_version", "capabilities", "limits")
+    __slots__ = ("server_version", "api_version", "capabilities", "limits", "compute")
     SERVER_VERSION_FIELD_NUMBER: _ClassVar[int]
     API_VERSION_FIELD_NUMBER: _ClassVar[int]
     CAPABILITIES_FIELD_NUMBER: _ClassVar[int]
     LIMITS_FIELD_NUMBER: _ClassVar[int]
+    COMPUTE_FIELD_NUMBER: _ClassVar[int]
     server_version: str
     api_version: str
     capabilities: _containers.RepeatedScalarFieldContainer[str]
     limits: ServerLimits
-    def __init__(self, server_version: _Optional[str] = ..., api_version: _Optional[str] = ..., capabilities: _Optional[_Iterable[str]] = ..., limits: _Optional[_Union[ServerLimits, _Mapping]] = ...) -> None: ...
+    compute: ComputeInfo
+    def __init__(self, server_version: _Optional[str] = ..., api_version: _Optional[str] = ..., capabilities: _Optional[_Iterable[str]] = ..., limits: _Optional[_Union[ServerLimits, _Mapping]] = ..., compute: _Optional[_Union[ComputeInfo, _Mapping]] = ...) -> None: ...
+
+class ComputeInfo(_message.Message):
+    __slots__ = ("backend", "adapter", "f64")
+    BACKEND_FIELD_NUMBER: _ClassVar[int]
+    ADAPTER_FIELD_NUMBER: _ClassVar[int]
+    F64_FIELD_NUMBER: _ClassVar[int]
+    backend: str
+    adapter: str
+    f64: bool
+    def __init__(self, backend: _Optional[str] = ..., adapter: _Optional[str] = ..., f64: _Optional[bool] = ...) -> None: ...
 
 class CreateSessionRequest(_message.Message):
     __slots__ = ("display_name",)

@@ -71,6 +71,7 @@ impl PlanningService for Fake {
                 max_message_bytes: MESSAGE_LIMIT as u32,
                 ..Default::default()
             }),
+            compute: None,
         }))
     }
     async fn create_session(

@@ -34,7 +34,8 @@ fn saturating_u32(v: usize) -> u32 {
     u32::try_from(v).unwrap_or(u32::MAX)
 }
 
-/// The one `GetServerInfoResponse` of `service`: version, capabilities and every limit.
+/// The one `GetServerInfoResponse` of `service`: version, capabilities, every limit and the
+/// compute backend.
 pub fn server_info(service: &Service) -> pb::GetServerInfoResponse {
     use limits::*;
     let info = service.info();
@@ -42,6 +43,11 @@ pub fn server_info(service: &Service) -> pb::GetServerInfoResponse {
         server_version: info.version.to_owned(),
         api_version: info.api_version.to_owned(),
         capabilities: info.capabilities,
+        compute: Some(pb::ComputeInfo {
+            backend: info.compute.backend,
+            adapter: info.compute.adapter,
+            f64: info.compute.f64,
+        }),
         limits: Some(pb::ServerLimits {
             max_voxels: info.limits.max_voxels,
             max_sessions: saturating_u32(info.limits.max_sessions),
