@@ -165,3 +165,52 @@ def test_both_faces_report_the_limits_the_document_states(tmp_path):
         assert value > 0 and http_limits[name] == value, (name, http_limits.get(name), value)
     assert f"at most {http_limits['maxPlanBytes']} bytes" in json.dumps(doc, ensure_ascii=False)
     assert f"longer than {http_limits['maxExtentMm']:g} mm" in json.dumps(doc, ensure_ascii=False)
+
+
+# ---- the compute backend: --gpu ---------------------------------------------------------------
+
+def test_gpu_required_plans_on_the_adapter_as_the_cpu_does(tmp_path):
+    """`--gpu required` under `WGPU_BACKEND=vulkan` (lavapipe in CI) reports its adapter on both
+    faces and plans the demo patient's edits with the verdicts of a `--gpu off` server; with no
+    adapter for the backends searched it refuses to start (exit 1, naming the GPU)."""
+    import requests
+    from server_harness import Server, wait_for
+
+    vulkan = {"WGPU_BACKEND": "vulkan"}
+    gpu = Server("--demo", "--gpu", "required", env=vulkan)
+    cpu = Server("--demo", env={"RESECTA_GPU": "off"})
+    try:
+        verdicts, infos = [], []
+        for s in (gpu, cpu):
+            infos.append(requests.get(f"{s.http_url}/v1/info", timeout=10).json())
+
+            def planned(s=s):
+                got = requests.get(f"{s.http_url}/v1/sessions", timeout=30).json()
+                sessions = got.get("sessions", [])
+                sid = sessions and sessions[0]["id"]
+                plan = sid and requests.get(f"{s.http_url}/v1/sessions/{sid}/plan", timeout=60)
+                return plan and plan.ok and '"r1"' in plan.json().get("planJson", "") and sid
+
+            sid = wait_for(planned, timeout=300)
+            for delta in ({"x": 2.0, "y": 0.0, "z": 0.5}, {"x": -1.0, "y": 1.0, "z": 0.0}):
+                r = requests.post(f"{s.http_url}/v1/sessions/{sid}/edits",
+                                  json={"translate": {"name": "r1", "delta": delta}}, timeout=120)
+                assert r.status_code == 200, r.text
+            verdicts.append(r.json()["resections"][0]["verdict"])
+    finally:
+        gpu.stop()
+        cpu.stop()
+    g, c = infos
+    assert g["compute"]["backend"] == "wgpu" and g["compute"]["adapter"], g
+    assert "gpu" in g["capabilities"]
+    assert c["compute"] == {"backend": "cpu", "f64": True}, c  # proto JSON omits the empty adapter
+    assert "gpu" not in c["capabilities"]
+    gv, cv = verdicts
+    assert abs(gv["minMarginMm"] - cv["minMarginMm"]) <= 1e-6, (gv, cv)
+    assert gv.get("violation", False) == cv.get("violation", False)
+    for area in ("violatingAreaMm2", "warningAreaMm2", "insideAreaMm2"):
+        assert abs(gv.get(area, 0.0) - cv.get(area, 0.0)) <= 1e-6 * max(cv.get(area, 0.0), 1.0), area
+
+    # No adapter (no Metal on Linux): refused with a clear error.
+    with pytest.raises(AssertionError, match="GPU: --gpu required"):
+        Server("--gpu", "required", env={"WGPU_BACKEND": "metal"})

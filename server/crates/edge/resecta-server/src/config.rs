@@ -10,6 +10,7 @@ use resecta_conn::ConnLimits;
 use resecta_session::ServiceConfig;
 use serde::Deserialize;
 
+use crate::compute::GpuMode;
 use crate::error::ServerError;
 
 /// Default gRPC address (loopback).
@@ -68,6 +69,10 @@ pub struct ServeArgs {
     /// closed [default: 60; TOML `[connections] idle_timeout_s`].
     #[arg(long, value_name = "SECONDS", env = "RESECTA_IDLE_TIMEOUT")]
     pub idle_timeout: Option<u64>,
+    /// Where planners evaluate their surfaces: `off` (the CPU), `auto` (a GPU adapter when there
+    /// is one, else the CPU), `required` (refuse to start without one) [default: off; TOML `gpu`].
+    #[arg(long, value_enum, env = "RESECTA_GPU")]
+    pub gpu: Option<GpuMode>,
 }
 
 /// The TOML file.
@@ -80,6 +85,7 @@ struct FileConfig {
     token_file: Option<PathBuf>,
     insecure: Option<bool>,
     demo: Option<bool>,
+    gpu: Option<GpuMode>,
     tls: Option<TlsFiles>,
     #[serde(default)]
     limits: FileLimits,
@@ -168,6 +174,8 @@ pub struct ServerConfig {
     pub service: ServiceConfig,
     /// Timeouts and caps of both faces' connections.
     pub connections: ConnLimits,
+    /// The compute backend asked for; [`crate::run`] sets the service's surface engine by it.
+    pub gpu: GpuMode,
 }
 
 fn read_small(path: &Path, what: &str) -> Result<String, ServerError> {
@@ -272,6 +280,7 @@ impl ServerConfig {
             log_json: args.log_json,
             service,
             connections,
+            gpu: args.gpu.or(file.gpu).unwrap_or_default(),
         })
     }
 }
@@ -421,5 +430,39 @@ mod tests {
             ..ServeArgs::default()
         };
         assert!(ServerConfig::resolve(&args).is_err());
+    }
+
+    #[test]
+    fn the_gpu_mode_comes_from_the_flag_over_the_file_and_is_off_by_default() {
+        assert_eq!(
+            ServerConfig::resolve(&ServeArgs::default()).unwrap().gpu,
+            GpuMode::Off
+        );
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = write(dir.path(), "c.toml", "gpu = \"auto\"\n");
+        let mut args = ServeArgs {
+            config: Some(cfg),
+            ..ServeArgs::default()
+        };
+        assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Auto);
+        args.gpu = Some(GpuMode::Required);
+        assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Required);
+        let bad = write(dir.path(), "bad.toml", "gpu = \"maybe\"\n");
+        let e = ServerConfig::resolve(&ServeArgs {
+            config: Some(bad),
+            ..ServeArgs::default()
+        })
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("gpu"), "{e}");
+    }
+
+    #[test]
+    fn gpu_off_leaves_the_cpu_engine_and_its_report() {
+        let mut service = ServiceConfig::default();
+        crate::configure_compute(GpuMode::Off, &mut service).unwrap();
+        assert_eq!(service.surface_engine.backend(), "cpu");
+        assert_eq!(service.compute.backend, "cpu");
+        assert!(!service.capabilities.contains(&"gpu".to_owned()));
     }
 }

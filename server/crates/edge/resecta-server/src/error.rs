@@ -18,6 +18,8 @@ pub enum ServerError {
     Serve { face: &'static str, message: String },
     #[error("demo patient: {0}")]
     Demo(String),
+    #[error("GPU: {0}")]
+    Gpu(String),
 }
 
 impl ServerError {

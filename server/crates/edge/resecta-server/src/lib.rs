@@ -2,9 +2,11 @@
 //! configured store, served on two faces — gRPC ([`resecta_grpc`]) and HTTP/JSON
 //! ([`resecta_http`]) — with the same access policy, optional TLS on both, Prometheus metrics,
 //! request tracing, idle-session expiry, connection hygiene ([`resecta_conn`]: handshake and idle
-//! timeouts, connection caps, HTTP/2 limits) and, on request, the demo patient. No algorithm
-//! lives here: this crate wires listeners to the operation layer.
+//! timeouts, connection caps, HTTP/2 limits), the compute backend (`--gpu`: the sessions'
+//! surfaces on a GPU through `resecta-gpu`'s engine) and, on request, the demo patient. No
+//! algorithm lives here: this crate wires listeners to the operation layer.
 
+mod compute;
 mod config;
 mod demo;
 mod error;
@@ -24,6 +26,7 @@ use tokio::sync::watch;
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
 use tower_http::trace::TraceLayer;
 
+pub use compute::{GpuMode, configure_compute};
 pub use config::{DEFAULT_GRPC, DEFAULT_HTTP, ServeArgs, ServerConfig, TlsFiles};
 pub use demo::{DEMO_SESSION_NAME, seed_demo};
 pub use error::ServerError;
@@ -83,8 +86,10 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
     on_bound: impl FnOnce(Bound),
 ) -> Result<(), ServerError> {
+    let mut service_config = config.service.clone();
+    configure_compute(config.gpu, &mut service_config)?;
     let store = open_store(&config)?;
-    let service = Arc::new(Service::new(store, config.service.clone()));
+    let service = Arc::new(Service::new(store, service_config));
     // Stored sessions come back while the faces start: most recently used first.
     service.restore_in_background();
     let tls = match &config.tls {
