@@ -2,12 +2,16 @@
 //! Run: `WGPU_BACKEND=vulkan cargo run --release -p resecta-gpu --example bezier_timing`.
 //! Pass `--no-coop` to skip the SDC/DDC table. "empty submit+wait" is the floor of any GPU
 //! call; "gpu" is one evaluation with read-back into host memory; "gpu-resident" leaves the
-//! surface on the GPU (kernels + wait); "+ upload" re-sends the control points first.
+//! surface on the GPU (kernels + wait); "+ upload" re-sends the control points first. The
+//! drag table times what a planner's edit costs: one control point moved, then points and unit
+//! normals read back (`GpuSurface`), against the CPU MLE doing the same.
 
 use std::time::Instant;
 
-use resecta_bezier::{ControlNet, MleEvaluator, P3, Resolution};
-use resecta_gpu::{Cooperative, GpuContext, GpuError, GpuPrepared, GpuScalar};
+use resecta_bezier::{
+    ControlNet, MleEvaluator, Outputs, P3, Resolution, SurfaceEvaluator, SurfaceGrid, cpu_evaluator,
+};
+use resecta_gpu::{Cooperative, GpuContext, GpuError, GpuPrepared, GpuScalar, GpuSurface};
 
 fn net<T: GpuScalar>(m: usize) -> Result<ControlNet<T>, resecta_bezier::BezierError> {
     ControlNet::from_fn(m, m, |i, j| {
@@ -65,6 +69,32 @@ fn table<T: GpuScalar>(ctx: &GpuContext) -> Result<(), Box<dyn std::error::Error
     Ok(())
 }
 
+/// Drags (one control point moved, points + normals evaluated) per second on `e`.
+fn drags(mut e: Box<dyn SurfaceEvaluator>, reps: usize) -> Result<f64, GpuError> {
+    let mut grid = SurfaceGrid::zeroed(e.resolution(), Outputs::Normals);
+    let mut k = 0.0;
+    per_s(reps, &mut || {
+        k += 0.01;
+        e.set_control_point(1, 2, [10.0, 20.0, k])?;
+        Ok(e.evaluate_into(&mut grid)?)
+    })
+}
+
+fn drag_table(ctx: &GpuContext) -> Result<(), Box<dyn std::error::Error>> {
+    for (m, r) in [(4, 40), (4, 200), (12, 200)] {
+        let res = Resolution::new(r, r)?;
+        let reps = if r == 40 { 200 } else { 20 };
+        let gpu = drags(Box::new(GpuSurface::new(ctx, net::<f64>(m)?, res)?), reps)?;
+        let gpu32 = drags(
+            Box::new(GpuSurface::new_f32(ctx, net::<f64>(m)?, res)?),
+            reps,
+        )?;
+        let cpu = drags(cpu_evaluator(net::<f64>(m)?, res), reps)?;
+        println!("| {m}x{m} | {r}x{r} | {gpu:.1} | {gpu32:.1} | {cpu:.1} |");
+    }
+    Ok(())
+}
+
 fn cooperation<T: GpuScalar>(
     ctx: &GpuContext,
     m: usize,
@@ -114,6 +144,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if ctx.caps.f64 {
         table::<f64>(&ctx)?;
     }
+    println!(
+        "\n| net | resolution | gpu drags/s (f64 when offered) | gpu drags/s (f32) | cpu MLE drags/s |"
+    );
+    println!("|---|---|---|---|---|");
+    drag_table(&ctx)?;
     if !coop {
         return Ok(());
     }
