@@ -1,8 +1,10 @@
 //! The planner's surfaces on the GPU: [`GpuSurface`] implements
 //! `resecta_bezier::SurfaceEvaluator` over [`GpuMle`] (points and unit normals, one read-back
 //! per evaluation, the net resident), and [`gpu_engine`] is the `SurfaceEngine` a planner is
-//! given. f64 where the device has `SHADER_F64`, f32 otherwise (rounded once to f64 on the
-//! host; about 1e-5 of the net's extent, see the kernel tests). Device failures surface as
+//! given. f64 where the device has `SHADER_F64` (within 1e-13 mm and 1e-12 in normals of the
+//! CPU on lavapipe), f32 otherwise (widened on the host; within 2e-5 mm of the f64 CPU on a
+//! ±50 mm net and 4e-5 in normals, except next to collapsed corners, where f32's own √ε
+//! thresholds decide: see the kernel tests). Device failures surface as
 //! `BezierError::Device`, on which the planner's surfaces move to the CPU.
 
 use resecta_bezier::{
