@@ -1,8 +1,12 @@
 //! Device set-up, separate from the kernels: one [`GpuContext`] (device, queue, adapter info,
 //! capabilities) created by [`GpuContext::new`], which honours `WGPU_BACKEND` and asks for
 //! `SHADER_F64` whenever the adapter offers it. Kernels borrow the context, so tests inject it.
+//! Errors the device raises outside an error scope, and its loss, are recorded rather than
+//! panicking (wgpu's default): [`GpuContext::check`] turns them into [`GpuError::DeviceLost`],
+//! which kernels return, so that callers can go on without the device.
 
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, mpsc};
 
 /// What the device can do that the kernels care about.
 #[derive(Debug, Clone)]
@@ -24,6 +28,23 @@ pub struct GpuContext {
     pub info: wgpu::AdapterInfo,
     /// Features and limits in use.
     pub caps: Capabilities,
+    faults: Arc<Faults>,
+}
+
+/// What went wrong with a device outside any error scope (shared by the context's clones).
+#[derive(Debug, Default)]
+struct Faults {
+    failed: AtomicBool,
+    first: Mutex<Option<String>>,
+}
+
+impl Faults {
+    fn record(&self, what: String) {
+        if let Ok(mut first) = self.first.lock() {
+            first.get_or_insert(what);
+        }
+        self.failed.store(true, Ordering::Release);
+    }
 }
 
 /// Errors of device set-up and GPU evaluation.
@@ -59,6 +80,9 @@ pub enum GpuError {
     /// Waiting for the queue or mapping a buffer failed.
     #[error("GPU read-back failed: {0}")]
     ReadBack(String),
+    /// The device was lost or raised an error outside any error scope; it stays unusable.
+    #[error("the GPU device failed: {0}")]
+    DeviceLost(String),
     /// Invalid surface input (net, resolution, buffer length).
     #[error(transparent)]
     Bezier(#[from] resecta_bezier::BezierError),
@@ -110,12 +134,30 @@ impl GpuContext {
                 required_limits: limits.clone(),
                 ..Default::default()
             }))?;
+        let faults = Arc::new(Faults::default());
+        let f = Arc::clone(&faults);
+        device.on_uncaptured_error(Arc::new(move |e: wgpu::Error| f.record(e.to_string())));
+        let f = Arc::clone(&faults);
+        device.set_device_lost_callback(move |reason, message| {
+            f.record(format!("device lost ({reason:?}): {message}"));
+        });
         Ok(Self {
             device,
             queue,
             info,
             caps: Capabilities { f64, limits },
+            faults,
         })
+    }
+
+    /// [`GpuError::DeviceLost`] once the device was lost or raised an error outside an error
+    /// scope (the first such error is named); every later check fails too.
+    pub fn check(&self) -> Result<(), GpuError> {
+        if !self.faults.failed.load(Ordering::Acquire) {
+            return Ok(());
+        }
+        let first = self.faults.first.lock().ok().and_then(|f| f.clone());
+        Err(GpuError::DeviceLost(first.unwrap_or_default()))
     }
 
     /// Largest storage binding in bytes (128 MiB on lavapipe).

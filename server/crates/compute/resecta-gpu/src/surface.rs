@@ -25,7 +25,8 @@ impl From<GpuError> for BezierError {
             | GpuError::NoF64
             | GpuError::TooLarge { .. }
             | GpuError::Pipeline(_)
-            | GpuError::ReadBack(_)) => BezierError::Device(e.to_string()),
+            | GpuError::ReadBack(_)
+            | GpuError::DeviceLost(_)) => BezierError::Device(e.to_string()),
         }
     }
 }
@@ -329,6 +330,53 @@ mod tests {
         gpu.edit(e.clone()).unwrap();
         cpu.edit(e).unwrap();
         assert_same(&gpu, &cpu, "57x33");
+    }
+
+    fn res40() -> Resolution {
+        Resolution::new(40, 40).unwrap()
+    }
+
+    #[test]
+    fn a_lost_device_moves_the_planner_to_the_cpu_and_the_edit_succeeds() {
+        if context().is_none() {
+            return;
+        }
+        // A device of its own: destroyed below.
+        let ctx = GpuContext::new().unwrap();
+        let (anatomy, roles) = anatomy();
+        let mut plan = Plan::new(roles);
+        plan.apply(&PlanEvent::AddResection {
+            resection: resection([40, 40]),
+        })
+        .unwrap();
+        let mut gpu =
+            Planner::with_engine(Arc::clone(&anatomy), plan.clone(), gpu_engine(&ctx)).unwrap();
+        let mut cpu = Planner::new(anatomy, plan).unwrap();
+        ctx.device.destroy();
+        let e = PlanEvent::SetControlPoint {
+            name: "r1".into(),
+            i: 2,
+            j: 1,
+            point: [16.0, 0.0, -20.0],
+        };
+        gpu.edit(e.clone()).unwrap();
+        cpu.edit(e).unwrap();
+        let (g, c) = (gpu.state("r1").unwrap(), cpu.state("r1").unwrap());
+        assert_eq!(g.surface.backend(), "cpu");
+        assert_eq!(gpu.device_fallbacks(), 1);
+        eprintln!("lost: {}", g.surface.device_error().unwrap());
+        assert_eq!(g.surface.grid(), c.surface.grid());
+        assert_eq!(g.verdict, c.verdict);
+        // The context remembers the failure (wgpu's errors were recorded, not panicked on).
+        let err = ctx.check().unwrap_err();
+        assert!(matches!(err, GpuError::DeviceLost(_)), "{err}");
+        // A new surface on it fails as a device error too (made or evaluated).
+        let mut grid = SurfaceGrid::zeroed(res40(), Outputs::Normals);
+        let e = GpuSurface::new(&ctx, resection([40, 40]).net().unwrap(), res40())
+            .map_err(BezierError::from)
+            .and_then(|mut s| s.evaluate_into(&mut grid))
+            .unwrap_err();
+        assert!(e.is_device(), "{e}");
     }
 
     #[test]

@@ -597,6 +597,7 @@ impl<T: GpuScalar> GpuMle<T> {
         out: &mut [P3<T>],
     ) -> Result<(), GpuError> {
         self.check_rows(&rows, out.len())?;
+        self.ctx.check()?;
         self.ensure()?;
         self.counters.level1 += 1;
         let (enc, touched) = self.encode_rows(rows, true);
@@ -613,7 +614,8 @@ impl<T: GpuScalar> GpuMle<T> {
             let src = &bytes[skip..];
             dst[at..at + src.len()].copy_from_slice(src);
             at += src.len();
-        })
+        })?;
+        self.ctx.check()
     }
 
     /// Builds what the normals path adds to [`GpuMle::ensure`] (after it): pipelines, the
@@ -721,6 +723,7 @@ impl<T: GpuScalar> GpuMle<T> {
         if grid.outputs() != Outputs::Normals {
             return Err(BezierError::MissingOutput("normals").into());
         }
+        self.ctx.check()?;
         if self.blocks != 4 {
             self.blocks = 4;
             self.bands.clear();
@@ -779,6 +782,8 @@ impl<T: GpuScalar> GpuMle<T> {
                 bytemuck::cast_slice_mut::<T, u8>(dst).copy_from_slice(src);
             }
         })?;
+        // A device that failed during the evaluation may have left anything in the buffers.
+        self.ctx.check()?;
         repair_normals(&self.net, res, outs[3]);
         Ok(())
     }
@@ -786,6 +791,7 @@ impl<T: GpuScalar> GpuMle<T> {
     /// Runs level 1 and leaves the result on the GPU (see [`GpuMle::bands`]); submitted, not
     /// awaited: later GPU work on the same queue sees the result.
     pub fn evaluate_resident(&mut self) -> Result<&[OutputBand], GpuError> {
+        self.ctx.check()?;
         self.ensure()?;
         self.counters.level1 += 1;
         let (enc, _) = self.encode_rows(0..self.resolution.ru(), false);
@@ -834,6 +840,7 @@ impl<T: GpuScalar> GpuMle<T> {
                 .map(|x| vals[(x % count) * r + x / count])
                 .collect();
         })?;
+        self.ctx.check()?;
         let [u, v] = tables;
         Ok((u, v))
     }
