@@ -221,3 +221,23 @@ def test_gpu_required_plans_on_the_adapter_as_the_cpu_does(tmp_path):
     # No adapter (no Metal on Linux): refused with a clear error.
     with pytest.raises(AssertionError, match="GPU: --gpu required"):
         Server("--gpu", "required", env={"WGPU_BACKEND": "metal"})
+
+
+def test_gpu_auto_leaves_a_software_adapter_alone():
+    """`--gpu auto` (the default) plans on the CPU when the only adapter is a software rasteriser
+    (lavapipe here), and says so in its log; `required` is what uses one."""
+    import requests
+    from server_harness import Server
+
+    server = Server("--gpu", "auto", env={"WGPU_BACKEND": "vulkan", "RUST_LOG": "info"})
+    try:
+        info = requests.get(f"{server.http_url}/v1/info", timeout=10).json()
+    finally:
+        server.stop()
+    log = server.proc.stderr.read()
+    if "planning surfaces on the GPU" in log:
+        pytest.skip("SKIP: this machine has a hardware Vulkan adapter, which auto uses")
+    assert info["compute"]["backend"] == "cpu", info
+    assert "gpu" not in info["capabilities"]
+    # lavapipe (CI) is seen and left alone; a machine without it has no adapter at all.
+    assert "only a software GPU adapter" in log or "no GPU adapter" in log, log[-2000:]

@@ -106,6 +106,11 @@ impl GpuContext {
         Self::new().ok()
     }
 
+    /// Whether the adapter is a software rasteriser on the CPU (lavapipe, llvmpipe, WARP).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
     /// Creates a device on the first adapter of `backends`.
     pub fn with_backends(backends: wgpu::Backends) -> Result<Self, GpuError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle().with_env();

@@ -11,12 +11,13 @@ use crate::error::ServerError;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "lowercase")]
 pub enum GpuMode {
-    /// A GPU adapter when one is found (which one is logged), else the CPU.
+    /// A hardware GPU adapter when one is found (which one is logged), else the CPU: a software
+    /// rasteriser (lavapipe) would plan slower than the CPU path itself.
+    #[default]
     Auto,
     /// The CPU.
-    #[default]
     Off,
-    /// A GPU adapter, or the server does not start.
+    /// A GPU adapter, software ones included, or the server does not start.
     Required,
 }
 
@@ -27,6 +28,13 @@ pub fn configure_compute(mode: GpuMode, service: &mut ServiceConfig) -> Result<(
         return Ok(());
     }
     match GpuContext::new() {
+        Ok(ctx) if mode == GpuMode::Auto && ctx.is_software() => {
+            tracing::info!(
+                adapter = %ctx.info.name,
+                "only a software GPU adapter: planning surfaces on the CPU (--gpu required uses it)"
+            );
+            Ok(())
+        }
         Ok(ctx) => {
             tracing::info!(
                 adapter = %ctx.info.name,

@@ -69,8 +69,9 @@ pub struct ServeArgs {
     /// closed [default: 60; TOML `[connections] idle_timeout_s`].
     #[arg(long, value_name = "SECONDS", env = "RESECTA_IDLE_TIMEOUT")]
     pub idle_timeout: Option<u64>,
-    /// Where planners evaluate their surfaces: `off` (the CPU), `auto` (a GPU adapter when there
-    /// is one, else the CPU), `required` (refuse to start without one) [default: off; TOML `gpu`].
+    /// Where planners evaluate their surfaces: `off` (the CPU), `auto` (a hardware GPU adapter
+    /// when there is one, else the CPU), `required` (any adapter, software ones included, or
+    /// refuse to start) [default: auto; TOML `gpu`].
     #[arg(long, value_enum, env = "RESECTA_GPU")]
     pub gpu: Option<GpuMode>,
 }
@@ -433,18 +434,18 @@ mod tests {
     }
 
     #[test]
-    fn the_gpu_mode_comes_from_the_flag_over_the_file_and_is_off_by_default() {
+    fn the_gpu_mode_comes_from_the_flag_over_the_file_and_is_auto_by_default() {
         assert_eq!(
             ServerConfig::resolve(&ServeArgs::default()).unwrap().gpu,
-            GpuMode::Off
+            GpuMode::Auto
         );
         let dir = tempfile::tempdir().unwrap();
-        let cfg = write(dir.path(), "c.toml", "gpu = \"auto\"\n");
+        let cfg = write(dir.path(), "c.toml", "gpu = \"off\"\n");
         let mut args = ServeArgs {
             config: Some(cfg),
             ..ServeArgs::default()
         };
-        assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Auto);
+        assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Off);
         args.gpu = Some(GpuMode::Required);
         assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Required);
         let bad = write(dir.path(), "bad.toml", "gpu = \"maybe\"\n");
