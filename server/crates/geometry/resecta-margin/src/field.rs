@@ -458,6 +458,17 @@ impl MarginField {
         Some(self.tree.closest(points, best, slack))
     }
 
+    /// The oriented-box hierarchy queries walk (read-only, for accelerators).
+    pub fn tree(&self) -> &ObbTree {
+        &self.tree
+    }
+
+    /// The tree slot of each hint-grid node's nearest triangle, index `(k·ny + j)·nx + i` (node
+    /// `region().0 + (i, j, k)·spacing`): what seeds a walk from the node nearest to the query.
+    pub fn hints(&self) -> &[u32] {
+        &self.hints
+    }
+
     /// The hint triangle of the grid node nearest to the finite point `p` (clamped to the grid).
     fn node_hint(&self, p: &Vec3) -> u32 {
         self.hints[self.node_of(p).0]

@@ -20,6 +20,10 @@
 //!   moved little since their last query keep their distance (1-Lipschitz bound) while it stays
 //!   within tolerance — the live path of a drag.
 //!
+//! - [`MarginField::tree`] ([`ObbTree`]: nodes, triangles, prepared triangle data, reach) and
+//!   [`MarginField::hints`]: the search structure, read-only, for accelerators that walk it
+//!   themselves (`resecta-gpu`'s margin kernel).
+//!
 //! Threads: parallel loops run on the caller's current rayon pool; results do not depend on the
 //! number of threads.
 
@@ -35,3 +39,4 @@ pub use evaluate::{
     evaluate_reusing,
 };
 pub use field::{MAX_HINT_NODES, MarginField, Nearest};
+pub use tree::{COUNT_BITS, ObbNode, ObbTree, PreparedTriangle, STACK};

@@ -35,8 +35,8 @@ use resecta_geom::{Mat3, Real, TriMesh, Vec3};
 
 /// Largest number of triangles in a leaf (< 2^COUNT_BITS).
 const MAX_LEAF: usize = 8;
-/// Low bits of `Node::link` holding a leaf's triangle count.
-const COUNT_BITS: u32 = 5;
+/// Low bits of `ObbNode::link` holding a leaf's triangle count.
+pub const COUNT_BITS: u32 = 5;
 /// Most triangles (and so nodes < 2·MAX_TRIANGLES) that `link` can address.
 pub(crate) const MAX_TRIANGLES: usize = 1 << 26;
 /// Lanes per vectorised triangle test (one AVX2 vector of f64); lane counts are multiples.
@@ -47,7 +47,7 @@ const BINS: usize = 16;
 /// `MEDIAN_DEPTH + log2(n)` and so the traversal stack.
 const MEDIAN_DEPTH: usize = 48;
 /// Traversal stack size: ≥ `MEDIAN_DEPTH + log2(MAX_TRIANGLES) + 1`.
-const STACK: usize = 96;
+pub const STACK: usize = 96;
 /// Query points must lie within `reach = max(extent, region radius) + REACH_MARGIN` mm of the
 /// origin (the centre of the mesh's bounding box; `extent` is its half diagonal).
 const REACH_MARGIN: Real = 250.0;
@@ -55,16 +55,19 @@ const REACH_MARGIN: Real = 250.0;
 /// An oriented box `{origin + c + Σ a[k]·t_k : |t_k| ≤ h[k]}` in f32. The low [`COUNT_BITS`] of
 /// `link` are the triangle count of a leaf (0 for an inner node), the rest the first triangle
 /// slot of a leaf or the first of the two adjacent children of an inner node.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 #[repr(C, align(64))]
-struct Node {
-    c: [f32; 3],
-    a: [[f32; 3]; 3],
-    h: [f32; 3],
-    link: u32,
+pub struct ObbNode {
+    /// Centre relative to the tree's origin.
+    pub c: [f32; 3],
+    /// Unit axes.
+    pub a: [[f32; 3]; 3],
+    /// Half extents along the axes (padded).
+    pub h: [f32; 3],
+    pub link: u32,
 }
 
-impl Node {
+impl ObbNode {
     /// Squared distances (lower bounds) from each lane's point (relative to `origin`) to the box.
     #[inline(always)]
     fn distance_squared<const L: usize>(&self, x: &[[f32; L]; 3]) -> [f32; L] {
@@ -87,19 +90,20 @@ impl Node {
     }
 }
 
-/// A triangle prepared for [`TriData::distance_squared`]: corners, edges `e_k = v_{k+1} − v_k`,
+/// A triangle prepared for [`PreparedTriangle::distance_squared`]: corners, edges `e_k = v_{k+1} − v_k`,
 /// inward in-plane edge normals `n × e_k`, the normal `n = e_0 × (v_2 − v_0)` and reciprocals.
-#[derive(Debug, Clone, Copy)]
-struct TriData {
-    v: [[Real; 3]; 3],
-    e: [[Real; 3]; 3],
-    m: [[Real; 3]; 3],
-    n: [Real; 3],
-    inv_ee: [Real; 3],
-    inv_nn: Real,
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PreparedTriangle {
+    pub v: [[Real; 3]; 3],
+    pub e: [[Real; 3]; 3],
+    pub m: [[Real; 3]; 3],
+    pub n: [Real; 3],
+    /// `1 / |e_k|²` (0 for a zero edge).
+    pub inv_ee: [Real; 3],
+    pub inv_nn: Real,
 }
 
-impl TriData {
+impl PreparedTriangle {
     fn new(tri: &[Vec3; 3]) -> Self {
         let [a, b, c] = *tri;
         let n = (b - a).cross(&(c - a));
@@ -198,16 +202,17 @@ impl<const L: usize> Best<L> {
     }
 }
 
-/// Oriented-box hierarchy over the triangles of a mesh (see the module docs).
+/// Oriented-box hierarchy over the triangles of a mesh (see the module docs). Read-only outside
+/// the crate: its arrays are there for accelerators that walk it themselves (`resecta-gpu`).
 #[derive(Debug, Clone)]
-pub(crate) struct ObbTree {
-    nodes: Vec<Node>,
+pub struct ObbTree {
+    nodes: Vec<ObbNode>,
     /// Triangle corners in leaf order.
     tris: Vec<[Vec3; 3]>,
     /// Per slot: the triangle's own oriented box (thin along its normal).
-    tri_boxes: Vec<Node>,
+    tri_boxes: Vec<ObbNode>,
     /// Per slot: prepared data, or `None` if flat at corner 0 (use the reference routine).
-    prepared: Vec<Option<TriData>>,
+    prepared: Vec<Option<PreparedTriangle>>,
     /// Mesh index of each slot.
     ids: Vec<u32>,
     origin: Vec3,
@@ -234,13 +239,13 @@ impl ObbTree {
         // root by at least δ): 16u·(reach + extent) covers all with room to spare.
         let pad = (16.0 * (f32::EPSILON as Real / 2.0) * (reach + extent)) as f32;
         let mut order: Vec<u32> = (0..n as u32).collect();
-        let placeholder = Node {
+        let placeholder = ObbNode {
             c: [0.0; 3],
             a: [[0.0; 3]; 3],
             h: [0.0; 3],
             link: 0,
         };
-        let mut nodes: Vec<Node> = Vec::with_capacity(2 * n);
+        let mut nodes: Vec<ObbNode> = Vec::with_capacity(2 * n);
         nodes.push(placeholder);
         // (node, start, end, depth)
         let mut stack = vec![(0usize, 0usize, n, 0usize)];
@@ -267,7 +272,7 @@ impl ObbTree {
             .collect();
         let prepared = tris
             .iter()
-            .map(|t| (!is_flat(t)).then(|| TriData::new(t)))
+            .map(|t| (!is_flat(t)).then(|| PreparedTriangle::new(t)))
             .collect();
         Self {
             nodes,
@@ -280,15 +285,46 @@ impl ObbTree {
         }
     }
 
+    /// Nodes, root first; the children of an inner node are adjacent.
+    pub fn nodes(&self) -> &[ObbNode] {
+        &self.nodes
+    }
+
+    /// Triangle corners per slot (leaf order).
+    pub fn triangles(&self) -> &[[Vec3; 3]] {
+        &self.tris
+    }
+
+    /// Each slot's own oriented box.
+    pub fn triangle_boxes(&self) -> &[ObbNode] {
+        &self.tri_boxes
+    }
+
+    /// Each slot's prepared data, `None` where the triangle is flat at corner 0 (measured by
+    /// [`closest_point_on_triangle`] instead).
+    pub fn prepared(&self) -> &[Option<PreparedTriangle>] {
+        &self.prepared
+    }
+
+    /// The point node centres are relative to.
+    pub fn origin(&self) -> Vec3 {
+        self.origin
+    }
+
+    /// How far from the origin (mm) query points may lie for the f32 bounds to be conservative.
+    pub fn reach(&self) -> Real {
+        self.reach
+    }
+
     /// Whether `p` is close enough to the origin for the f32 bounds to be conservative.
     #[inline]
-    pub(crate) fn in_reach(&self, p: &Vec3) -> bool {
+    pub fn in_reach(&self, p: &Vec3) -> bool {
         (p - self.origin).norm_squared() <= self.reach * self.reach
     }
 
     /// Mesh index of the triangle in slot `slot`.
     #[inline]
-    pub(crate) fn id(&self, slot: u32) -> u32 {
+    pub fn id(&self, slot: u32) -> u32 {
         self.ids[slot as usize]
     }
 
@@ -430,7 +466,7 @@ fn is_flat(tri: &[Vec3; 3]) -> bool {
 
 /// Oriented bounding box of the triangles `items` as an f32 node relative to `origin`: the
 /// smaller by surface area of the axis-aligned box and the principal-axes box, inflated by `pad`.
-fn bounding_box(items: &[u32], corners: &[[Vec3; 3]], origin: &Vec3, pad: f32) -> Node {
+fn bounding_box(items: &[u32], corners: &[[Vec3; 3]], origin: &Vec3, pad: f32) -> ObbNode {
     let pts = || items.iter().flat_map(|&t| corners[t as usize].iter());
     let count = (3 * items.len()) as Real;
     let mean = pts().sum::<Vec3>() / count;
@@ -459,7 +495,7 @@ fn bounding_box(items: &[u32], corners: &[[Vec3; 3]], origin: &Vec3, pad: f32) -
         .filter(|b| b.3 < aligned.3)
         .unwrap_or(aligned);
     let rel = center - origin;
-    Node {
+    ObbNode {
         c: [rel.x as f32, rel.y as f32, rel.z as f32],
         a: axes.map(|v| [v.x as f32, v.y as f32, v.z as f32]),
         h: [
