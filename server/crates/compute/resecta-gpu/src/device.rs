@@ -86,6 +86,9 @@ pub enum GpuError {
     /// Invalid surface input (net, resolution, buffer length).
     #[error(transparent)]
     Bezier(#[from] resecta_bezier::BezierError),
+    /// Invalid margin input (buffer length, settings).
+    #[error(transparent)]
+    Margin(#[from] resecta_margin::MarginError),
 }
 
 /// Backends from `WGPU_BACKEND` (e.g. `vulkan`, `gl`, `metal`), or `None` when unset.

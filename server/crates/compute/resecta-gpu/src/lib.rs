@@ -8,6 +8,10 @@
 //!   [`GpuMle`], mirroring `resecta_bezier::MleEvaluator`; [`BezierBackend`] picks GPU or CPU;
 //!   [`GpuPrepared`] for benchmarks. Points only, or with ∂S/∂u, ∂S/∂v and unit normals
 //!   ([`GpuMle::evaluate_normals_into`]); a moved control point uploads only itself.
+//! - [`kernels::margin`]: exact point-to-tumour distances as [`GpuMarginField`], mirroring
+//!   `resecta_margin::MarginField::distances_into`: the field's oriented-box tree, prepared
+//!   triangles and hints resident, one invocation per point walking the tree (f64), classes by
+//!   `MarginSettings::classify` on the host ([`GpuMarginField::margins_into`]).
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -21,4 +25,5 @@ pub use cooperation::{Cooperative, DdcReport, Profile};
 pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
+pub use kernels::margin::GpuMarginField;
 pub use surface::{GpuSurface, gpu_engine};

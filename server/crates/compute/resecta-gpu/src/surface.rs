@@ -26,7 +26,9 @@ impl From<GpuError> for BezierError {
             | GpuError::TooLarge { .. }
             | GpuError::Pipeline(_)
             | GpuError::ReadBack(_)
-            | GpuError::DeviceLost(_)) => BezierError::Device(e.to_string()),
+            | GpuError::DeviceLost(_)
+            // Not raised by surfaces.
+            | GpuError::Margin(_)) => BezierError::Device(e.to_string()),
         }
     }
 }

@@ -2,6 +2,7 @@
 //! compile time), its Rust driver (`mod.rs`) and its GPU-vs-CPU tests (`tests.rs`).
 
 pub mod bezier;
+pub mod margin;
 
 use resecta_bezier::BezierScalar;
 
