@@ -3,7 +3,8 @@
 //! `distances_into`, rayon), at 40×40 and 200×200, on the demo-like phantom's margin field.
 //! Run: `WGPU_BACKEND=vulkan cargo run --release -p resecta-gpu --example margin_timing`.
 //! On lavapipe (a CPU Vulkan driver) the GPU column is a correctness run, not a performance
-//! figure.
+//! figure (2 shared cores, dev profile: 40×40 in 19 ms vs the CPU grid path's 1.4 ms, 200×200 in
+//! 300 ms vs 22 ms).
 
 use std::time::Instant;
 
