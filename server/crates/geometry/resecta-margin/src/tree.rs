@@ -90,8 +90,9 @@ impl ObbNode {
     }
 }
 
-/// A triangle prepared for [`PreparedTriangle::distance_squared`]: corners, edges `e_k = v_{k+1} − v_k`,
-/// inward in-plane edge normals `n × e_k`, the normal `n = e_0 × (v_2 − v_0)` and reciprocals.
+/// A triangle prepared for the branch-free exact distance (`distance_squared`, crate-private):
+/// corners, edges `e_k = v_{k+1} − v_k`, inward in-plane edge normals `n × e_k`, the normal
+/// `n = e_0 × (v_2 − v_0)` and reciprocals.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PreparedTriangle {
     pub v: [[Real; 3]; 3],
