@@ -11,9 +11,11 @@
 //! (explicit stack of `resecta_margin::STACK` entries, nearer child first), opening a box only
 //! when its f32 lower bound is strictly below the f32-rounded best so far, and measuring a leaf
 //! triangle exactly when its own box is: `ObbTree::closest` for one lane. The boxes' padding
-//! covers the f32 rounding of the bound, so the walk finds the nearest triangle, not an
-//! approximation; points beyond the tree's reach (where the padding no longer covers it; the
-//! CPU uses a plain BVH there) are measured against every triangle.
+//! covers the f32 rounding of the bound (with room for WGSL's f64→f32 conversions, which may
+//! round either way), so the walk finds the nearest triangle, not an approximation; points
+//! beyond the tree's reach (where the padding no longer covers it; the CPU uses a plain BVH
+//! there) are measured against every triangle, which is slow for large meshes but rare (more
+//! than 250 mm beyond the hint region).
 //!
 //! Shared math: the WGSL transcribes `PreparedTriangle::distance_squared` (operation for
 //! operation, on the host's prepared data) and, for triangles flat at corner 0,
