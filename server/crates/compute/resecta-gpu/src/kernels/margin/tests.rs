@@ -1,6 +1,7 @@
 //! GPU vs CPU (`MarginField::distances_into`, `distances_grid_into`, `MarginSettings::classify`)
 //! on the test device (lavapipe in CI).
 
+use resecta_geom::primitives::icosphere;
 use resecta_geom::{RoleMap, TriMesh, Vec3};
 use resecta_margin::{MarginClass, MarginField, MarginSettings};
 use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
@@ -186,6 +187,18 @@ fn triangle_soups_equal_the_cpu() {
         let pts = probe_points(&mut rng, &mesh, &field);
         compare(&ctx, &field, &pts, &format!("soup {seed} ({flat} flat)"));
     }
+}
+
+/// A finely tessellated sphere (20 480 triangles: a deep tree, many near-ties far away).
+#[test]
+fn a_fine_sphere_equals_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let mesh = icosphere(Vec3::new(3.0, -2.0, 1.0), 15.0, 5).unwrap();
+    assert_eq!(mesh.triangles().len(), 20_480);
+    let field = MarginField::new(&mesh, Vec3::repeat(-40.0), Vec3::repeat(40.0), 2.0).unwrap();
+    let mut rng = Rng(5);
+    let pts = probe_points(&mut rng, &mesh, &field);
+    compare(&ctx, &field, &pts, "icosphere");
 }
 
 /// A tilted 200×200 surface grid through the phantom liver in one call: distances equal the
