@@ -4,8 +4,11 @@
 //! Errors the device raises outside an error scope, and its loss, are recorded rather than
 //! panicking (wgpu's default): [`GpuContext::check`] turns them into [`GpuError::DeviceLost`],
 //! which kernels return, so that callers can go on without the device.
+//! Compiled compute pipelines are cached on the context ([`GpuContext::compute_pipeline`]), so
+//! that every evaluator made on it (or on a clone) after the first compiles nothing.
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, mpsc};
 
 /// What the device can do that the kernels care about.
@@ -29,6 +32,21 @@ pub struct GpuContext {
     /// Features and limits in use.
     pub caps: Capabilities,
     faults: Arc<Faults>,
+    pipelines: Arc<Pipelines>,
+}
+
+/// Compiled compute pipelines by WGSL source and entry point (shared by the context's clones),
+/// with the count of compilations: a shader module per source, a pipeline per entry point.
+#[derive(Debug, Default)]
+struct Pipelines {
+    by_source: Mutex<HashMap<String, Module>>,
+    compiled: AtomicU64,
+}
+
+#[derive(Debug)]
+struct Module {
+    module: wgpu::ShaderModule,
+    entries: HashMap<String, wgpu::ComputePipeline>,
 }
 
 /// What went wrong with a device outside any error scope (shared by the context's clones).
@@ -155,6 +173,7 @@ impl GpuContext {
             info,
             caps: Capabilities { f64, limits },
             faults,
+            pipelines: Arc::default(),
         })
     }
 
@@ -184,21 +203,36 @@ impl GpuContext {
             .map_err(|e| GpuError::ReadBack(e.to_string()))
     }
 
-    /// Compiles `source` into a compute pipeline with an automatic layout, capturing
-    /// validation errors as [`GpuError::Pipeline`] instead of wgpu's default panic.
+    /// The compute pipeline of `source`'s `entry_point` with an automatic layout: compiled on
+    /// first use (validation errors captured as [`GpuError::Pipeline`] instead of wgpu's default
+    /// panic, and not cached), then shared by every caller on this context and its clones.
+    /// `label` names the pipeline compiled first.
     pub fn compute_pipeline(
         &self,
         label: &str,
         source: &str,
         entry_point: &str,
     ) -> Result<wgpu::ComputePipeline, GpuError> {
+        // Held while compiling: two threads asking for the same pipeline compile it once.
+        let mut cache = self
+            .pipelines
+            .by_source
+            .lock()
+            .map_err(|_| GpuError::Pipeline("pipeline cache poisoned".into()))?;
+        if let Some(p) = cache.get(source).and_then(|m| m.entries.get(entry_point)) {
+            return Ok(p.clone());
+        }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module = self
-            .device
-            .create_shader_module(wgpu::ShaderModuleDescriptor {
-                label: Some(label),
-                source: wgpu::ShaderSource::Wgsl(source.into()),
-            });
+        let module = cache.get(source).map_or_else(
+            || {
+                self.device
+                    .create_shader_module(wgpu::ShaderModuleDescriptor {
+                        label: Some(label),
+                        source: wgpu::ShaderSource::Wgsl(source.into()),
+                    })
+            },
+            |m| m.module.clone(),
+        );
         let pipeline = self
             .device
             .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
@@ -209,10 +243,25 @@ impl GpuContext {
                 compilation_options: Default::default(),
                 cache: None,
             });
-        match pollster::block_on(scope.pop()) {
-            Some(e) => Err(GpuError::Pipeline(e.to_string())),
-            None => Ok(pipeline),
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Pipeline(e.to_string()));
         }
+        self.pipelines.compiled.fetch_add(1, Ordering::Relaxed);
+        cache
+            .entry(source.to_owned())
+            .or_insert_with(|| Module {
+                module,
+                entries: HashMap::new(),
+            })
+            .entries
+            .insert(entry_point.to_owned(), pipeline.clone());
+        Ok(pipeline)
+    }
+
+    /// Compute pipelines compiled on this context and its clones so far (cache misses of
+    /// [`GpuContext::compute_pipeline`] that succeeded).
+    pub fn pipelines_compiled(&self) -> u64 {
+        self.pipelines.compiled.load(Ordering::Relaxed)
     }
 
     /// Maps `ranges` of MAP_READ buffers, waits, and hands each mapped byte slice to `sink`

@@ -3,7 +3,8 @@
 //! - [`device`]: [`GpuContext`] (device, queue, adapter info, [`Capabilities`]) from
 //!   [`GpuContext::new`] (honours `WGPU_BACKEND`, requests `SHADER_F64` when offered; device
 //!   errors and loss are recorded, not panicked on, and kernels return them as
-//!   [`GpuError::DeviceLost`]).
+//!   [`GpuError::DeviceLost`]); compute pipelines are compiled once per context and shared by
+//!   its clones ([`GpuContext::compute_pipeline`]).
 //! - [`kernels::bezier`]: multi-level Bézier evaluation (thesis ch. 8, Algorithms 7–8) as
 //!   [`GpuMle`], mirroring `resecta_bezier::MleEvaluator`; [`BezierBackend`] picks GPU or CPU;
 //!   [`GpuPrepared`] for benchmarks. Points only, or with ∂S/∂u, ∂S/∂v and unit normals

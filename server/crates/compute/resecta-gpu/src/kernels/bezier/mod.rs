@@ -162,7 +162,8 @@ fn u32_of(x: usize) -> u32 {
 }
 
 impl<T: GpuScalar> GpuMle<T> {
-    /// Compiles the kernels for `T` on `ctx`; nothing is evaluated yet.
+    /// Takes the kernels for `T` from `ctx`'s pipeline cache (compiled there on first use);
+    /// nothing is evaluated yet.
     /// Errors with [`GpuError::NoF64`] for `f64` on a device without `SHADER_F64`.
     pub fn new(
         ctx: &GpuContext,
@@ -618,8 +619,9 @@ impl<T: GpuScalar> GpuMle<T> {
         self.ctx.check()
     }
 
-    /// Builds what the normals path adds to [`GpuMle::ensure`] (after it): pipelines, the
-    /// degree-reduced tables, R, and its bind groups; writes the normal tolerances.
+    /// Builds what the normals path adds to [`GpuMle::ensure`] (after it): pipelines (cached on
+    /// the context), the degree-reduced tables, R, and its bind groups; writes the normal
+    /// tolerances.
     fn ensure_normals(&mut self) -> Result<(), GpuError> {
         let (m, n) = self.net.dims();
         let rv = self.resolution.rv();

@@ -616,3 +616,36 @@ fn normals_split_into_bands_match_one_band() {
     let d = grid_diff(&grid, &cpu_grid(&net, res));
     assert!(d.points <= 1e-9 && d.normals <= 1e-9, "{d:?}");
 }
+
+#[test]
+fn a_second_evaluator_on_a_context_compiles_nothing_and_evaluates_the_same() {
+    if context().is_none() {
+        return;
+    }
+    // A context of its own: the shared test context's count moves with the other tests.
+    let ctx = crate::GpuContext::new().unwrap();
+    assert_eq!(ctx.pipelines_compiled(), 0);
+    let net = random_net::<f64>(&mut Rng(21), 5, 4);
+    let res = Resolution::new(33, 17).unwrap();
+    let evaluate = |ctx: &crate::GpuContext| {
+        let mut g = GpuMle::<f32>::new(ctx, net.cast(), res).unwrap();
+        let mut grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+        g.evaluate_normals_into(&mut grid).unwrap();
+        grid
+    };
+    let first = evaluate(&ctx);
+    assert_eq!(ctx.pipelines_compiled(), 5, "3 for points, 2 for normals");
+    let second = evaluate(&ctx.clone());
+    assert_eq!(ctx.pipelines_compiled(), 5, "a clone shares the cache");
+    assert_eq!(first.points(), second.points());
+    assert_eq!(first.normals(), second.normals());
+    let d = grid_diff(&second, &cpu_grid(&net, res));
+    assert!(d.points <= 1e-3 && d.normals <= 1e-4, "{d:?}");
+    // Another scalar type is another source: its kernels are compiled once, then shared too.
+    if ctx.caps.f64 {
+        for expected in [8, 8] {
+            GpuMle::<f64>::new(&ctx, net.clone(), res).unwrap();
+            assert_eq!(ctx.pipelines_compiled(), expected);
+        }
+    }
+}
