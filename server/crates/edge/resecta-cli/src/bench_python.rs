@@ -501,7 +501,8 @@ pub async fn run(args: &ServerArgs) -> Result<(), CliError> {
             .await
             .map_err(bad)??
     };
-    let (server, addr, channel) = bs::server_and_channel(args.addr.as_deref(), &pb).await?;
+    let (server, addr, channel) =
+        bs::server_and_channel(args.addr.as_deref(), args.gpu, &pb).await?;
     let pid = server.as_ref().map(bs::ServerProcess::pid);
     let token = args.token.as_deref();
     pb.set_message(format!("planning on the {}", case.name));

@@ -207,7 +207,11 @@ async fn planned_session(
 }
 
 /// The `restart` scenario: its own server processes on a temporary data directory.
-pub async fn restart(runs: usize, older: usize) -> Result<Restart, CliError> {
+pub async fn restart(
+    runs: usize,
+    older: usize,
+    gpu: resecta_server::GpuMode,
+) -> Result<Restart, CliError> {
     let dir = tempfile::tempdir().map_err(|e| CliError::Failed(format!("temp dir: {e}")))?;
     let large = tokio::task::spawn_blocking(large_label_map)
         .await
@@ -216,7 +220,7 @@ pub async fn restart(runs: usize, older: usize) -> Result<Restart, CliError> {
         .await
         .map_err(|e| CliError::Failed(e.to_string()))??;
     let (id, point) = {
-        let (server, addr) = spawn_server(dir.path(), None)?;
+        let (server, addr) = spawn_server(dir.path(), None, gpu)?;
         let mut c = client(&connect(&addr).await?);
         for k in 0..older {
             // The demo patient's resection around its large tumour.
@@ -238,7 +242,7 @@ pub async fn restart(runs: usize, older: usize) -> Result<Restart, CliError> {
         (vec![], vec![], vec![], vec![]);
     for run in 0..2 * runs.max(1) {
         let t0 = Instant::now();
-        let (server, addr) = spawn_server(dir.path(), None)?;
+        let (server, addr) = spawn_server(dir.path(), None, gpu)?;
         bound.push(t0.elapsed().as_secs_f64());
         let mut c = client(&connect(&addr).await?);
         if run % 2 == 0 {

@@ -5,7 +5,10 @@
 //! watch stream delivers the delta of that plan version), alone at 40×40 and 200×200 and with many
 //! sessions editing at a fixed rate at once; the server's memory per idle session; the upload
 //! time of a 512×512×300 u8 label map; and how soon such a session plans after its upload and
-//! after a restart (`bench_ready`). `--scenarios` picks some of these.
+//! after a restart (`bench_ready`). `--scenarios` picks some of these. `--gpu` starts the server
+//! with that compute backend; `--compare-gpu` runs the single-session latency scenario at
+//! 40×40, 200×200 and 500×500 on a `--gpu off` server and then on a `--gpu required` one, and
+//! reports both side by side with the backend each server reported (`GetServerInfo.compute`).
 
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
@@ -17,6 +20,7 @@ use resecta_api::v1::{
     UploadLabelMapRequest, WatchRequest, edit_request, upload_label_map_request, watch_response,
 };
 use resecta_phantom::{PhantomSpec, generate};
+use resecta_server::GpuMode;
 use serde::Serialize;
 use tokio::sync::mpsc;
 use tonic::transport::Channel;
@@ -29,7 +33,7 @@ use crate::output::{print_json, progress};
 pub struct ServerArgs {
     /// A running server's gRPC address (`http://HOST:PORT`); by default the benchmark starts
     /// `resecta serve` on loopback with a temporary data directory and stops it afterwards.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "compare_gpu")]
     pub addr: Option<String>,
     /// Bearer token for `--addr`.
     #[arg(long, env = "RESECTA_TOKEN", hide_env_values = true)]
@@ -55,8 +59,16 @@ pub struct ServerArgs {
     /// Short runs (a smoke test; figures are not meaningful).
     #[arg(long)]
     pub quick: bool,
+    /// The compute backend of the server the benchmark starts (`resecta serve --gpu`).
+    #[arg(long, value_enum, default_value_t = GpuMode::Off)]
+    pub gpu: GpuMode,
+    /// Only the single-session latency at 40×40, 200×200 and 500×500, on a `--gpu off` server
+    /// and then on a `--gpu required` one (WGPU_BACKEND picks the adapter), side by side; each
+    /// resolution runs `--edits` edits or `--seconds`, whichever ends first.
+    #[arg(long, conflicts_with = "gpu")]
+    pub compare_gpu: bool,
     /// Write latency CDF plots (PNG and SVG) here.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "compare_gpu")]
     pub plot_dir: Option<PathBuf>,
     /// Print one JSON object on stdout.
     #[arg(long)]
@@ -110,6 +122,8 @@ struct Report {
     cpu: String,
     logical_cores: usize,
     server: &'static str,
+    /// The server's compute backend (`GetServerInfo.compute`).
+    compute: Compute,
     latencies: Vec<Latency>,
     /// Concurrent p99 over the single-session p99 at the same resolution (edits back to back).
     concurrent_p99_ratio: f64,
@@ -148,22 +162,29 @@ impl Drop for ServerProcess {
     }
 }
 
-/// Starts `resecta serve` on a temporary data directory.
-pub(crate) fn start_server() -> Result<(ServerProcess, String), CliError> {
+/// Starts `resecta serve --gpu gpu` on a temporary data directory.
+pub(crate) fn start_server(gpu: GpuMode) -> Result<(ServerProcess, String), CliError> {
     let dir = tempfile::tempdir().map_err(|e| CliError::Failed(format!("temp dir: {e}")))?;
     let path = dir.path().to_owned();
-    spawn_server(&path, Some(dir))
+    spawn_server(&path, Some(dir), gpu)
 }
 
-/// Spawns `resecta serve` on `data_dir` (keeping `owned` until it stops) and returns it with its
-/// gRPC address once both faces are bound.
+/// `--gpu`'s value for `mode`.
+fn gpu_flag(mode: GpuMode) -> String {
+    clap::ValueEnum::to_possible_value(&mode).map_or_else(String::new, |v| v.get_name().into())
+}
+
+/// Spawns `resecta serve --gpu gpu` on `data_dir` (keeping `owned` until it stops) and returns it
+/// with its gRPC address once both faces are bound.
 pub(crate) fn spawn_server(
     data_dir: &std::path::Path,
     owned: Option<tempfile::TempDir>,
+    gpu: GpuMode,
 ) -> Result<(ServerProcess, String), CliError> {
     let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
     let mut child = Command::new(exe)
         .args(["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"])
+        .args(["--gpu", &gpu_flag(gpu)])
         .arg("--data-dir")
         .arg(data_dir)
         .env("RUST_LOG", "warn")
@@ -178,6 +199,12 @@ pub(crate) fn spawn_server(
     if let Some(out) = stdout {
         std::io::BufRead::read_line(&mut std::io::BufReader::new(out), &mut line)
             .map_err(|e| CliError::Failed(format!("reading the server's addresses: {e}")))?;
+    }
+    if line.trim().is_empty() {
+        return Err(CliError::Failed(format!(
+            "resecta serve --gpu {} exited before binding (its error is above)",
+            gpu_flag(gpu)
+        )));
     }
     let bound: serde_json::Value = serde_json::from_str(line.trim())
         .map_err(|e| CliError::Failed(format!("server start-up line {line:?}: {e}")))?;
@@ -218,16 +245,18 @@ pub(crate) async fn connect(addr: &str) -> Result<Channel, CliError> {
         .map_err(|e| CliError::Failed(format!("connecting to {addr}: {e}")))
 }
 
-/// The server at `given` (`--addr`), or one started here; its address and a channel to it.
+/// The server at `given` (`--addr`), or one started here with backend `gpu`; its address and a
+/// channel to it.
 pub(crate) async fn server_and_channel(
     given: Option<&str>,
+    gpu: GpuMode,
     pb: &indicatif::ProgressBar,
 ) -> Result<(Option<ServerProcess>, String, Channel), CliError> {
     let (server, addr) = match given {
         Some(a) => (None, a.to_owned()),
         None => {
-            pb.set_message("starting the server");
-            let (s, a) = start_server()?;
+            pb.set_message(format!("starting the server (--gpu {})", gpu_flag(gpu)));
+            let (s, a) = start_server(gpu)?;
             (Some(s), a)
         }
     };
@@ -469,18 +498,29 @@ async fn planning_session(
     )
     .await?;
     let mut stream = watch(&mut client, token, &id).await?;
-    // The snapshot names the control points; the benchmark moves an inner one.
-    let first = stream.message().await.map_err(failed("watch"))?;
-    let point = match first.and_then(|m| m.event) {
-        Some(watch_response::Event::Snapshot(s)) => s
+    // The snapshot (in parts when large) names the control points; the benchmark moves an
+    // inner one.
+    let mut point = None;
+    while point.is_none() {
+        let part = match stream.message().await.map_err(failed("watch"))? {
+            Some(pb::WatchResponse {
+                event: Some(watch_response::Event::Snapshot(s)),
+                ..
+            }) => s,
+            _ => break,
+        };
+        point = part
             .resections
             .iter()
             .find(|r| r.name == RESECTION)
             .and_then(|r| r.resection.as_ref())
-            .and_then(|r| r.control_points.get(5).copied()),
-        _ => None,
+            .and_then(|r| r.control_points.get(5).copied());
+        if part.complete {
+            break;
+        }
     }
-    .ok_or_else(|| CliError::Failed("watch: no snapshot with the resection first".into()))?;
+    let point = point
+        .ok_or_else(|| CliError::Failed("watch: no snapshot with the resection first".into()))?;
     let (tx, arrivals) = mpsc::unbounded_channel();
     tokio::spawn(async move {
         while let Ok(Some(m)) = stream.message().await {
@@ -634,21 +674,27 @@ impl Load {
     }
 }
 
+/// One session editing back to back at `resolution`: `edits` edits after a warm-up, or fewer
+/// when `budget` (from the first timed edit) runs out first (at least 3).
 async fn single(
     channel: &Channel,
     token: Option<&str>,
     map: &LabelMap,
     resolution: [u32; 2],
     edits: usize,
+    budget: Option<Duration>,
     pid: Option<u32>,
 ) -> Result<Latency, CliError> {
     let mut s = planning_session(channel, token, map, resolution).await?;
-    for k in 0..10 {
+    for k in 0..edits.min(10) {
         s.timed_edit(k).await?; // warm-up
     }
     let load = Load::start(pid);
     let mut samples = Vec::with_capacity(edits);
     for k in 0..edits {
+        if k >= 3 && budget.is_some_and(|b| load.t.elapsed() >= b) {
+            break;
+        }
         samples.push(s.timed_edit(k).await?);
     }
     let mut l = latency("single session", resolution, 1, samples);
@@ -789,6 +835,152 @@ async fn uploads(channel: &Channel, token: Option<&str>, runs: usize) -> Result<
     })
 }
 
+/// A server's compute backend as `GetServerInfo.compute` reports it.
+#[derive(Debug, Clone, Serialize)]
+struct Compute {
+    /// `"cpu"` or `"wgpu"`.
+    backend: String,
+    /// The GPU adapter's name; empty on the CPU.
+    adapter: String,
+    /// Surfaces evaluated in 64-bit floats.
+    f64: bool,
+}
+
+async fn compute_info(channel: &Channel, token: Option<&str>) -> Result<Compute, CliError> {
+    let info = PlanningServiceClient::new(channel.clone())
+        .get_server_info(request(pb::GetServerInfoRequest {}, token))
+        .await
+        .map_err(failed("server info"))?
+        .into_inner();
+    let c = info.compute.unwrap_or_default();
+    Ok(Compute {
+        backend: c.backend,
+        adapter: c.adapter,
+        f64: c.f64,
+    })
+}
+
+/// Resolutions of `--compare-gpu`.
+const COMPARED: [[u32; 2]; 3] = [[40, 40], [200, 200], [500, 500]];
+
+/// One server's runs in `--compare-gpu`.
+#[derive(Debug, Serialize)]
+struct BackendRuns {
+    /// `resecta serve --gpu` value.
+    gpu: String,
+    compute: Compute,
+    /// Single session, back to back, at each of [`COMPARED`].
+    latencies: Vec<Latency>,
+}
+
+/// At one resolution, the `--gpu off` server's figure over the `--gpu required` one's (above 1:
+/// the GPU server is faster).
+#[derive(Debug, Serialize)]
+struct CpuOverGpu {
+    resolution: [u32; 2],
+    delta_p50: f64,
+    server_cpu_ms_per_edit: Option<f64>,
+}
+
+#[derive(Debug, Serialize)]
+struct CompareReport {
+    quick: bool,
+    cpu: String,
+    logical_cores: usize,
+    /// Timed edits asked for per resolution, and the time that cuts them short (seconds).
+    edits: usize,
+    budget_s: f64,
+    backends: Vec<BackendRuns>,
+    cpu_over_gpu: Vec<CpuOverGpu>,
+}
+
+/// `--compare-gpu`: the single-session scenario at [`COMPARED`] on a `--gpu off` server, then on
+/// a `--gpu required` one.
+async fn compare_gpu(args: &ServerArgs, pb: &indicatif::ProgressBar) -> Result<(), CliError> {
+    let token = args.token.as_deref();
+    let map = tokio::task::spawn_blocking(demo_label_map)
+        .await
+        .map_err(|e| CliError::Failed(e.to_string()))??;
+    let (edits, budget_s) = if args.quick {
+        (args.edits.min(20), 1.0)
+    } else {
+        (args.edits, args.seconds)
+    };
+    let mut backends = Vec::new();
+    for gpu in [GpuMode::Off, GpuMode::Required] {
+        let (server, _, channel) = server_and_channel(None, gpu, pb).await?;
+        let compute = compute_info(&channel, token).await?;
+        let mut latencies = Vec::new();
+        for r in COMPARED {
+            pb.set_message(format!(
+                "--gpu {}: one session, {}×{}",
+                gpu_flag(gpu),
+                r[0],
+                r[1]
+            ));
+            let budget = Some(Duration::from_secs_f64(budget_s));
+            let pid = server.as_ref().map(ServerProcess::pid);
+            latencies.push(single(&channel, token, &map, r, edits, budget, pid).await?);
+        }
+        drop(server);
+        backends.push(BackendRuns {
+            gpu: gpu_flag(gpu),
+            compute,
+            latencies,
+        });
+    }
+    pb.finish_and_clear();
+    let cpu_over_gpu = match &backends[..] {
+        [off, gpu] => off
+            .latencies
+            .iter()
+            .zip(&gpu.latencies)
+            .map(|(c, g)| CpuOverGpu {
+                resolution: c.resolution,
+                delta_p50: c.p50_ms / g.p50_ms,
+                server_cpu_ms_per_edit: c
+                    .server_cpu_ms_per_edit
+                    .zip(g.server_cpu_ms_per_edit)
+                    .map(|(c, g)| c / g),
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
+    let report = CompareReport {
+        quick: args.quick,
+        cpu: cpu_name(),
+        logical_cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        edits,
+        budget_s,
+        backends,
+        cpu_over_gpu,
+    };
+    if args.json {
+        return print_json(&report);
+    }
+    for b in &report.backends {
+        let c = &b.compute;
+        let backend = format!("{} {}", c.backend, c.adapter);
+        println!("--gpu {}: {} (f64: {})", b.gpu, backend.trim_end(), c.f64);
+        print_latencies(&b.latencies);
+    }
+    for r in &report.cpu_over_gpu {
+        println!(
+            "{}×{}: cpu / gpu delta p50 {:.2}, server CPU per edit {}",
+            r.resolution[0],
+            r.resolution[1],
+            r.delta_p50,
+            r.server_cpu_ms_per_edit
+                .map_or_else(|| "n/a".into(), |x| format!("{x:.2}"))
+        );
+    }
+    println!(
+        "machine: {} ({} logical cores)",
+        report.cpu, report.logical_cores
+    );
+    Ok(())
+}
+
 pub(crate) fn cpu_name() -> String {
     std::fs::read_to_string("/proc/cpuinfo")
         .ok()
@@ -869,8 +1061,12 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         return crate::bench_python::run(args).await;
     }
     let pb = progress(args.json);
-    let (server, _, channel) = server_and_channel(args.addr.as_deref(), &pb).await?;
+    if args.compare_gpu {
+        return compare_gpu(args, &pb).await;
+    }
+    let (server, _, channel) = server_and_channel(args.addr.as_deref(), args.gpu, &pb).await?;
     let token = args.token.as_deref();
+    let compute = compute_info(&channel, token).await?;
     let map = tokio::task::spawn_blocking(demo_label_map)
         .await
         .map_err(|e| CliError::Failed(e.to_string()))??;
@@ -894,9 +1090,9 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
             idle_session_bytes = Some(idle_memory(&channel, token, &map, s.child.id(), n).await?);
         }
         pb.set_message("single session, 40×40");
-        let s40 = single(&channel, token, &map, [40, 40], edits, pid).await?;
+        let s40 = single(&channel, token, &map, [40, 40], edits, None, pid).await?;
         pb.set_message("single session, 200×200");
-        let s200 = single(&channel, token, &map, [200, 200], edits, pid).await?;
+        let s200 = single(&channel, token, &map, [200, 200], edits, None, pid).await?;
         pb.set_message(format!("1 session at {}/s", args.rate));
         let alone = paced(&channel, token, &map, args, 1, seconds, pid).await?;
         pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
@@ -922,7 +1118,7 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
     if scenarios.runs(Scenario::Restart) {
         pb.set_message("restart → first planning call");
         let older = if args.quick { 1 } else { 3 };
-        restart = Some(crate::bench_ready::restart(ready_runs, older).await?);
+        restart = Some(crate::bench_ready::restart(ready_runs, older, args.gpu).await?);
     }
     pb.finish_and_clear();
 
@@ -935,6 +1131,7 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         } else {
             "started by the benchmark (resecta serve, SQLite data dir)"
         },
+        compute,
         concurrent_p99_ratio: ratio,
         concurrent_p99_ratio_paced: ratio_paced,
         latencies,
