@@ -1,13 +1,20 @@
 """`resecta bench server --quick`: the load benchmark starts a server, runs every scenario and
 reports one JSON object (figures of a debug build and a quick run mean nothing; the shape does)."""
+import json
 import math
+import os
+import subprocess
 import sys
 from pathlib import Path
+
+import pytest
+from conftest import resecta_bin
 
 
 def test_bench_server_quick_smoke(resecta, tmp_path):
     rep = resecta("bench", "server", "--quick", "--json", "--sessions", "3", "--idle-sessions", "1",
                   "--plot-dir", tmp_path).json()
+    assert rep["compute"] == {"backend": "cpu", "adapter": "", "f64": True}  # --gpu off by default
     rows = {(r["scenario"], r["resolution"][0], r["sessions"]): r for r in rep["latencies"]}
     assert set(rows) == {("single session", 40, 1), ("single session", 200, 1),
                          ("single session, paced", 40, 1), ("concurrent sessions", 40, 3)}
@@ -70,3 +77,41 @@ def test_bench_server_runs_only_the_scenarios_asked_for(resecta):
     assert rep["concurrent_p99_ratio"] is None
     assert rep["upload"]["bytes"] == 512 * 512 * 300
     assert rep["ready"] is None and rep["restart"] is None
+
+
+def test_bench_server_compare_gpu_runs_the_latency_on_both_backends():
+    """`--compare-gpu` under `WGPU_BACKEND=vulkan` (lavapipe in CI): one session editing back to
+    back at 40×40, 200×200 and 500×500 on a `--gpu off` server, then on a `--gpu required` one,
+    each with the compute backend its server reported; a machine without a Vulkan adapter skips,
+    unless it asked for one."""
+    env = {**os.environ, "WGPU_BACKEND": "vulkan"}
+    proc = subprocess.run([resecta_bin(), "bench", "server", "--compare-gpu", "--quick", "--json",
+                           "--edits", "4"], capture_output=True, text=True, timeout=600, env=env)
+    if proc.returncode != 0 and "--gpu required" in proc.stderr and not os.environ.get("WGPU_BACKEND"):
+        pytest.skip(f"SKIP: no Vulkan adapter ({proc.stderr.strip()[-300:]}); "
+                    "install lavapipe (mesa-vulkan-drivers)")
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads(proc.stdout)
+    assert rep["edits"] == 4 and rep["budget_s"] == 1.0 and rep["quick"] is True
+    off, gpu = rep["backends"]
+    assert off["gpu"] == "off" and off["compute"] == {"backend": "cpu", "adapter": "", "f64": True}
+    assert gpu["gpu"] == "required" and gpu["compute"]["backend"] == "wgpu", gpu["compute"]
+    assert gpu["compute"]["adapter"]
+    if "llvmpipe" in gpu["compute"]["adapter"]:
+        assert gpu["compute"]["f64"] is True  # lavapipe grants SHADER_F64
+    for b in (off, gpu):
+        assert [(r["scenario"], r["resolution"], r["sessions"]) for r in b["latencies"]] == [
+            ("single session", [n, n], 1) for n in (40, 200, 500)]
+        for r in b["latencies"]:
+            assert 3 <= r["edits"] <= 4 and 0 < r["p50_ms"] <= r["p99_ms"] <= r["max_ms"]
+            assert r["server_cpu_ms_per_edit"] > 0 and r["ack_p50_ms"] > 0
+    assert [r["resolution"] for r in rep["cpu_over_gpu"]] == [[n, n] for n in (40, 200, 500)]
+    for r, c, g in zip(rep["cpu_over_gpu"], off["latencies"], gpu["latencies"]):
+        assert math.isclose(r["delta_p50"], c["p50_ms"] / g["p50_ms"])
+        assert math.isclose(r["server_cpu_ms_per_edit"],
+                            c["server_cpu_ms_per_edit"] / g["server_cpu_ms_per_edit"])
+
+
+def test_bench_server_compare_gpu_starts_its_own_servers(resecta):
+    r = resecta("bench", "server", "--compare-gpu", "--addr", "http://127.0.0.1:1", check=False)
+    assert r.code == 2 and "--addr" in r.stderr
