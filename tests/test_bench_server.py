@@ -104,7 +104,9 @@ def test_bench_server_compare_gpu_runs_the_latency_on_both_backends():
             ("single session", [n, n], 1) for n in (40, 200, 500)]
         for r in b["latencies"]:
             assert 3 <= r["edits"] <= 4 and 0 < r["p50_ms"] <= r["p99_ms"] <= r["max_ms"]
-            assert r["server_cpu_ms_per_edit"] > 0 and r["ack_p50_ms"] > 0
+            # The server's CPU time comes in clock ticks (10 ms): 4 quick 40×40 edits may read 0.
+            assert r["server_cpu_ms_per_edit"] >= 0 and r["ack_p50_ms"] > 0
+        assert b["latencies"][-1]["server_cpu_ms_per_edit"] > 0  # 500×500: tens of ms an edit
     assert [r["resolution"] for r in rep["cpu_over_gpu"]] == [[n, n] for n in (40, 200, 500)]
     for r, c, g in zip(rep["cpu_over_gpu"], off["latencies"], gpu["latencies"]):
         assert math.isclose(r["delta_p50"], c["p50_ms"] / g["p50_ms"])

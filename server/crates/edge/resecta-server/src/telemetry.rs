@@ -9,9 +9,20 @@ use tracing_subscriber::EnvFilter;
 use crate::config::TlsFiles;
 use crate::error::ServerError;
 
-/// Logs to stderr, filtered by `RUST_LOG` (default `info`), as text or JSON lines.
+/// The GPU stack's crates, which log every driver call at debug: kept at `warn` unless
+/// `RUST_LOG` names them.
+const GPU_STACK: [&str; 3] = ["wgpu_hal", "wgpu_core", "naga"];
+
+/// Logs to stderr, filtered by `RUST_LOG` (default `info`; the GPU stack at `warn` unless it
+/// names them), as text or JSON lines.
 pub fn init_tracing(json: bool) {
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let wanted = std::env::var("RUST_LOG").unwrap_or_default();
+    let mut filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    for name in GPU_STACK.iter().filter(|n| !wanted.contains(*n)) {
+        if let Ok(directive) = format!("{name}=warn").parse() {
+            filter = filter.add_directive(directive);
+        }
+    }
     let fmt = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
