@@ -224,7 +224,7 @@ def test_gpu_required_plans_on_the_adapter_as_the_cpu_does(tmp_path):
 
 
 def test_gpu_auto_leaves_a_software_adapter_alone():
-    """`--gpu auto` (the default) plans on the CPU when the only adapter is a software rasteriser
+    """`--gpu auto` plans on the CPU when the only adapter is a software rasteriser
     (lavapipe here), and says so in its log; `required` is what uses one."""
     import requests
     from server_harness import Server

@@ -13,9 +13,10 @@ use crate::error::ServerError;
 pub enum GpuMode {
     /// A hardware GPU adapter when one is found (which one is logged), else the CPU: a software
     /// rasteriser (lavapipe) would plan slower than the CPU path itself.
-    #[default]
     Auto,
-    /// The CPU.
+    /// The CPU (the default: probing for an adapter opens the GPU driver, and Mesa prints
+    /// non-log lines on stderr where `XDG_RUNTIME_DIR` is unset).
+    #[default]
     Off,
     /// A GPU adapter, software ones included, or the server does not start.
     Required,

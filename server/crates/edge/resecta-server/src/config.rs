@@ -71,7 +71,7 @@ pub struct ServeArgs {
     pub idle_timeout: Option<u64>,
     /// Where planners evaluate their surfaces: `off` (the CPU), `auto` (a hardware GPU adapter
     /// when there is one, else the CPU), `required` (any adapter, software ones included, or
-    /// refuse to start) [default: auto; TOML `gpu`].
+    /// refuse to start) [default: off; TOML `gpu`].
     #[arg(long, value_enum, env = "RESECTA_GPU")]
     pub gpu: Option<GpuMode>,
 }
@@ -434,18 +434,18 @@ mod tests {
     }
 
     #[test]
-    fn the_gpu_mode_comes_from_the_flag_over_the_file_and_is_auto_by_default() {
+    fn the_gpu_mode_comes_from_the_flag_over_the_file_and_is_off_by_default() {
         assert_eq!(
             ServerConfig::resolve(&ServeArgs::default()).unwrap().gpu,
-            GpuMode::Auto
+            GpuMode::Off
         );
         let dir = tempfile::tempdir().unwrap();
-        let cfg = write(dir.path(), "c.toml", "gpu = \"off\"\n");
+        let cfg = write(dir.path(), "c.toml", "gpu = \"auto\"\n");
         let mut args = ServeArgs {
             config: Some(cfg),
             ..ServeArgs::default()
         };
-        assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Off);
+        assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Auto);
         args.gpu = Some(GpuMode::Required);
         assert_eq!(ServerConfig::resolve(&args).unwrap().gpu, GpuMode::Required);
         let bad = write(dir.path(), "bad.toml", "gpu = \"maybe\"\n");
