@@ -278,18 +278,23 @@ mod tests {
         eprintln!("{what}: points {dp:.1e} normals {dn:.1e} min margin {gm:.6} mm");
     }
 
-    #[test]
-    fn a_planner_on_the_gpu_plans_as_the_cpu_one() {
-        let Some(ctx) = context() else { return };
+    /// The phantom's plan with one 40×40 resection, planned on `ctx` and on the CPU.
+    fn planners(ctx: &GpuContext) -> (Planner, Planner) {
         let (anatomy, roles) = anatomy();
         let mut plan = Plan::new(roles);
         plan.apply(&PlanEvent::AddResection {
             resection: resection([40, 40]),
         })
         .unwrap();
-        let mut gpu =
-            Planner::with_engine(Arc::clone(&anatomy), plan.clone(), gpu_engine(&ctx)).unwrap();
-        let mut cpu = Planner::new(anatomy, plan).unwrap();
+        let gpu =
+            Planner::with_engine(Arc::clone(&anatomy), plan.clone(), gpu_engine(ctx)).unwrap();
+        (gpu, Planner::new(anatomy, plan).unwrap())
+    }
+
+    #[test]
+    fn a_planner_on_the_gpu_plans_as_the_cpu_one() {
+        let Some(ctx) = context() else { return };
+        let (mut gpu, mut cpu) = planners(&ctx);
         assert_eq!(gpu.surface_engine().backend(), "wgpu");
         assert_same(&gpu, &cpu, "initial");
         let edits = [
@@ -345,15 +350,7 @@ mod tests {
         }
         // A device of its own: destroyed below.
         let ctx = GpuContext::new().unwrap();
-        let (anatomy, roles) = anatomy();
-        let mut plan = Plan::new(roles);
-        plan.apply(&PlanEvent::AddResection {
-            resection: resection([40, 40]),
-        })
-        .unwrap();
-        let mut gpu =
-            Planner::with_engine(Arc::clone(&anatomy), plan.clone(), gpu_engine(&ctx)).unwrap();
-        let mut cpu = Planner::new(anatomy, plan).unwrap();
+        let (mut gpu, mut cpu) = planners(&ctx);
         ctx.device.destroy();
         let e = PlanEvent::SetControlPoint {
             name: "r1".into(),
