@@ -57,6 +57,7 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    quiet_vulkan_layers();
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(a) => info::run(&a),
@@ -77,5 +78,16 @@ fn main() -> ExitCode {
             eprintln!("resecta: error: {e}");
             ExitCode::from(e.exit_code())
         }
+    }
+}
+
+/// Disables Mesa's device-select Vulkan layer unless the environment says otherwise: it only
+/// orders adapters for displays, and it connects to a Wayland display while adapters are
+/// enumerated, printing non-log lines on stderr where `XDG_RUNTIME_DIR` is unset.
+#[allow(unsafe_code)]
+fn quiet_vulkan_layers() {
+    if std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: first thing in `main`, before any thread exists that could read the environment.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }

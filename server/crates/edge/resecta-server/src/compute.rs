@@ -14,8 +14,8 @@ pub enum GpuMode {
     /// A hardware GPU adapter when one is found (which one is logged), else the CPU: a software
     /// rasteriser (lavapipe) would plan slower than the CPU path itself.
     Auto,
-    /// The CPU (the default: probing for an adapter opens the GPU driver, and Mesa prints
-    /// non-log lines on stderr where `XDG_RUNTIME_DIR` is unset).
+    /// The CPU (the default: a workstation starts without opening a GPU driver; the GPU
+    /// container sets `auto`).
     #[default]
     Off,
     /// A GPU adapter, software ones included, or the server does not start.
