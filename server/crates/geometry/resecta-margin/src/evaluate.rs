@@ -351,9 +351,6 @@ fn evaluate_with(
             fresh[k] = Some(0.0);
         }
     }
-    for ((c, &d), &s) in out.class.iter_mut().zip(&out.distance).zip(inside) {
-        *c = settings.classify(d, s);
-    }
     if let Some(mm) = memo {
         if !mm.holds(field, ru, rv) {
             *mm = MarginMemo {
@@ -375,6 +372,51 @@ fn evaluate_with(
             }
         }
     }
+    Ok(finish(field, ru, rv, points, inside, settings, oracle, out))
+}
+
+/// [`evaluate_into`] for distances computed elsewhere (an accelerator): `out.distance` holds
+/// every sample's exact distance on entry; fills the classes and returns the verdict, exactly
+/// as [`evaluate_into`] would from the same distances.
+pub fn evaluate_exact_into(
+    field: &MarginField,
+    ru: usize,
+    rv: usize,
+    points: &[Vec3],
+    inside: &[f64],
+    settings: &MarginSettings,
+    oracle: &dyn SurfaceOracle,
+    out: &mut SurfaceMargins,
+) -> Result<Verdict, MarginError> {
+    settings.validate()?;
+    if ru < 2 || rv < 2 {
+        return Err(MarginError::GridTooSmall { ru, rv });
+    }
+    let n = ru
+        .checked_mul(rv)
+        .ok_or(MarginError::GridTooSmall { ru, rv })?;
+    check_len("surface points", n, points.len())?;
+    check_len("inside levels", n, inside.len())?;
+    check_len("distances", n, out.distance.len())?;
+    out.class.resize(n, MarginClass::Outside);
+    Ok(finish(field, ru, rv, points, inside, settings, oracle, out))
+}
+
+/// Classes from the final distances, the clipped areas and the refined minimum.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    field: &MarginField,
+    ru: usize,
+    rv: usize,
+    points: &[Vec3],
+    inside: &[f64],
+    settings: &MarginSettings,
+    oracle: &dyn SurfaceOracle,
+    out: &mut SurfaceMargins,
+) -> Verdict {
+    for ((c, &d), &s) in out.class.iter_mut().zip(&out.distance).zip(inside) {
+        *c = settings.classify(d, s);
+    }
     let grid = Grid {
         ru,
         rv,
@@ -388,7 +430,7 @@ fn evaluate_with(
         let towards = (m.point - field.nearest(&m.point).point).try_normalize(1e-12);
         field.half_voxel_extent(towards.as_ref())
     });
-    Ok(Verdict {
+    Verdict {
         min_margin_mm: minimum.map(|m| m.distance),
         point: minimum.map(|m| m.point),
         uv: minimum.map(|m| m.uv),
@@ -397,7 +439,7 @@ fn evaluate_with(
         warning_area_mm2: areas.warning,
         inside_area_mm2: areas.inside,
         margin_uncertainty_mm,
-    })
+    }
 }
 
 /// The 8 neighbours of vertex k of an ru×rv grid, each with whether it exists; direct

@@ -16,6 +16,7 @@
 //!   [`Verdict`]: the minimum margin inside the liver refined between samples (point and (u, v)),
 //!   the violation flag, and the violating / warning / inside areas of the grid triangles clipped
 //!   by the linear interpolants of distance and inside level.
+//! - [`evaluate_exact_into`]: the same from exact distances computed elsewhere (a GPU).
 //! - [`evaluate_reusing`] with a [`MarginMemo`] per surface: as `evaluate_into`, but samples that
 //!   moved little since their last query keep their distance (1-Lipschitz bound) while it stays
 //!   within tolerance — the live path of a drag.
@@ -35,8 +36,8 @@ mod tree;
 pub use error::MarginError;
 pub use evaluate::{
     FAR_TOLERANCE_MM, MarginClass, MarginMemo, MarginSettings, OUTSIDE_TOLERANCE_MM,
-    SurfaceMargins, SurfaceOracle, TOLERANCE_MM, Verdict, evaluate, evaluate_into,
-    evaluate_reusing,
+    SurfaceMargins, SurfaceOracle, TOLERANCE_MM, Verdict, evaluate, evaluate_exact_into,
+    evaluate_into, evaluate_reusing,
 };
 pub use field::{MAX_HINT_NODES, MarginField, Nearest};
 pub use tree::{COUNT_BITS, ObbNode, ObbTree, PreparedTriangle, STACK};

@@ -11,7 +11,7 @@ use resecta_geom::{Mat3, TriMesh, Vec3};
 use resecta_margin::{
     FAR_TOLERANCE_MM, MarginClass, MarginError, MarginField, MarginMemo, MarginSettings, Nearest,
     OUTSIDE_TOLERANCE_MM, SurfaceMargins, SurfaceOracle, TOLERANCE_MM, Verdict, evaluate,
-    evaluate_into, evaluate_reusing,
+    evaluate_exact_into, evaluate_into, evaluate_reusing,
 };
 
 /// Deterministic xorshift generator.
@@ -833,5 +833,57 @@ fn unwanted_samples_are_left_as_they_were() {
                 out[k]
             );
         }
+    }
+}
+
+#[test]
+fn exact_distances_from_elsewhere_give_the_same_classes_and_verdict() {
+    let (mesh, _) = tumour();
+    let field = tumour_field(&mesh);
+    let plane = Plane::new(D, Vec3::new(0.0, 0.0, D), 35.0);
+    let settings = MarginSettings {
+        margin_mm: 10.0,
+        band_mm: 2.0,
+    };
+    for n in [23, 80] {
+        let (margins, verdict) = run(&field, &plane, n, &settings);
+        let (points, inside) = plane.sample(n);
+        let mut exact = SurfaceMargins {
+            distance: vec![0.0; n * n],
+            class: Vec::new(),
+        };
+        field.distances_into(&points, &mut exact.distance).unwrap();
+        let v = evaluate_exact_into(
+            &field, n, n, &points, &inside, &settings, &plane, &mut exact,
+        )
+        .unwrap();
+        assert_eq!(exact.class, margins.class, "{n}");
+        // The same minimum; areas differ only through far samples' tolerant distances, which
+        // move the clipped lines of cells next to them a little.
+        let areas = |v: &Verdict| [v.violating_area_mm2, v.warning_area_mm2, v.inside_area_mm2];
+        let same = Verdict {
+            violating_area_mm2: v.violating_area_mm2,
+            warning_area_mm2: v.warning_area_mm2,
+            ..verdict.clone()
+        };
+        assert_eq!(v, same, "{n}");
+        for (a, b) in areas(&v).into_iter().zip(areas(&verdict)) {
+            assert!((a - b).abs() <= 0.01 * b, "{n}: areas {a} vs {b}");
+        }
+        for (a, b) in exact.distance.iter().zip(&margins.distance) {
+            assert!(
+                b - a <= FAR_TOLERANCE_MM && a - b <= 1e-12,
+                "{n}: {a} vs {b}"
+            );
+        }
+        // Too few distances is an error naming them; the classes are left alone.
+        exact.distance.pop();
+        let before = exact.class.clone();
+        let e = evaluate_exact_into(
+            &field, n, n, &points, &inside, &settings, &plane, &mut exact,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("distances"), "{e}");
+        assert_eq!(exact.class, before);
     }
 }
