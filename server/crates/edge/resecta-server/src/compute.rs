@@ -22,7 +22,7 @@ pub enum GpuMode {
     Required,
 }
 
-/// Sets `service`'s surface engine, compute report and `gpu` capability for `mode`: opens the
+/// Sets `service`'s compute engine, compute report and `gpu` capability for `mode`: opens the
 /// adapter `WGPU_BACKEND` names (any when unset) unless `mode` is off.
 pub fn configure_compute(mode: GpuMode, service: &mut ServiceConfig) -> Result<(), ServerError> {
     if mode == GpuMode::Off {
@@ -49,7 +49,7 @@ pub fn configure_compute(mode: GpuMode, service: &mut ServiceConfig) -> Result<(
                 adapter: ctx.info.name.clone(),
                 f64: ctx.caps.f64,
             };
-            service.surface_engine = gpu_engine(&ctx);
+            service.compute_engine = gpu_engine(&ctx).into();
             service.capabilities.push("gpu".into());
             Ok(())
         }

@@ -462,7 +462,7 @@ mod tests {
     fn gpu_off_leaves_the_cpu_engine_and_its_report() {
         let mut service = ServiceConfig::default();
         crate::configure_compute(GpuMode::Off, &mut service).unwrap();
-        assert_eq!(service.surface_engine.backend(), "cpu");
+        assert_eq!(service.compute_engine.backend(), "cpu");
         assert_eq!(service.compute.backend, "cpu");
         assert!(!service.capabilities.contains(&"gpu".to_owned()));
     }

@@ -2,8 +2,8 @@
 
 use std::time::Duration;
 
-use resecta_bezier::SurfaceEngine;
 use resecta_delta::EncodeOptions;
+use resecta_plan::ComputeEngine;
 
 use crate::api::ComputeInfo;
 use crate::watch::RingBounds;
@@ -37,10 +37,10 @@ pub struct ServiceConfig {
     /// Capabilities reported by [`Service::info`](crate::Service::info) (the edges add theirs,
     /// e.g. "tls").
     pub capabilities: Vec<String>,
-    /// Makes the surface evaluators of every session's planner (the CPU's by default); a
-    /// session whose device fails continues on the CPU.
-    pub surface_engine: SurfaceEngine,
-    /// What [`Service::info`](crate::Service::info) reports of `surface_engine`.
+    /// Makes the surface evaluators and sample probes of every session's planner (the CPU's by
+    /// default); a session whose device fails continues on the CPU.
+    pub compute_engine: ComputeEngine,
+    /// What [`Service::info`](crate::Service::info) reports of `compute_engine`.
     pub compute: ComputeInfo,
 }
 
@@ -62,7 +62,7 @@ impl Default for ServiceConfig {
             volumes_during_drags_per_s: 4.0,
             psr_depth: 7,
             capabilities: Vec::new(),
-            surface_engine: SurfaceEngine::cpu(),
+            compute_engine: ComputeEngine::cpu(),
             compute: ComputeInfo::default(),
         }
     }

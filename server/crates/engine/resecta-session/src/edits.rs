@@ -142,7 +142,7 @@ impl Service {
         }
         let (anatomy, engine) = {
             let planner = loaded.ready().await?;
-            (planner.anatomy_shared(), planner.surface_engine().clone())
+            (planner.anatomy_shared(), planner.compute_engine().clone())
         };
         // Refused before any surface is computed when the memory budget has no room for the
         // new surfaces, which are computed beside the present ones. (The store takes the record

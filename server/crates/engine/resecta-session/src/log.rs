@@ -166,7 +166,7 @@ pub(crate) fn roll_back(planner: &mut Planner, id: &str) {
     let log = h.log();
     let restored =
         History::replay(h.base().clone(), &log[..log.len().saturating_sub(1)]).and_then(|h| {
-            let engine = planner.surface_engine().clone();
+            let engine = planner.compute_engine().clone();
             Planner::resume_with_engine(planner.anatomy_shared(), h, engine)
         });
     match restored {

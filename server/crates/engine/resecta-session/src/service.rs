@@ -187,7 +187,7 @@ impl Service {
                 roles,
                 history: Some(history),
                 deleted: Arc::clone(&s.deleted),
-                engine: self.config.surface_engine.clone(),
+                engine: self.config.compute_engine.clone(),
             };
             let pending =
                 spawn_planner(setup, Priority::SetUp, Some((Arc::clone(&s.hub), version)));
@@ -343,7 +343,7 @@ impl Service {
             roles: summary.roles.clone(),
             history: None,
             deleted: Arc::clone(&s.deleted),
-            engine: self.config.surface_engine.clone(),
+            engine: self.config.compute_engine.clone(),
         };
         let pending = spawn_planner(setup, Priority::SetUp, None);
         let store = Arc::clone(&self.store);

@@ -4,9 +4,8 @@
 use std::sync::atomic::{AtomicBool, AtomicI64, Ordering};
 use std::sync::{Arc, Mutex};
 
-use resecta_bezier::SurfaceEngine;
 use resecta_geom::{LabelMap, RoleMap, TriMesh};
-use resecta_plan::{Anatomy, History, Plan, PlanError, Planner};
+use resecta_plan::{Anatomy, ComputeEngine, History, Plan, PlanError, Planner};
 use resecta_recon::ReconError;
 use tokio::sync::Mutex as AsyncMutex;
 
@@ -55,7 +54,7 @@ pub(crate) struct SetUp {
     pub(crate) history: Option<History>,
     pub(crate) deleted: Arc<AtomicBool>,
     /// Makes the planner's surface evaluators.
-    pub(crate) engine: SurfaceEngine,
+    pub(crate) engine: ComputeEngine,
 }
 
 /// Sets its flag when dropped: a set-up nobody waits for any more stops at its next check.
@@ -207,7 +206,7 @@ fn build_planner(
     labels: &LabelMap,
     roles: RoleMap,
     history: Option<History>,
-    engine: SurfaceEngine,
+    engine: ComputeEngine,
     cancelled: &(dyn Fn() -> bool + Sync),
 ) -> Result<Planner> {
     let stopped = |e: PlanError| {

@@ -1213,12 +1213,13 @@ impl resecta_bezier::SurfaceEvaluator for Lost {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_lost_device_leaves_the_edits_to_the_cpu_and_info_reports_the_compute() {
     let mut lost = config();
-    lost.surface_engine = resecta_bezier::SurfaceEngine::new("lost", |net, res| {
+    lost.compute_engine = resecta_bezier::SurfaceEngine::new("lost", |net, res| {
         Ok(Box::new(Lost(
             resecta_bezier::MleEvaluator::new(net, res),
             0,
         )))
-    });
+    })
+    .into();
     lost.compute = resecta_session::api::ComputeInfo {
         backend: "wgpu".into(),
         adapter: "test adapter".into(),

@@ -30,6 +30,11 @@ pub trait SurfaceEvaluator: Send + Sync + std::fmt::Debug {
     /// resolution): points, ∂S/∂u, ∂S/∂v and unit normals with the degenerate-sample handling
     /// of [`crate::normals`]. [`BezierError::Device`] when the device failed.
     fn evaluate_into(&mut self, grid: &mut SurfaceGrid<f64>) -> Result<(), BezierError>;
+    /// The evaluator as `Any`, for a device that chains its own work onto this evaluator's
+    /// (e.g. measuring the samples where they were computed); `None` by default.
+    fn as_any_mut(&mut self) -> Option<&mut dyn std::any::Any> {
+        None
+    }
 }
 
 impl SurfaceEvaluator for MleEvaluator<f64> {

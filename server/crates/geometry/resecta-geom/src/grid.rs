@@ -145,6 +145,11 @@ impl Grid {
         self.linear
     }
 
+    /// The inverse of [`Grid::linear`]: world millimetres to index steps.
+    pub fn inverse_linear(&self) -> Mat3 {
+        self.inverse
+    }
+
     /// The 4×4 index→RAS affine.
     pub fn affine(&self) -> Mat4 {
         let mut m = Mat4::identity();

@@ -324,6 +324,11 @@ impl Anatomy {
         self.inside.level(p) - 0.5
     }
 
+    /// The envelope's bricks behind [`Anatomy::inside_level`], for accelerators.
+    pub fn inside_layout(&self) -> crate::inside::InsideLayout<'_> {
+        self.inside.layout()
+    }
+
     /// World bounds (min, max) of the envelope's voxel centres, or `None` when empty.
     pub fn liver_bounds(&self) -> Option<(Vec3, Vec3)> {
         self.inside.bounds()

@@ -6,10 +6,11 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use rayon::prelude::*;
-use resecta_bezier::{ControlNet, SurfaceEngine};
+use resecta_bezier::ControlNet;
 use resecta_geom::{Plane, Real, TriMesh, Vec3, Volume};
 use resecta_margin::{
     MarginClass, MarginField, MarginMemo, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict,
+    evaluate_exact_into,
 };
 use resecta_volumetry::{IncompleteCut, LiverVoxels, MultiCut, Volumetry, VolumetryError};
 use serde::Serialize;
@@ -19,6 +20,7 @@ use crate::error::PlanError;
 use crate::history::{Change, History, Staged};
 use crate::init::{Initialisation, initialise, slicing_plane};
 use crate::plan::{Plan, PlanEvent};
+use crate::probe::{ComputeEngine, SampleProbe};
 use crate::resection::{Resection, Target, arr};
 use crate::surface::LiveSurface;
 
@@ -83,6 +85,8 @@ pub struct ResectionState {
     pub verdict: Verdict,
     /// Distances kept for the next edit of this resection.
     memo: MarginMemo,
+    /// Measures the samples on a device (for this target), when the planner has a probe engine.
+    probe: Option<Box<dyn SampleProbe>>,
 }
 
 impl ResectionState {
@@ -152,8 +156,8 @@ pub struct Planner {
     /// Tumours picked by each target seen (selection scans tumour voxels: once per target).
     selections: Vec<(Target, Vec<usize>)>,
     volumetry: Option<Volumetry>,
-    /// Makes each resection's surface evaluator; the CPU's after a device failure.
-    engine: SurfaceEngine,
+    /// Makes each resection's surface evaluator and probe; the CPU's after a device failure.
+    compute: ComputeEngine,
     device_fallbacks: u32,
     pub flr_threshold_pct: Real,
 }
@@ -162,15 +166,16 @@ impl Planner {
     /// A planner for `plan` (roles must match the anatomy's) on `anatomy`, its surfaces
     /// evaluated on the CPU.
     pub fn new(anatomy: Arc<Anatomy>, plan: Plan) -> Result<Self, PlanError> {
-        Self::with_engine(anatomy, plan, SurfaceEngine::cpu())
+        Self::with_engine(anatomy, plan, ComputeEngine::cpu())
     }
 
-    /// Like [`Planner::new`], its surfaces evaluated by `engine`'s evaluators (each falls back
-    /// to the CPU when its device fails, see [`LiveSurface`]).
+    /// Like [`Planner::new`], its surfaces evaluated by `engine`'s evaluators and their samples
+    /// measured by its probes (each resection falls back to the CPU when its device fails, see
+    /// [`LiveSurface`]).
     pub fn with_engine(
         anatomy: Arc<Anatomy>,
         plan: Plan,
-        engine: SurfaceEngine,
+        engine: impl Into<ComputeEngine>,
     ) -> Result<Self, PlanError> {
         anatomy.liver_bounds().ok_or(PlanError::EmptyLiver)?;
         let mut planner = Self {
@@ -180,7 +185,7 @@ impl Planner {
             targets: BTreeMap::new(),
             selections: Vec::new(),
             volumetry: None,
-            engine,
+            compute: engine.into(),
             device_fallbacks: 0,
             flr_threshold_pct: DEFAULT_FLR_THRESHOLD_PCT,
         };
@@ -190,14 +195,14 @@ impl Planner {
 
     /// Continues a persisted session: the base plan and its log.
     pub fn resume(anatomy: Arc<Anatomy>, history: History) -> Result<Self, PlanError> {
-        Self::resume_with_engine(anatomy, history, SurfaceEngine::cpu())
+        Self::resume_with_engine(anatomy, history, ComputeEngine::cpu())
     }
 
-    /// Like [`Planner::resume`] with the surfaces evaluated by `engine`.
+    /// Like [`Planner::resume`] computing with `engine`.
     pub fn resume_with_engine(
         anatomy: Arc<Anatomy>,
         history: History,
-        engine: SurfaceEngine,
+        engine: impl Into<ComputeEngine>,
     ) -> Result<Self, PlanError> {
         let mut planner = Self::with_engine(anatomy, history.base().clone(), engine)?;
         planner.history = history;
@@ -210,12 +215,14 @@ impl Planner {
     pub fn anatomy_shared(&self) -> Arc<Anatomy> {
         Arc::clone(&self.anatomy)
     }
-    /// The engine that makes the surface evaluators (for a new planner on the same device).
-    pub fn surface_engine(&self) -> &SurfaceEngine {
-        &self.engine
+    /// The engine that makes the surface evaluators and probes (for a new planner on the same
+    /// device).
+    pub fn compute_engine(&self) -> &ComputeEngine {
+        &self.compute
     }
-    /// How often a surface's device failed since this planner was made; the first failure
-    /// moves the planner to the CPU engine (its other surfaces move at their own next failure).
+    /// How often a resection's device failed since this planner was made; the first failure
+    /// moves the planner to the CPU engine (its other resections move at their own next
+    /// failure).
     pub fn device_fallbacks(&self) -> u32 {
         self.device_fallbacks
     }
@@ -360,7 +367,8 @@ impl Planner {
         Ok(model)
     }
 
-    /// Surface, inside levels, margins and verdict of one resection (reusing `prev`'s buffers).
+    /// Surface, inside levels, margins and verdict of one resection (reusing `prev`'s buffers):
+    /// measured by its probe when the planner has a probe engine, else on the CPU.
     fn compute(
         &mut self,
         r: &Resection,
@@ -368,32 +376,59 @@ impl Planner {
     ) -> Result<ResectionState, PlanError> {
         let target = self.target_model(&r.target)?;
         let before = prev.as_ref().map_or(0, |s| s.surface.device_fallbacks());
-        let (surface, mut inside, mut margins, mut memo) = match prev {
+        let (mut surface, mut inside, mut margins, mut memo, probe) = match prev {
             Some(mut s) => {
-                s.surface.update(r)?;
-                (s.surface, s.inside, s.margins, s.memo)
+                s.surface.set(r)?;
+                // A probe measures against its own target.
+                let probe = s.probe.filter(|_| Arc::ptr_eq(&s.target, &target));
+                (s.surface, s.inside, s.margins, s.memo, probe)
             }
             None => (
-                LiveSurface::with_engine(r, &self.engine)?,
+                LiveSurface::unevaluated(r, &self.compute.surfaces)?,
                 Vec::new(),
                 SurfaceMargins::default(),
                 MarginMemo::default(),
+                None,
             ),
+        };
+        let mut probe = match (probe, &self.compute.probes) {
+            (Some(p), _) => Some(p),
+            (None, Some(engine)) if surface.device_fallbacks() == 0 => {
+                match engine.make(&self.anatomy, &target) {
+                    Ok(p) => Some(p),
+                    Err(e) if e.is_device() => {
+                        surface.fall_back(e);
+                        None
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            (None, _) => None,
+        };
+        let measured = match probe.as_deref_mut() {
+            Some(p) => surface.evaluate_probed(p, &mut inside, &mut margins.distance)?,
+            None => {
+                surface.evaluate()?;
+                false
+            }
         };
         if surface.device_fallbacks() > before {
             self.device_fallbacks += 1;
-            self.engine = SurfaceEngine::cpu();
+            self.compute = ComputeEngine::cpu();
+            probe = None;
         }
         let points = surface.points();
         let anatomy = &self.anatomy;
-        if points.len() < PARALLEL_INSIDE {
-            inside.clear();
-            inside.extend(points.iter().map(|p| anatomy.inside_level(p)));
-        } else {
-            points
-                .par_iter()
-                .map(|p| anatomy.inside_level(p))
-                .collect_into_vec(&mut inside);
+        if !measured {
+            if points.len() < PARALLEL_INSIDE {
+                inside.clear();
+                inside.extend(points.iter().map(|p| anatomy.inside_level(p)));
+            } else {
+                points
+                    .par_iter()
+                    .map(|p| anatomy.inside_level(p))
+                    .collect_into_vec(&mut inside);
+            }
         }
         let settings = MarginSettings {
             margin_mm: r.margin_mm,
@@ -404,17 +439,31 @@ impl Planner {
             surface: &surface,
             anatomy,
         };
-        let verdict = resecta_margin::evaluate_reusing(
-            &target.field,
-            ru,
-            rv,
-            &points,
-            &inside,
-            &settings,
-            &oracle,
-            &mut memo,
-            &mut margins,
-        )
+        let field = &target.field;
+        let verdict = if measured {
+            evaluate_exact_into(
+                field,
+                ru,
+                rv,
+                &points,
+                &inside,
+                &settings,
+                &oracle,
+                &mut margins,
+            )
+        } else {
+            resecta_margin::evaluate_reusing(
+                field,
+                ru,
+                rv,
+                &points,
+                &inside,
+                &settings,
+                &oracle,
+                &mut memo,
+                &mut margins,
+            )
+        }
         .map_err(|e| PlanError::resection(&r.name, format!("margins: {e}")))?;
         Ok(ResectionState {
             surface,
@@ -423,6 +472,7 @@ impl Planner {
             margins,
             verdict,
             memo,
+            probe,
         })
     }
 

@@ -16,6 +16,18 @@ pub struct InsideField {
     bounds: Option<(Vec3, Vec3)>,
 }
 
+/// [`InsideField`]'s data: voxel (i, j, k) is bit `(k & 3) << 4 | (j & 3) << 2 | (i & 3)` of
+/// word `((k >> 2)·bricks[1] + (j >> 2))·bricks[0] + (i >> 2)`; the level at a point is the
+/// trilinear interpolation of the bits at `grid.world_to_index(p)`, 0 beyond the grid, minus ½.
+#[derive(Debug, Clone, Copy)]
+pub struct InsideLayout<'a> {
+    pub grid: &'a Grid,
+    pub dims: [usize; 3],
+    /// Bricks along x and y.
+    pub bricks: [usize; 2],
+    pub words: &'a [u64],
+}
+
 impl InsideField {
     pub fn new(mask: &Volume<bool>) -> Self {
         let grid = mask.grid().clone();
@@ -146,6 +158,16 @@ impl InsideField {
                         .product::<Real>()
                 })
                 .sum(),
+        }
+    }
+
+    /// The bricks as laid out in memory, for accelerators that look levels up themselves.
+    pub fn layout(&self) -> InsideLayout<'_> {
+        InsideLayout {
+            grid: &self.grid,
+            dims: self.dims,
+            bricks: self.bricks,
+            words: &self.words,
         }
     }
 

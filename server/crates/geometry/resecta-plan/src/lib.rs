@@ -12,6 +12,7 @@ pub mod init;
 mod inside;
 pub mod label_slice;
 pub mod plan;
+pub mod probe;
 pub mod resection;
 pub mod surface;
 
@@ -23,8 +24,10 @@ pub use engine::{
 pub use error::PlanError;
 pub use history::{Change, History, LogEntry, Staged};
 pub use init::{Initialisation, initialise, plane_from, slicing_plane};
+pub use inside::InsideLayout;
 pub use label_slice::{LabelSlice, SliceAxis, label_slice};
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
+pub use probe::{ComputeEngine, ProbeEngine, SampleProbe};
 pub use resecta_margin::{MarginClass, Verdict};
 pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};

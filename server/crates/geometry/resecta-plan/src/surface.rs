@@ -10,6 +10,7 @@ use resecta_geom::{Plane, Polyline, Real, TriMesh, Vec3, slice};
 use serde::{Deserialize, Serialize};
 
 use crate::error::PlanError;
+use crate::probe::SampleProbe;
 use crate::resection::Resection;
 
 /// A resection surface kept up to date across edits, evaluated by its engine's evaluator. When
@@ -36,6 +37,13 @@ impl LiveSurface {
     /// Evaluates the resection's surface with an evaluator of `engine` (the CPU's when the
     /// engine's device fails).
     pub fn with_engine(r: &Resection, engine: &SurfaceEngine) -> Result<Self, PlanError> {
+        let mut surface = Self::unevaluated(r, engine)?;
+        surface.evaluate()?;
+        Ok(surface)
+    }
+
+    /// The evaluator of `engine` for the resection, nothing evaluated yet.
+    pub(crate) fn unevaluated(r: &Resection, engine: &SurfaceEngine) -> Result<Self, PlanError> {
         let res = Resolution::new(r.resolution[0], r.resolution[1])?;
         let net = r.net()?;
         let mut surface = Self {
@@ -49,13 +57,18 @@ impl LiveSurface {
             Err(e) if e.is_device() => surface.fall_back(e),
             Err(e) => return Err(e.into()),
         }
-        surface.evaluate()?;
         Ok(surface)
     }
 
     /// Re-evaluates after an edit; reuses buffers and the basis tables when the grid size and
     /// resolution are unchanged.
     pub fn update(&mut self, r: &Resection) -> Result<(), PlanError> {
+        self.set(r)?;
+        self.evaluate()
+    }
+
+    /// Hands the resection's net and resolution to the evaluator, evaluating nothing.
+    pub(crate) fn set(&mut self, r: &Resection) -> Result<(), PlanError> {
         let res = Resolution::new(r.resolution[0], r.resolution[1])?;
         if self.evaluator.net().dims() != (r.grid[0], r.grid[1]) {
             self.evaluator.set_net(r.net()?);
@@ -80,16 +93,37 @@ impl LiveSurface {
             self.evaluator.set_resolution(res);
             self.grid = SurfaceGrid::zeroed(res, Outputs::Normals);
         }
-        self.evaluate()
+        Ok(())
     }
 
-    fn fall_back(&mut self, error: BezierError) {
+    /// Moves the surface to the CPU evaluator after a device failure.
+    pub(crate) fn fall_back(&mut self, error: BezierError) {
         self.evaluator = cpu_evaluator(self.evaluator.net().clone(), self.evaluator.resolution());
         self.fallbacks += 1;
         self.device_error = Some(error);
     }
 
-    fn evaluate(&mut self) -> Result<(), PlanError> {
+    /// Evaluates through `probe`, which also measures the samples' inside levels and tumour
+    /// distances: `Ok(true)`. When its device fails the surface moves to the CPU and is
+    /// evaluated there, the samples unmeasured: `Ok(false)`.
+    pub(crate) fn evaluate_probed(
+        &mut self,
+        probe: &mut dyn SampleProbe,
+        inside: &mut Vec<Real>,
+        distance: &mut Vec<Real>,
+    ) -> Result<bool, PlanError> {
+        match probe.measure(self.evaluator.as_mut(), &mut self.grid, inside, distance) {
+            Ok(()) => Ok(true),
+            Err(e) if e.is_device() => {
+                self.fall_back(e);
+                self.evaluate()?;
+                Ok(false)
+            }
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    pub(crate) fn evaluate(&mut self) -> Result<(), PlanError> {
         match self.evaluator.evaluate_into(&mut self.grid) {
             Err(e) if e.is_device() => {
                 self.fall_back(e);

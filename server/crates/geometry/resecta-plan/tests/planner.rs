@@ -572,7 +572,7 @@ fn a_device_failure_moves_the_surface_to_the_cpu_and_the_edit_succeeds() {
     .unwrap();
     let mut flaky = Planner::with_engine(anatomy(), plan.clone(), engine).unwrap();
     let mut cpu = Planner::new(anatomy(), plan).unwrap();
-    assert_eq!(flaky.surface_engine().backend(), "flaky");
+    assert_eq!(flaky.compute_engine().backend(), "flaky");
     for step in 0..3 {
         let edit = PlanEvent::SetControlPoint {
             name: "r1".into(),
@@ -595,7 +595,7 @@ fn a_device_failure_moves_the_surface_to_the_cpu_and_the_edit_succeeds() {
     assert!(err.is_device(), "{err}");
     // The planner moved to the CPU: its next surfaces are made there.
     assert_eq!(flaky.device_fallbacks(), 1);
-    assert_eq!(flaky.surface_engine().backend(), "cpu");
+    assert_eq!(flaky.compute_engine().backend(), "cpu");
     // One moved point is handed over as one point (the first two edits reach the flaky one).
     assert_eq!(single.load(std::sync::atomic::Ordering::Relaxed), 2);
 }
@@ -615,4 +615,99 @@ fn an_engine_that_cannot_make_an_evaluator_for_its_device_leaves_the_cpu_to_it()
     assert_eq!((s.backend(), s.device_fallbacks()), ("cpu", 1));
     assert_eq!(p.device_fallbacks(), 1);
     assert_eq!(s.points().len(), 40 * 40);
+}
+
+/// A probe measuring exactly on the CPU (the contract a device probe meets), failing as a lost
+/// device at its `fail_at`-th measurement.
+#[derive(Debug)]
+struct ExactProbe {
+    anatomy: Arc<Anatomy>,
+    target: Arc<resecta_plan::TargetModel>,
+    measured: usize,
+    fail_at: usize,
+}
+
+impl resecta_plan::SampleProbe for ExactProbe {
+    fn measure(
+        &mut self,
+        surface: &mut dyn resecta_bezier::SurfaceEvaluator,
+        grid: &mut resecta_bezier::SurfaceGrid<f64>,
+        inside: &mut Vec<f64>,
+        distance: &mut Vec<f64>,
+    ) -> Result<(), resecta_bezier::BezierError> {
+        self.measured += 1;
+        if self.measured == self.fail_at {
+            return Err(resecta_bezier::BezierError::Device("lost".into()));
+        }
+        surface.evaluate_into(grid)?;
+        let points: Vec<Vec3> = grid.points().iter().map(|p| Vec3::from(*p)).collect();
+        *inside = points
+            .iter()
+            .map(|p| self.anatomy.inside_level(p))
+            .collect();
+        *distance = points
+            .iter()
+            .map(|p| self.target.field.nearest(p).distance)
+            .collect();
+        Ok(())
+    }
+}
+
+#[test]
+fn a_probe_measures_the_samples_and_its_device_failure_leaves_them_to_the_cpu() {
+    let probes = resecta_plan::ProbeEngine::new("exact", |anatomy, target| {
+        Ok(Box::new(ExactProbe {
+            anatomy: Arc::clone(anatomy),
+            target: Arc::clone(target),
+            measured: 0,
+            fail_at: 3,
+        }))
+    });
+    let engine = resecta_plan::ComputeEngine {
+        surfaces: resecta_bezier::SurfaceEngine::cpu(),
+        probes: Some(probes),
+    };
+    let mut plan = Plan::new(spec().roles);
+    plan.apply(&PlanEvent::AddResection {
+        resection: plane_x("r1", 12.0, 70.0),
+    })
+    .unwrap();
+    let mut probed = Planner::with_engine(anatomy(), plan.clone(), engine).unwrap();
+    let mut cpu = Planner::new(anatomy(), plan).unwrap();
+    for step in 0..3 {
+        let edit = PlanEvent::SetControlPoint {
+            name: "r1".into(),
+            i: 1,
+            j: 2,
+            point: [9.0 + step as Real, -23.0, 23.0],
+        };
+        probed.edit(edit.clone()).unwrap();
+        cpu.edit(edit).unwrap();
+        let (p, c) = (probed.state("r1").unwrap(), cpu.state("r1").unwrap());
+        assert_eq!(p.surface.grid(), c.surface.grid(), "step {step}");
+        assert_eq!(p.inside, c.inside, "step {step}");
+        assert_eq!(p.margins.class, c.margins.class, "step {step}");
+        let (pm, cm) = (p.verdict.min_margin_mm, c.verdict.min_margin_mm);
+        assert_eq!(pm, cm, "step {step}");
+        // Exact distances against the CPU's tolerant (and, through a drag, kept) ones.
+        for (a, b) in p.margins.distance.iter().zip(&c.margins.distance) {
+            assert!((a - b).abs() <= FAR_TOLERANCE_MM, "step {step}: {a} vs {b}");
+        }
+        // Measurement 3 (the second edit) fails: from then on the CPU measures.
+        assert_eq!(
+            probed.device_fallbacks(),
+            u32::from(step > 0),
+            "step {step}"
+        );
+    }
+    assert!(probed.compute_engine().probes.is_none());
+    assert!(
+        probed
+            .state("r1")
+            .unwrap()
+            .surface
+            .device_error()
+            .unwrap()
+            .is_device()
+    );
 }
