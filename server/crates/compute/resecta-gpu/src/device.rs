@@ -187,6 +187,11 @@ impl GpuContext {
         Err(GpuError::DeviceLost(first.unwrap_or_default()))
     }
 
+    /// Whether `other` is this context or a clone of it (the same device and queue).
+    pub fn same_device(&self, other: &GpuContext) -> bool {
+        Arc::ptr_eq(&self.pipelines, &other.pipelines)
+    }
+
     /// Largest storage binding in bytes (128 MiB on lavapipe).
     pub fn max_binding(&self) -> u64 {
         self.caps

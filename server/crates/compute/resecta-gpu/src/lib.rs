@@ -13,6 +13,11 @@
 //!   `resecta_margin::MarginField::distances_into`: the field's oriented-box tree, prepared
 //!   triangles and hints resident, one invocation per point walking the tree (f64), classes by
 //!   `MarginSettings::classify` on the host ([`GpuMarginField::margins_into`]).
+//! - [`kernels::inside`]: the liver's inside level at many points as [`GpuInsideField`]
+//!   (`resecta_plan::Anatomy::inside_level`'s bit bricks resident, f64).
+//! - [`probe`]: the planner's edit path, [`GpuProbe`] (`resecta_plan::SampleProbe`): surface,
+//!   inside levels and exact distances in one submission and one read-back per edit;
+//!   [`gpu_compute_engine`] makes the planner's engine.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -20,11 +25,14 @@
 pub mod cooperation;
 pub mod device;
 pub mod kernels;
+pub mod probe;
 pub mod surface;
 
 pub use cooperation::{Cooperative, DdcReport, Profile};
 pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
+pub use kernels::inside::GpuInsideField;
 pub use kernels::margin::GpuMarginField;
+pub use probe::{GpuProbe, gpu_compute_engine};
 pub use surface::{GpuSurface, gpu_engine};

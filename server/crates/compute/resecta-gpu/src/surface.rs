@@ -152,6 +152,9 @@ impl SurfaceEvaluator for GpuSurface {
             }
         }
     }
+    fn as_any_mut(&mut self) -> Option<&mut dyn std::any::Any> {
+        Some(self)
+    }
     fn evaluate_into(&mut self, out: &mut SurfaceGrid<f64>) -> Result<(), BezierError> {
         match self {
             Self::F64(g) => Ok(g.evaluate_normals_into(out)?),
@@ -185,19 +188,21 @@ pub fn gpu_engine(ctx: &GpuContext) -> SurfaceEngine {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use std::sync::Arc;
 
     use resecta_geom::{Real, RoleMap};
+    use resecta_margin::FAR_TOLERANCE_MM;
     use resecta_phantom::{
         EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate,
     };
-    use resecta_plan::{Anatomy, Plan, PlanEvent, Planner, Resection};
+    use resecta_plan::{Anatomy, ComputeEngine, Plan, PlanEvent, Planner, Resection};
 
     use super::*;
     use crate::device::testing::context;
+    use crate::probe::gpu_compute_engine;
 
-    fn anatomy() -> (Arc<Anatomy>, RoleMap) {
+    pub(crate) fn anatomy() -> (Arc<Anatomy>, RoleMap) {
         let spec = PhantomSpec {
             grid: GridSpec::centred(
                 [80, 64, 52],
@@ -227,7 +232,7 @@ mod tests {
     }
 
     /// A 5×4 resection across x = 8 mm, slightly bent, at `res`.
-    fn resection(res: [usize; 2]) -> Resection {
+    pub(crate) fn resection(res: [usize; 2]) -> Resection {
         let pts = (0..20)
             .map(|k| {
                 let (u, v) = ((k / 4) as Real / 4.0, (k % 4) as Real / 3.0);
@@ -243,7 +248,11 @@ mod tests {
         r
     }
 
-    fn assert_same(gpu: &Planner, cpu: &Planner, what: &str) {
+    /// The GPU planner's resection "r1" against the CPU's: surfaces to rounding; with probes
+    /// (`probed`), inside levels to rounding, exact distances (the CPU's within its tolerances),
+    /// the same classes and minimum, areas within 1 % (far
+    /// samples' tolerant CPU distances move the clipped lines of the cells next to them).
+    fn assert_same(gpu: &Planner, cpu: &Planner, probed: bool, what: &str) {
         let (g, c) = (gpu.state("r1").unwrap(), cpu.state("r1").unwrap());
         assert_eq!(g.surface.backend(), "wgpu", "{what}");
         assert_eq!(g.surface.device_fallbacks(), 0, "{what}");
@@ -261,41 +270,73 @@ mod tests {
             "{what}: points {dp:e} normals {dn:e}"
         );
         assert_eq!(g.margins.class, c.margins.class, "{what}");
+        let levels = g
+            .inside
+            .iter()
+            .zip(&c.inside)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        assert!(levels <= 1e-12, "{what}: inside levels {levels:e}");
+        let (mut above, mut below) = (0.0f64, 0.0f64);
+        for (a, b) in g.margins.distance.iter().zip(&c.margins.distance) {
+            (above, below) = (above.max(a - b), below.max(b - a));
+        }
+        // Kept distances of a drag may also lie below the exact ones (by what a sample moved).
+        let far = if probed { FAR_TOLERANCE_MM } else { 1e-9 };
+        assert!(above <= far && below <= far, "{what}: {above:e} {below:e}");
         let (gv, cv) = (&g.verdict, &c.verdict);
         let (gm, cm) = (gv.min_margin_mm.unwrap(), cv.min_margin_mm.unwrap());
         assert!((gm - cm).abs() <= 1e-6, "{what}: min margin {gm} vs {cm}");
         assert_eq!(gv.violation, cv.violation, "{what}");
+        let area = if probed { 1e-2 } else { 1e-6 };
         for (a, b) in [
             (gv.violating_area_mm2, cv.violating_area_mm2),
             (gv.warning_area_mm2, cv.warning_area_mm2),
             (gv.inside_area_mm2, cv.inside_area_mm2),
         ] {
             assert!(
-                (a - b).abs() <= 1e-6 * b.max(1.0),
+                (a - b).abs() <= area * b.max(1.0),
                 "{what}: area {a} vs {b}"
             );
         }
-        eprintln!("{what}: points {dp:.1e} normals {dn:.1e} min margin {gm:.6} mm");
+        eprintln!(
+            "{what}: points {dp:.1e} normals {dn:.1e} levels {levels:.1e} distances +{above:.1e} \
+             -{below:.1e} min margin {gm:.6} mm"
+        );
     }
 
-    /// The phantom's plan with one 40×40 resection, planned on `ctx` and on the CPU.
-    fn planners(ctx: &GpuContext) -> (Planner, Planner) {
+    /// The phantom's plan with one 40×40 resection, planned by `engine` and on the CPU.
+    pub(crate) fn planners(engine: impl Into<ComputeEngine>) -> (Planner, Planner) {
         let (anatomy, roles) = anatomy();
         let mut plan = Plan::new(roles);
         plan.apply(&PlanEvent::AddResection {
             resection: resection([40, 40]),
         })
         .unwrap();
-        let gpu =
-            Planner::with_engine(Arc::clone(&anatomy), plan.clone(), gpu_engine(ctx)).unwrap();
+        let gpu = Planner::with_engine(Arc::clone(&anatomy), plan.clone(), engine).unwrap();
         (gpu, Planner::new(anatomy, plan).unwrap())
     }
 
     #[test]
     fn a_planner_on_the_gpu_plans_as_the_cpu_one() {
         let Some(ctx) = context() else { return };
-        let (mut gpu, mut cpu) = planners(&ctx);
-        assert_eq!(gpu.surface_engine().backend(), "wgpu");
+        plans_as_the_cpu(gpu_engine(&ctx).into(), false);
+    }
+
+    #[test]
+    fn a_planner_measuring_on_the_gpu_plans_as_the_cpu_one() {
+        let Some(ctx) = context() else { return };
+        let engine = gpu_compute_engine(&ctx);
+        assert_eq!(engine.probes.as_ref().map(|p| p.backend()), Some("wgpu"));
+        plans_as_the_cpu(engine, true);
+    }
+
+    fn plans_as_the_cpu(engine: ComputeEngine, probed: bool) {
+        let (mut gpu, mut cpu) = planners(engine);
+        assert_eq!(gpu.compute_engine().backend(), "wgpu");
+        let assert_same = |gpu: &Planner, cpu: &Planner, what: &str| {
+            assert_same(gpu, cpu, probed, what);
+        };
         assert_same(&gpu, &cpu, "initial");
         let edits = [
             PlanEvent::SetControlPoint {
@@ -350,7 +391,7 @@ mod tests {
         }
         // A device of its own: destroyed below.
         let ctx = GpuContext::new().unwrap();
-        let (mut gpu, mut cpu) = planners(&ctx);
+        let (mut gpu, mut cpu) = planners(gpu_compute_engine(&ctx));
         ctx.device.destroy();
         let e = PlanEvent::SetControlPoint {
             name: "r1".into(),
@@ -363,9 +404,13 @@ mod tests {
         let (g, c) = (gpu.state("r1").unwrap(), cpu.state("r1").unwrap());
         assert_eq!(g.surface.backend(), "cpu");
         assert_eq!(gpu.device_fallbacks(), 1);
+        assert_eq!(gpu.compute_engine().backend(), "cpu");
+        assert!(gpu.compute_engine().probes.is_none());
         eprintln!("lost: {}", g.surface.device_error().unwrap());
         assert_eq!(g.surface.grid(), c.surface.grid());
-        assert_eq!(g.verdict, c.verdict);
+        // Measured afresh on the CPU (no distances kept from the GPU's measurements).
+        assert_eq!(g.margins.class, c.margins.class);
+        assert_eq!(g.verdict.min_margin_mm, c.verdict.min_margin_mm);
         // The context remembers the failure (wgpu's errors were recorded, not panicked on).
         let err = ctx.check().unwrap_err();
         assert!(matches!(err, GpuError::DeviceLost(_)), "{err}");

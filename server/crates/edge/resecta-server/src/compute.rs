@@ -1,6 +1,6 @@
 //! The compute backend of the sessions' planners (`--gpu`, `RESECTA_GPU`, TOML `gpu`).
 
-use resecta_gpu::{GpuContext, gpu_engine};
+use resecta_gpu::{GpuContext, gpu_compute_engine};
 use resecta_session::ServiceConfig;
 use resecta_session::api::ComputeInfo;
 use serde::Deserialize;
@@ -42,14 +42,14 @@ pub fn configure_compute(mode: GpuMode, service: &mut ServiceConfig) -> Result<(
                 backend = ?ctx.info.backend,
                 device_type = ?ctx.info.device_type,
                 f64 = ctx.caps.f64,
-                "planning surfaces on the GPU"
+                "planning on the GPU: surfaces, inside levels and margins"
             );
             service.compute = ComputeInfo {
                 backend: "wgpu".into(),
                 adapter: ctx.info.name.clone(),
                 f64: ctx.caps.f64,
             };
-            service.compute_engine = gpu_engine(&ctx).into();
+            service.compute_engine = gpu_compute_engine(&ctx);
             service.capabilities.push("gpu".into());
             Ok(())
         }

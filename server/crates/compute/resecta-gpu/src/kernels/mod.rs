@@ -2,6 +2,7 @@
 //! compile time), its Rust driver (`mod.rs`) and its GPU-vs-CPU tests (`tests.rs`).
 
 pub mod bezier;
+pub mod inside;
 pub mod margin;
 
 use resecta_bezier::BezierScalar;
@@ -35,4 +36,50 @@ impl GpuScalar for f64 {
     fn supported(ctx: &crate::GpuContext) -> bool {
         ctx.caps.f64
     }
+}
+
+/// Invocations per workgroup of the per-point kernels (`@workgroup_size(64)`, invocation
+/// `gid.x + gid.y · groups.x · 64`).
+const POINT_GROUP: u32 = 64;
+/// Most workgroups along one dispatch dimension.
+const MAX_GROUPS: u32 = 65_535;
+
+/// The first `bytes` of `buffer` as a binding.
+pub(crate) fn leading(buffer: &wgpu::Buffer, bytes: usize) -> wgpu::BindingResource<'_> {
+    wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+        buffer,
+        offset: 0,
+        size: wgpu::BufferSize::new(bytes as u64),
+    })
+}
+
+/// Binds `resources` (at bindings 0, 1, …) to group 0 of `pipeline` and encodes one pass of
+/// one invocation per point for `count` points.
+pub(crate) fn dispatch_points(
+    ctx: &crate::GpuContext,
+    enc: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::ComputePipeline,
+    label: &str,
+    resources: Vec<wgpu::BindingResource<'_>>,
+    count: u32,
+) {
+    let entries: Vec<_> = resources
+        .into_iter()
+        .enumerate()
+        .map(|(k, resource)| wgpu::BindGroupEntry {
+            binding: k as u32,
+            resource,
+        })
+        .collect();
+    let bind = ctx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    });
+    let groups = count.div_ceil(POINT_GROUP);
+    let gx = groups.min(MAX_GROUPS);
+    let mut pass = enc.begin_compute_pass(&Default::default());
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &bind, &[]);
+    pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
 }

@@ -91,6 +91,24 @@ impl OutputBand {
     }
 }
 
+/// Work chained onto a surface evaluation ([`GpuMle::evaluate_normals_chained`]): passes
+/// reading the sample points where the evaluation left them, and a staging buffer read back
+/// with the surface's.
+pub(crate) trait Chained {
+    /// Encodes the passes over `count` points stored as xyz triples at the start of `points`,
+    /// and the copy of their results into the staging buffer.
+    fn encode(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        points: &wgpu::Buffer,
+        count: usize,
+    ) -> Result<(), GpuError>;
+    /// The staging buffer (MAP_READ, a shared handle) and the byte range to map.
+    fn staging(&self) -> (wgpu::Buffer, Range<u64>);
+    /// Takes the mapped bytes.
+    fn read(&mut self, bytes: &[u8]);
+}
+
 /// Control points changed on the host since the last upload.
 #[derive(Debug)]
 enum Dirty {
@@ -714,6 +732,25 @@ impl<T: GpuScalar> GpuMle<T> {
     /// [`Outputs::Normals`] at this resolution), with one read-back; degenerate normals are
     /// repaired on the host as the CPU does (`resecta_bezier::repair_normals`).
     pub fn evaluate_normals_into(&mut self, grid: &mut SurfaceGrid<T>) -> Result<(), GpuError> {
+        self.evaluate_normals(grid, None).map(|_| ())
+    }
+
+    /// [`GpuMle::evaluate_normals_into`] with `chained` encoded after the surface passes in the
+    /// same submission and read back with it: `Ok(true)`. A surface held in several output
+    /// bands (beyond the binding limit) is evaluated alone: `Ok(false)`, `chained` untouched.
+    pub(crate) fn evaluate_normals_chained(
+        &mut self,
+        grid: &mut SurfaceGrid<T>,
+        chained: &mut dyn Chained,
+    ) -> Result<bool, GpuError> {
+        self.evaluate_normals(grid, Some(chained))
+    }
+
+    fn evaluate_normals(
+        &mut self,
+        grid: &mut SurfaceGrid<T>,
+        mut chained: Option<&mut dyn Chained>,
+    ) -> Result<bool, GpuError> {
         let res = self.resolution;
         if grid.resolution() != res {
             return Err(BezierError::BufferLength {
@@ -764,11 +801,22 @@ impl<T: GpuScalar> GpuMle<T> {
             }
             enc.copy_buffer_to_buffer(&band.buffer, 0, &band.staging, 0, band.buffer.size());
         }
+        if self.bands.len() != 1 {
+            chained = None;
+        }
+        let chained_staging = match (&mut chained, self.bands.first()) {
+            (Some(c), Some(band)) => {
+                c.encode(&mut enc, &band.buffer, res.len())?;
+                Some(c.staging())
+            }
+            _ => None,
+        };
         self.ctx.queue.submit([enc.finish()]);
         let maps: Vec<_> = self
             .bands
             .iter()
             .map(|b| (&b.staging, 0..b.staging.size()))
+            .chain(chained_staging.as_ref().map(|(b, r)| (b, r.clone())))
             .collect();
         let (points, du, dv, normals) = grid.parts_mut();
         let (Some(du), Some(dv), Some(normals)) = (du, dv, normals) else {
@@ -776,8 +824,15 @@ impl<T: GpuScalar> GpuMle<T> {
         };
         let mut outs = [points, du, dv, normals];
         let bands = &self.bands;
+        let ran = chained.is_some();
         self.ctx.read_back(&maps, |k, bytes| {
-            let rows = &bands[k].rows;
+            let Some(band) = bands.get(k) else {
+                if let Some(c) = chained.as_mut() {
+                    c.read(bytes);
+                }
+                return;
+            };
+            let rows = &band.rows;
             let block = bytes.len() / 4;
             for (out, src) in outs.iter_mut().zip(bytes.chunks_exact(block)) {
                 let dst = out[rows.start * rv..rows.end * rv].as_flattened_mut();
@@ -787,7 +842,7 @@ impl<T: GpuScalar> GpuMle<T> {
         // A device that failed during the evaluation may have left anything in the buffers.
         self.ctx.check()?;
         repair_normals(&self.net, res, outs[3]);
-        Ok(())
+        Ok(ran)
     }
 
     /// Runs level 1 and leaves the result on the GPU (see [`GpuMle::bands`]); submitted, not

@@ -35,16 +35,13 @@ use resecta_margin::{COUNT_BITS, MarginClass, MarginError, MarginField, MarginSe
 use wgpu::util::DeviceExt;
 
 use crate::device::{GpuContext, GpuError};
+use crate::kernels::{dispatch_points, leading};
 
 #[cfg(test)]
 mod tests;
 
 /// The WGSL source without its header (see [`shader_source`]).
 pub const TEMPLATE: &str = include_str!("margin.wgsl");
-/// Invocations per workgroup (`@workgroup_size` in the WGSL).
-const GROUP: u32 = 64;
-/// Most workgroups along one dispatch dimension.
-const MAX_GROUPS: u32 = 65_535;
 /// f64 words per prepared triangle (`TRI` in the WGSL).
 const TRI: usize = 36;
 
@@ -78,7 +75,6 @@ struct Io {
     points: wgpu::Buffer,
     out: wgpu::Buffer,
     staging: wgpu::Buffer,
-    bind: wgpu::BindGroup,
 }
 
 /// A [`MarginField`] resident on the GPU: exact distances of many points per call.
@@ -258,34 +254,42 @@ impl GpuMarginField {
         let points = buffer("margin-points", bytes, U::STORAGE | U::COPY_DST);
         let out = buffer("margin-out", out_bytes, U::STORAGE | U::COPY_SRC);
         let staging = buffer("margin-staging", out_bytes, U::MAP_READ | U::COPY_DST);
-        let entries = [
-            &self.uniform,
-            &self.boxes,
-            &self.tris,
-            &self.hints,
-            &points,
-            &out,
-        ];
-        let entries: Vec<_> = entries
-            .iter()
-            .enumerate()
-            .map(|(k, b)| wgpu::BindGroupEntry {
-                binding: k as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("margin"),
-            layout: &self.pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        });
         self.io = Some(Io {
             capacity: n,
             points,
             out,
             staging,
-            bind,
         });
+        Ok(())
+    }
+
+    /// Encodes the squared distances of the `count` points stored as f64 xyz triples at the
+    /// start of `points` into the start of `out` (f64 each; the host takes the roots). Points
+    /// must be finite. Writes this field's parameter block: one encoding per submission.
+    pub(crate) fn encode(
+        &mut self,
+        enc: &mut wgpu::CommandEncoder,
+        points: &wgpu::Buffer,
+        count: usize,
+        out: &wgpu::Buffer,
+    ) -> Result<(), GpuError> {
+        let n = u32_of(count)?;
+        if n == 0 {
+            return Ok(());
+        }
+        self.params.count = n;
+        self.ctx
+            .queue
+            .write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
+        let resources = vec![
+            self.uniform.as_entire_binding(),
+            self.boxes.as_entire_binding(),
+            self.tris.as_entire_binding(),
+            self.hints.as_entire_binding(),
+            leading(points, count * std::mem::size_of::<[f64; 3]>()),
+            leading(out, count * std::mem::size_of::<f64>()),
+        ];
+        dispatch_points(&self.ctx, enc, &self.pipeline, "margin", resources, n);
         Ok(())
     }
 
@@ -306,9 +310,9 @@ impl GpuMarginField {
         if n == 0 {
             return Ok(());
         }
-        let count = u32_of(n)?;
+        u32_of(n)?;
         self.ensure_io(n)?;
-        let Some(io) = &self.io else {
+        let Some(io) = self.io.take() else {
             return Err(GpuError::Pipeline("margin buffers missing".into()));
         };
         let finite = |p: &Vec3| p.iter().all(|c| c.is_finite());
@@ -323,22 +327,16 @@ impl GpuMarginField {
                 .iter()
                 .map(|p| if finite(p) { [p.x, p.y, p.z] } else { origin }),
         );
-        self.params.count = count;
-        let queue = &self.ctx.queue;
-        queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&self.params));
-        queue.write_buffer(&io.points, 0, bytemuck::cast_slice(&self.scratch));
-        let groups = count.div_ceil(GROUP);
-        let gx = groups.min(MAX_GROUPS);
+        self.ctx
+            .queue
+            .write_buffer(&io.points, 0, bytemuck::cast_slice(&self.scratch));
         let out_bytes = (n * std::mem::size_of::<f64>()) as u64;
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
-        {
-            let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&self.pipeline);
-            pass.set_bind_group(0, &io.bind, &[]);
-            pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
-        }
+        let encoded = self.encode(&mut enc, &io.points, n, &io.out);
+        let io = self.io.insert(io);
+        encoded?;
         enc.copy_buffer_to_buffer(&io.out, 0, &io.staging, 0, out_bytes);
-        queue.submit([enc.finish()]);
+        self.ctx.queue.submit([enc.finish()]);
         let dst: &mut [u8] = bytemuck::cast_slice_mut(out);
         let read = self
             .ctx
