@@ -264,5 +264,13 @@ pub fn gpu_compute_engine(ctx: &GpuContext) -> ComputeEngine {
     ComputeEngine {
         surfaces: gpu_engine(ctx),
         probes,
+        host_bytes_per_sample: host_bytes_per_sample(ctx),
     }
+}
+
+/// Host memory per surface sample of a [`GpuSurface`] with normals and its [`GpuProbe`]: the
+/// mapped staging buffers (surface 96 B, probe 16 B), and on a software device, whose memory is
+/// host memory, the storage buffers too (surface 96 B, probe 40 B); rounded up.
+fn host_bytes_per_sample(ctx: &GpuContext) -> u64 {
+    if ctx.is_software() { 256 } else { 128 }
 }

@@ -10,7 +10,7 @@
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use resecta_plan::Plan;
+use resecta_plan::{ComputeEngine, Plan};
 
 use crate::error::{Quota, Result, SessionError};
 use crate::support::internal;
@@ -299,32 +299,36 @@ pub(crate) fn plan_samples(plan: &Plan) -> u64 {
 /// What a plan's resection states hold, with room to recompute its largest one beside the
 /// old state (an edit that moves a surface needs no reservation of its own, so a drag is never
 /// refused).
-pub(crate) fn plan_bytes(plan: &Plan) -> u64 {
+pub(crate) fn plan_bytes(plan: &Plan, per_sample: u64) -> u64 {
     let largest = plan
         .resections
         .iter()
         .map(|r| (r.resolution[0] * r.resolution[1]) as u64)
         .max()
         .unwrap_or(0);
-    (plan_samples(plan) + largest) * BYTES_PER_SAMPLE
-        + plan.resections.len() as u64 * BYTES_PER_RESECTION
+    (plan_samples(plan) + largest) * per_sample + plan.resections.len() as u64 * BYTES_PER_RESECTION
+}
+
+/// Bytes per surface sample of a planner computing with `engine`.
+pub(crate) fn sample_bytes(engine: &ComputeEngine) -> u64 {
+    BYTES_PER_SAMPLE + engine.host_bytes_per_sample
 }
 
 /// What computing the change from `before` to `after` holds at its peak: the plan after it,
 /// plus the new states of the resections it changes, which are built beside the old ones.
-pub(crate) fn plan_change_bytes(after: &Plan, changed: &[String]) -> u64 {
+pub(crate) fn plan_change_bytes(after: &Plan, changed: &[String], per_sample: u64) -> u64 {
     let computed: u64 = after
         .resections
         .iter()
         .filter(|r| changed.contains(&r.name))
-        .map(|r| (r.resolution[0] * r.resolution[1]) as u64 * BYTES_PER_SAMPLE)
+        .map(|r| (r.resolution[0] * r.resolution[1]) as u64 * per_sample)
         .sum();
-    plan_bytes(after) + computed
+    plan_bytes(after, per_sample) + computed
 }
 
 /// What adding a resection at `resolution` holds while computed.
-pub(crate) fn added_resection_bytes(resolution: [usize; 2]) -> u64 {
-    2 * (resolution[0] * resolution[1]) as u64 * BYTES_PER_SAMPLE + BYTES_PER_RESECTION
+pub(crate) fn added_resection_bytes(resolution: [usize; 2], per_sample: u64) -> u64 {
+    2 * (resolution[0] * resolution[1]) as u64 * per_sample + BYTES_PER_RESECTION
 }
 
 /// What one watcher's snapshot of surfaces with `samples` samples holds.

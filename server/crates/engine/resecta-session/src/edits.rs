@@ -8,7 +8,9 @@ use resecta_geom::{Plane, Vec3};
 use resecta_plan::{Change, Plan, PlanEvent, Planner};
 
 use crate::api::{EditOp, EditOutcome, ResectionStatus};
-use crate::budget::{Charge, Use, added_resection_bytes, plan_bytes, plan_change_bytes};
+use crate::budget::{
+    Charge, Use, added_resection_bytes, plan_bytes, plan_change_bytes, sample_bytes,
+};
 use crate::error::{Result, SessionError};
 use crate::log;
 use crate::pools::{self, Priority};
@@ -117,7 +119,11 @@ impl Service {
         };
         debug_assert_eq!(new_version, version + 1, "one record appended");
         if let Some(reserved) = reserved {
-            reserved.settle(&s.id, Charge::Plan, plan_bytes(planner.plan()))?;
+            reserved.settle(
+                &s.id,
+                Charge::Plan,
+                plan_bytes(planner.plan(), per_sample(&planner)),
+            )?;
         }
         let outcome = outcome(&planner, new_version, change);
         loaded.planner = Some(planner);
@@ -148,7 +154,7 @@ impl Service {
         // new surfaces, which are computed beside the present ones. (The store takes the record
         // of any plan the plan limits allow: `log` tests the largest.)
         let record = log::reset_record(&plan)?;
-        let after = plan_bytes(&plan);
+        let after = plan_bytes(&plan, sample_bytes(&engine));
         let reserved = self.budget.reserve(Use::Plan, after)?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
@@ -194,6 +200,11 @@ fn outcome(planner: &Planner, plan_version: u64, change: Change) -> EditOutcome 
     }
 }
 
+/// Bytes per surface sample of `planner`'s states.
+fn per_sample(planner: &Planner) -> u64 {
+    sample_bytes(planner.compute_engine())
+}
+
 /// The memory a change that reshapes the plan (adds, removes or resamples surfaces) needs
 /// while computed: the plan's surfaces after it, with the changed ones twice; it replaces the
 /// plan's charge. `None` for a change of existing surfaces, whose recomputation the plan's
@@ -206,11 +217,17 @@ fn memory_need(planner: &Planner, op: &EditOp) -> Result<Option<u64>> {
         EditOp::Undo => history.stage_undo()?,
         EditOp::Redo => history.stage_redo()?,
         EditOp::InitFromEndPoint { .. } | EditOp::InitFromPlane { .. } => {
-            let added = added_resection_bytes(resecta_plan::resection::DEFAULT_RESOLUTION);
-            return Ok(Some(plan_bytes(planner.plan()) + added));
+            let per_sample = per_sample(planner);
+            let added =
+                added_resection_bytes(resecta_plan::resection::DEFAULT_RESOLUTION, per_sample);
+            return Ok(Some(plan_bytes(planner.plan(), per_sample) + added));
         }
     };
-    Ok(Some(plan_change_bytes(staged.plan(), staged.changed())))
+    Ok(Some(plan_change_bytes(
+        staged.plan(),
+        staged.changed(),
+        per_sample(planner),
+    )))
 }
 
 /// Whether `event` adds, removes or resamples a surface.

@@ -32,7 +32,8 @@ use resecta_store::SessionStore;
 
 use crate::api::{API_VERSION, LabelMapSource, LabelMapSummary, Limits, ServerInfo, Versioned};
 use crate::budget::{
-    Budget, Charge, UploadMemory, Use, label_map_bytes, plan_bytes, plan_samples, watcher_bytes,
+    Budget, Charge, UploadMemory, Use, label_map_bytes, plan_bytes, plan_samples, sample_bytes,
+    watcher_bytes,
 };
 use crate::config::ServiceConfig;
 use crate::error::{Quota, Result, SessionError};
@@ -161,7 +162,9 @@ impl Service {
             ),
             (
                 Charge::Plan,
-                loaded.as_ref().map_or(0, |l| plan_bytes(l.3.plan())),
+                loaded.as_ref().map_or(0, |l| {
+                    plan_bytes(l.3.plan(), sample_bytes(&self.config.compute_engine))
+                }),
             ),
             (Charge::Models, models.as_deref().map_or(0, models_bytes)),
         ];

@@ -82,6 +82,10 @@ impl std::fmt::Debug for ProbeEngine {
 pub struct ComputeEngine {
     pub surfaces: SurfaceEngine,
     pub probes: Option<ProbeEngine>,
+    /// Host memory its evaluators and probes hold per surface sample beyond the planner's own
+    /// buffers (a device's staging buffers; all its buffers on a software device), for memory
+    /// budgets.
+    pub host_bytes_per_sample: u64,
 }
 
 impl ComputeEngine {
@@ -100,6 +104,7 @@ impl From<SurfaceEngine> for ComputeEngine {
         Self {
             surfaces,
             probes: None,
+            host_bytes_per_sample: 0,
         }
     }
 }
