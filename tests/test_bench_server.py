@@ -107,6 +107,14 @@ def test_bench_server_compare_gpu_runs_the_latency_on_both_backends():
             # The server's CPU time comes in clock ticks (10 ms): 4 quick 40×40 edits may read 0.
             assert r["server_cpu_ms_per_edit"] >= 0 and r["ack_p50_ms"] > 0
         assert b["latencies"][-1]["server_cpu_ms_per_edit"] > 0  # 500×500: tens of ms an edit
+        # The capacity ramp: 1, then 2 sessions (quick) at 30 edits/s while p99 ≤ 5 ms.
+        cap = b["capacity"]
+        assert cap["rate_per_s"] == 30 and cap["p99_bound_ms"] == 5
+        steps = cap["steps"]
+        assert 1 <= len(steps) <= 2 and [s["sessions"] for s in steps] == [1, 2][:len(steps)]
+        within = [s["sessions"] for s in steps if s["p99_ms"] <= 5]
+        assert cap["sessions"] == (within[-1] if within and within == [1, 2][:len(within)] else 0)
+        assert all(s["edits"] >= 25 * s["sessions"] for s in steps)
     assert [r["resolution"] for r in rep["cpu_over_gpu"]] == [[n, n] for n in (40, 200, 500)]
     for r, c, g in zip(rep["cpu_over_gpu"], off["latencies"], gpu["latencies"]):
         assert math.isclose(r["delta_p50"], c["p50_ms"] / g["p50_ms"])

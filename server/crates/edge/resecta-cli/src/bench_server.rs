@@ -67,6 +67,11 @@ pub struct ServerArgs {
     /// resolution runs `--edits` edits or `--seconds`, whichever ends first.
     #[arg(long, conflicts_with = "gpu")]
     pub compare_gpu: bool,
+    /// With `--compare-gpu`: the capacity ramp doubles the sessions editing at `--rate` each
+    /// (40×40, `--seconds` per step, at most 5 s) from 1 up to this many, while edit → delta p99
+    /// stays within 5 ms.
+    #[arg(long, default_value_t = 256)]
+    pub max_sessions: usize,
     /// Write latency CDF plots (PNG and SVG) here.
     #[arg(long, conflicts_with = "compare_gpu")]
     pub plot_dir: Option<PathBuf>,
@@ -871,6 +876,53 @@ struct BackendRuns {
     compute: Compute,
     /// Single session, back to back, at each of [`COMPARED`].
     latencies: Vec<Latency>,
+    capacity: Capacity,
+}
+
+/// Edit → delta p99 bound of the capacity ramp (ms).
+const CAPACITY_P99_MS: f64 = 5.0;
+
+/// Sessions per server at a fixed edit rate: the ramp's steps and the most sessions whose
+/// edit → delta p99 stayed within [`CAPACITY_P99_MS`] (0: not even one).
+#[derive(Debug, Serialize)]
+struct Capacity {
+    rate_per_s: f64,
+    p99_bound_ms: f64,
+    sessions: usize,
+    steps: Vec<Latency>,
+}
+
+/// Doubles the sessions editing at `args.rate` each from 1 to `max` while p99 stays in bound.
+async fn capacity(
+    channel: &Channel,
+    token: Option<&str>,
+    map: &LabelMap,
+    args: &ServerArgs,
+    max: usize,
+    seconds: f64,
+    pid: Option<u32>,
+    pb: &indicatif::ProgressBar,
+) -> Result<Capacity, CliError> {
+    let mut steps = Vec::new();
+    let mut sessions = 0;
+    let mut n = 1;
+    while n <= max {
+        pb.set_message(format!("capacity: {n} sessions at {} edits/s", args.rate));
+        let l = paced(channel, token, map, args, n, seconds, pid).await?;
+        let within = l.p99_ms <= CAPACITY_P99_MS;
+        steps.push(l);
+        if !within {
+            break;
+        }
+        sessions = n;
+        n *= 2;
+    }
+    Ok(Capacity {
+        rate_per_s: args.rate,
+        p99_bound_ms: CAPACITY_P99_MS,
+        sessions,
+        steps,
+    })
 }
 
 /// At one resolution, the `--gpu off` server's figure over the `--gpu required` one's (above 1:
@@ -922,11 +974,19 @@ async fn compare_gpu(args: &ServerArgs, pb: &indicatif::ProgressBar) -> Result<(
             let pid = server.as_ref().map(ServerProcess::pid);
             latencies.push(single(&channel, token, &map, r, edits, budget, pid).await?);
         }
+        let pid = server.as_ref().map(ServerProcess::pid);
+        let (max, seconds) = if args.quick {
+            (args.max_sessions.min(2), 1.0)
+        } else {
+            (args.max_sessions, budget_s.min(5.0))
+        };
+        let capacity = capacity(&channel, token, &map, args, max, seconds, pid, pb).await?;
         drop(server);
         backends.push(BackendRuns {
             gpu: gpu_flag(gpu),
             compute,
             latencies,
+            capacity,
         });
     }
     pb.finish_and_clear();
@@ -963,6 +1023,11 @@ async fn compare_gpu(args: &ServerArgs, pb: &indicatif::ProgressBar) -> Result<(
         let backend = format!("{} {}", c.backend, c.adapter);
         println!("--gpu {}: {} (f64: {})", b.gpu, backend.trim_end(), c.f64);
         print_latencies(&b.latencies);
+        print_latencies(&b.capacity.steps);
+        println!(
+            "sessions at {} edits/s with p99 ≤ {} ms: {}",
+            b.capacity.rate_per_s, b.capacity.p99_bound_ms, b.capacity.sessions
+        );
     }
     for r in &report.cpu_over_gpu {
         println!(
