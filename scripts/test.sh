@@ -51,3 +51,6 @@ step "end-to-end tests, Python client, Slicer module Logic (pytest against targe
 for suite in tests clients/python/tests slicer-module/tests; do
   RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q "$suite"
 done
+
+step "end-to-end tests again with every server on the GPU path (--gpu required: lavapipe here)"
+RESECTA_GPU=required RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests

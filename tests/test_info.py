@@ -215,8 +215,10 @@ def test_gpu_required_plans_on_the_adapter_as_the_cpu_does(tmp_path):
     gv, cv = verdicts
     assert abs(gv["minMarginMm"] - cv["minMarginMm"]) <= 1e-6, (gv, cv)
     assert gv.get("violation", False) == cv.get("violation", False)
+    # The GPU measures every distance exactly; the CPU's far samples are within 0.25 mm, which
+    # moves the clipped lines of the cells next to them a little: areas within 1 %.
     for area in ("violatingAreaMm2", "warningAreaMm2", "insideAreaMm2"):
-        assert abs(gv.get(area, 0.0) - cv.get(area, 0.0)) <= 1e-6 * max(cv.get(area, 0.0), 1.0), area
+        assert abs(gv.get(area, 0.0) - cv.get(area, 0.0)) <= 1e-2 * max(cv.get(area, 0.0), 1.0), area
 
     # No adapter (no Metal on Linux): refused with a clear error.
     with pytest.raises(AssertionError, match="GPU: --gpu required"):

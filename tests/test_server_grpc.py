@@ -1,5 +1,6 @@
 """`resecta serve` end to end over gRPC: the real binary, real sockets, generated Python stubs.
 Sessions, upload, reconstruction, edits, watch, bad input, auth, TLS, SIGTERM with open streams and kill -9 recovery."""
+import os
 import threading
 
 import grpc
@@ -87,8 +88,10 @@ def test_server_info_health_and_session_lifecycle(server, stubs):
     assert info.api_version == "resecta.v1"
     assert info.limits.max_chunk_bytes == 4 << 20
     # True to this configuration: PSR and MCSD (the liver's methods) and deltas; the default
-    # encoder neither compresses nor quantises, and loopback needs no token. Both faces agree.
-    assert sorted(info.capabilities) == ["mcsd", "psr", "watch-deltas"], info.capabilities
+    # encoder neither compresses nor quantises, and loopback needs no token (and `gpu` when the
+    # suite runs with RESECTA_GPU=required). Both faces agree.
+    gpu = ["gpu"] if os.environ.get("RESECTA_GPU") == "required" else []
+    assert sorted(info.capabilities) == sorted(["mcsd", "psr", "watch-deltas", *gpu]), info.capabilities
     http_info = requests.get(f"{server.http_url}/v1/info", timeout=10).json()
     assert sorted(http_info["capabilities"]) == sorted(info.capabilities)
     assert requests.get(f"{server.http_url}/healthz", timeout=10).status_code == 200
