@@ -13,6 +13,9 @@
 //!   `resecta_margin::MarginField::distances_into`: the field's oriented-box tree, prepared
 //!   triangles and hints resident, one invocation per point walking the tree (f64), classes by
 //!   `MarginSettings::classify` on the host ([`GpuMarginField::margins_into`]).
+//! - [`kernels::volumetry`]: the band and side components of volumetry cuts as
+//!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver's index
+//!   resident, two read-backs per cut), results equal to `Volumetry`'s CPU path.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -27,4 +30,5 @@ pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
 pub use kernels::margin::GpuMarginField;
+pub use kernels::volumetry::GpuVolumetry;
 pub use surface::{GpuSurface, gpu_engine};

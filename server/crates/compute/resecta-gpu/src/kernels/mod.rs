@@ -3,6 +3,7 @@
 
 pub mod bezier;
 pub mod margin;
+pub mod volumetry;
 
 use resecta_bezier::BezierScalar;
 

@@ -1,0 +1,233 @@
+//! GPU vs CPU (`resecta_volumetry::Volumetry` without an accelerator) on phantoms: volumes,
+//! incomplete cuts, unions and label maps, on the test device (lavapipe in CI).
+
+use resecta_bezier::ControlNet;
+use resecta_geom::{Real, RoleMap, Vec3, Volume};
+use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
+use resecta_volumetry::{CutResult, IncompleteCut, LiverVoxels, Volumetry};
+
+use super::GpuVolumetry;
+use crate::device::testing::context;
+
+/// Largest relative difference of GPU and CPU volumes allowed (summation order only; measured
+/// 0 on lavapipe).
+const REL: f64 = 1e-9;
+
+fn ellipsoid(center: [Real; 3], radii: [Real; 3], yaw: Real) -> EllipsoidSpec {
+    EllipsoidSpec {
+        center,
+        radii,
+        rotation: Orientation::EulerDeg([0.0, 0.0, yaw]),
+    }
+}
+
+/// The functional liver (parenchyma label) of a phantom on an oblique anisotropic grid.
+fn liver(livers: Vec<EllipsoidSpec>, tumors: Vec<SphereSpec>) -> Volume<bool> {
+    let spec = PhantomSpec {
+        grid: GridSpec::centred(
+            [72, 72, 40],
+            [1.6, 1.3, 2.2],
+            [1.0, -2.0, 3.0],
+            Orientation::EulerDeg([3.0, -2.0, 6.0]),
+        ),
+        liver: livers,
+        tumors,
+        vessels: vec![],
+        roles: RoleMap::default(),
+        max_voxels: None,
+        truth_tolerance_mm: 0.5,
+    };
+    let labels = generate(&spec).unwrap().labels;
+    let data = labels.data().iter().map(|&l| l == 1).collect();
+    Volume::from_vec(labels.grid().clone(), data).unwrap()
+}
+
+/// An ellipsoid liver with two tumours and a detached island.
+fn tumour_liver() -> Volume<bool> {
+    liver(
+        vec![
+            ellipsoid([0.0, 0.0, 0.0], [40.0, 30.0, 25.0], 20.0),
+            ellipsoid([-40.0, 32.0, 22.0], [5.0, 4.0, 4.0], 0.0),
+        ],
+        vec![
+            SphereSpec {
+                center: [20.0, 5.0, 0.0],
+                radius: 8.0,
+            },
+            SphereSpec {
+                center: [-18.0, -6.0, 4.0],
+                radius: 5.0,
+            },
+        ],
+    )
+}
+
+/// A square ring of four arms.
+fn ring_liver() -> Volume<bool> {
+    liver(
+        vec![
+            ellipsoid([0.0, 25.0, 0.0], [36.0, 6.0, 8.0], 0.0),
+            ellipsoid([0.0, -25.0, 0.0], [36.0, 6.0, 8.0], 0.0),
+            ellipsoid([30.0, 0.0, 0.0], [6.0, 31.0, 8.0], 0.0),
+            ellipsoid([-30.0, 0.0, 0.0], [6.0, 31.0, 8.0], 0.0),
+        ],
+        vec![],
+    )
+}
+
+fn planar(o: [Real; 3], u: [Real; 3], v: [Real; 3]) -> ControlNet<Real> {
+    ControlNet::planar(4, 4, o, u, v).unwrap()
+}
+
+fn bent() -> ControlNet<Real> {
+    ControlNet::from_fn(4, 4, |i, j| {
+        let (u, v) = (i as Real / 3.0, j as Real / 3.0);
+        [
+            4.0 + 14.0 * (u - 0.5) * (v - 0.4),
+            -60.0 + 120.0 * u,
+            -60.0 + 120.0 * v,
+        ]
+    })
+    .unwrap()
+}
+
+/// Asserts equal results; returns the relative volume difference.
+fn same(cpu: &CutResult, gpu: &CutResult, what: &str) -> f64 {
+    assert_eq!(cpu.incomplete, gpu.incomplete, "{what}");
+    assert_eq!(cpu.complete, gpu.complete, "{what}");
+    assert_eq!(cpu.band_voxels, gpu.band_voxels, "{what}");
+    assert_eq!(cpu.samples, gpu.samples, "{what}");
+    let rel = relative(cpu.resected_mm3, gpu.resected_mm3);
+    eprintln!(
+        "{what}: cpu {:.6} ml, gpu {:.6} ml, rel {rel:.1e}, {} band voxels, {:?}",
+        cpu.resected_mm3 / 1e3,
+        gpu.resected_mm3 / 1e3,
+        gpu.band_voxels,
+        gpu.incomplete
+    );
+    assert!(rel <= REL, "{what}: rel {rel:e}");
+    rel
+}
+
+fn relative(a: f64, b: f64) -> f64 {
+    if a == b {
+        0.0
+    } else {
+        (a - b).abs() / a.abs().max(b.abs())
+    }
+}
+
+/// The CPU engine and one with the GPU accelerator, on the same liver; `None` without an adapter
+/// or f64.
+/// `tiny`: output capacities of one voxel, so that every cut overflows and retries.
+fn engines(m: &Volume<bool>, tiny: bool) -> Option<(Volumetry, Volumetry)> {
+    let ctx = context()?;
+    if !ctx.caps.f64 {
+        eprintln!("SKIP: the device lacks SHADER_F64 ({})", ctx.info.name);
+        return None;
+    }
+    let mut gpu = GpuVolumetry::new(&ctx).unwrap();
+    if tiny {
+        (gpu.band_cap, gpu.roots_cap) = (1, 1);
+    }
+    Some((
+        Volumetry::new(LiverVoxels::new(m).unwrap()),
+        Volumetry::new(LiverVoxels::new(m).unwrap()).with_accelerator(Box::new(gpu)),
+    ))
+}
+
+#[test]
+fn phantom_cuts_unions_and_labels_equal_the_cpu() {
+    let m = tumour_liver();
+    let Some((mut cpu, mut gpu)) = engines(&m, false) else {
+        return;
+    };
+    let t1 = vec![Vec3::new(20.0, 5.0, 0.0)];
+    let t2 = vec![Vec3::new(-18.0, -6.0, 4.0)];
+    let cases = [
+        (
+            "oblique plane",
+            planar([8.0, -60.0, -60.0], [-6.0, 120.0, 0.0], [5.0, 0.0, 120.0]),
+            &t1,
+        ),
+        ("curved", bent(), &t1),
+        (
+            "ends inside",
+            planar([4.0, -10.0, -10.0], [0.0, 20.0, 0.0], [0.0, 0.0, 20.0]),
+            &t1,
+        ),
+        (
+            "misses",
+            planar([70.0, -60.0, -60.0], [0.0, 120.0, 0.0], [0.0, 0.0, 120.0]),
+            &t1,
+        ),
+        (
+            "second tumour",
+            planar([-8.0, -60.0, -60.0], [0.0, 120.0, 0.0], [-3.0, 0.0, 120.0]),
+            &t2,
+        ),
+    ];
+    let mut kinds = Vec::new();
+    for (what, net, t) in &cases {
+        let (c, g) = (cpu.cut(net, t).unwrap(), gpu.cut(net, t).unwrap());
+        same(&c, &g, what);
+        kinds.push(g.incomplete.clone());
+    }
+    assert!(kinds[0].is_none() && kinds[1].is_none() && kinds[4].is_none());
+    assert!(matches!(
+        kinds[2],
+        Some(IncompleteCut::EdgeInsideLiver { .. })
+    ));
+    assert_eq!(kinds[3], Some(IncompleteCut::MissesLiver));
+    // Two cuts: the union, and the label map of all five.
+    let two = [(&cases[0].1, t1.as_slice()), (&cases[4].1, t2.as_slice())];
+    let (c, g) = (cpu.cuts(&two).unwrap(), gpu.cuts(&two).unwrap());
+    assert_eq!(c.complete, g.complete);
+    for (a, b) in c.cuts.iter().zip(&g.cuts) {
+        same(a, b, "two cuts, each");
+    }
+    let rel = relative(c.resected_mm3, g.resected_mm3);
+    eprintln!(
+        "two cuts: union {:.6} ml, rel {rel:.1e}",
+        g.resected_mm3 / 1e3
+    );
+    assert!(rel <= REL && relative(c.remnant_mm3, g.remnant_mm3) <= REL);
+    let all: Vec<_> = cases.iter().map(|(_, n, t)| (n, t.as_slice())).collect();
+    assert_eq!(
+        cpu.resected_labels(&all).unwrap().data(),
+        gpu.resected_labels(&all).unwrap().data(),
+        "label maps"
+    );
+    assert_eq!(
+        gpu.accelerator_fallbacks().0,
+        0,
+        "{:?}",
+        gpu.accelerator_fallbacks()
+    );
+}
+
+#[test]
+fn a_leaking_ring_equals_the_cpu_with_outputs_grown_on_overflow() {
+    let m = ring_liver();
+    let Some((mut cpu, mut gpu)) = engines(&m, true) else {
+        return;
+    };
+    let t = [Vec3::new(30.0, 6.0, 0.0)];
+    let one_arm = planar([15.0, 0.0, -15.0], [30.0, 0.0, 0.0], [0.0, 0.0, 30.0]);
+    let (c, g) = (
+        cpu.cut(&one_arm, &t).unwrap(),
+        gpu.cut(&one_arm, &t).unwrap(),
+    );
+    same(&c, &g, "one arm");
+    assert_eq!(g.incomplete, Some(IncompleteCut::Leak));
+    let both = planar([-50.0, 0.0, -15.0], [100.0, 0.0, 0.0], [0.0, 0.0, 30.0]);
+    let (c, g) = (cpu.cut(&both, &t).unwrap(), gpu.cut(&both, &t).unwrap());
+    same(&c, &g, "both arms");
+    assert!(g.complete);
+    assert_eq!(
+        gpu.accelerator_fallbacks().0,
+        0,
+        "{:?}",
+        gpu.accelerator_fallbacks()
+    );
+}
