@@ -231,3 +231,27 @@ fn a_leaking_ring_equals_the_cpu_with_outputs_grown_on_overflow() {
         gpu.accelerator_fallbacks()
     );
 }
+
+#[test]
+fn a_lost_device_moves_the_cut_to_the_cpu() {
+    if context().is_none_or(|c| !c.caps.f64) {
+        return;
+    }
+    // A device of its own: destroyed below.
+    let ctx = crate::GpuContext::new().unwrap();
+    let m = ring_liver();
+    let mut cpu = Volumetry::new(LiverVoxels::new(&m).unwrap());
+    let mut gpu = Volumetry::new(LiverVoxels::new(&m).unwrap())
+        .with_accelerator(Box::new(GpuVolumetry::new(&ctx).unwrap()));
+    let t = [Vec3::new(30.0, 6.0, 0.0)];
+    let net = planar([-50.0, 0.0, -15.0], [100.0, 0.0, 0.0], [0.0, 0.0, 30.0]);
+    let want = cpu.cut(&net, &t).unwrap();
+    assert_eq!(gpu.cut(&net, &t).unwrap(), want);
+    assert_eq!(gpu.accelerator_fallbacks().0, 0);
+    ctx.device.destroy();
+    assert_eq!(gpu.cut(&net, &t).unwrap(), want);
+    let (n, e) = gpu.accelerator_fallbacks();
+    eprintln!("fallback: {e:?}");
+    assert_eq!(n, 1);
+    assert!(e.is_some_and(|e| e.0.contains("device failed")), "{e:?}");
+}
