@@ -6,8 +6,34 @@ use resecta_geom::{Real, RoleMap, Vec3, Volume};
 use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
 use resecta_volumetry::{CutResult, IncompleteCut, LiverVoxels, Volumetry};
 
-use super::GpuVolumetry;
+use super::{ENTRIES, GpuVolumetry, SOURCE};
 use crate::device::testing::context;
+
+#[test]
+fn wgsl_validates_and_each_entry_point_binds_what_it_uses() {
+    use wgpu::naga;
+    let module = naga::front::wgsl::parse_str(SOURCE)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(SOURCE)));
+    let info = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::FLOAT64,
+    )
+    .validate(&module)
+    .unwrap_or_else(|e| panic!("{e:?}"));
+    assert_eq!(module.entry_points.len(), ENTRIES.len());
+    for (k, ep) in module.entry_points.iter().enumerate() {
+        let uses = info.get_entry_point(k);
+        let mut bound: Vec<u32> = module
+            .global_variables
+            .iter()
+            .filter(|(h, _)| !uses[*h].is_empty())
+            .filter_map(|(_, g)| g.binding.as_ref().map(|b| b.binding))
+            .collect();
+        bound.sort_unstable();
+        let (_, want) = ENTRIES.iter().find(|(n, _)| *n == ep.name).unwrap();
+        assert_eq!(bound, *want, "{}", ep.name);
+    }
+}
 
 /// Largest relative difference of GPU and CPU volumes allowed (summation order only; measured
 /// 0 on lavapipe).
