@@ -2,7 +2,8 @@
 //! `resecta_volumetry::CutAccelerator`, whose CPU twin is `Volumetry`'s own splat and
 //! union–find (the seam's contract is in `resecta_volumetry::accel`).
 //!
-//! Design: the liver's bounding-box index (compact index per cell) is uploaded once per liver;
+//! Design: the liver is uploaded once, bit-packed over its bounding box (per 32 cells their
+//! liver bits and the compact index of the first: 8 bytes, a compact index by one popcount);
 //! the samples' slab-discs (computed on the host by the CPU's code) once per cut. Per cut, one
 //! submission runs: `band_min` and `band_arg` (one invocation per sample walking its slab-disc
 //! as the CPU does: f64, the CPU's operations in its order, the squared distance rounded to
@@ -20,8 +21,9 @@
 //! exact ties, which the host catches where a band voxel falls outside its disc — the cut then
 //! goes to the CPU). Volumes therefore equal the CPU's bit for bit in the tests. f64 only:
 //! without `SHADER_F64` [`GpuVolumetry::new`] fails with [`GpuError::NoF64`] (an f32 band would
-//! not match the CPU's decisions). The index must fit one storage binding (4 bytes per
-//! bounding-box cell: 33 M cells on lavapipe's 128 MiB).
+//! not match the CPU's decisions). Three per-voxel work arrays of 4 bytes per liver voxel must
+//! each fit one storage binding (33 M liver voxels on lavapipe's 128 MiB); larger livers give
+//! [`GpuError::TooLarge`], and the CPU computes their cuts.
 
 use resecta_volumetry::{
     AcceleratorError, BandComponents, BandQuery, BandVoxel, CutAccelerator, LiverVoxels,
@@ -74,7 +76,8 @@ struct Liver {
     key: (usize, usize),
     cells: u32,
     voxels: u32,
-    index: wgpu::Buffer,
+    /// Per 32 bounding-box cells: their liver bits, the compact index of the first.
+    cell_words: wgpu::Buffer,
     dkey: wgpu::Buffer,
     kkey: wgpu::Buffer,
     parent: wgpu::Buffer,
@@ -181,8 +184,19 @@ impl GpuVolumetry {
         self.liver = None;
         let limit = self.ctx.max_binding();
         let n = liver.len();
+        let mut words = vec![[0u32; 2]; index.len().div_ceil(32)];
+        let mut count = 0u32;
+        for (w, chunk) in words.iter_mut().zip(index.chunks(32)) {
+            w[1] = count;
+            for (bit, &c) in chunk.iter().enumerate() {
+                if c != u32::MAX {
+                    w[0] |= 1 << bit;
+                    count += 1;
+                }
+            }
+        }
         for (what, bytes) in [
-            ("volumetry index", 4 * index.len()),
+            ("volumetry cells", 8 * words.len()),
             ("volumetry voxels", 4 * n),
         ] {
             if bytes as u64 > limit {
@@ -212,12 +226,12 @@ impl GpuVolumetry {
             key,
             cells,
             voxels,
-            index: self
+            cell_words: self
                 .ctx
                 .device
                 .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("volumetry-index"),
-                    contents: bytemuck::cast_slice(index),
+                    label: Some("volumetry-cells"),
+                    contents: bytemuck::cast_slice(&words),
                     usage: U::STORAGE,
                 }),
             dkey: self.buffer("volumetry-dkey", 4 * n, work),
@@ -295,7 +309,7 @@ impl GpuVolumetry {
         };
         let buffers = [
             &self.uniform,
-            &l.index,
+            &l.cell_words,
             &io.samples,
             &l.dkey,
             &l.kkey,

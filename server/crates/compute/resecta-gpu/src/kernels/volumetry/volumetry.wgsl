@@ -18,8 +18,9 @@ struct Params {
 }
 
 @group(0) @binding(0) var<uniform> params: Params;
-// Compact index per bounding-box cell, NONE outside the liver.
-@group(0) @binding(1) var<storage, read> index: array<u32>;
+// The liver bit-packed over bounding-box cells: per 32 cells, their liver bits and the compact
+// index of the first liver cell among them (see `compact`).
+@group(0) @binding(1) var<storage, read> cell_words: array<vec2<u32>>;
 // STRIDE per sample: point (0), normal (3), g (6), n_idx (9), axis (12), outer ranges (13..17).
 @group(0) @binding(2) var<storage, read> samples: array<f64>;
 @group(0) @binding(3) var<storage, read_write> dkey: array<atomic<u32>>;
@@ -40,6 +41,16 @@ const GROUP: u32 = 64u;
 
 fn invocation(gid: vec3<u32>, groups: vec3<u32>) -> u32 {
     return gid.x + gid.y * groups.x * GROUP;
+}
+
+// Compact index of bounding-box cell `cell`, NONE outside the liver.
+fn compact(cell: u32) -> u32 {
+    let w = cell_words[cell / 32u];
+    let bit = cell % 32u;
+    if ((w.x >> bit) & 1u) == 0u {
+        return NONE;
+    }
+    return w.y + countOneBits(w.x & ((1u << bit) - 1u));
 }
 
 fn cells() -> u32 {
@@ -119,7 +130,7 @@ fn visit(k: u32, arg: bool) {
                 ijk[m] = c;
                 ijk[o1] = u32(a);
                 ijk[o2] = u32(bb);
-                let v = index[ijk.x + dims.x * (ijk.y + dims.y * ijk.z)];
+                let v = compact(ijk.x + dims.x * (ijk.y + dims.y * ijk.z));
                 if v == NONE {
                     continue;
                 }
@@ -212,20 +223,20 @@ fn cc_union(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     if cell >= cells() {
         return;
     }
-    let v = index[cell];
+    let v = compact(cell);
     if !free(v) {
         return;
     }
     let dx = params.dims.x;
     let dxy = dx * params.dims.y;
-    if cell % dx > 0u && free(index[cell - 1u]) {
-        unite(v, index[cell - 1u]);
+    if cell % dx > 0u && free(compact(cell - 1u)) {
+        unite(v, compact(cell - 1u));
     }
-    if (cell / dx) % params.dims.y > 0u && free(index[cell - dx]) {
-        unite(v, index[cell - dx]);
+    if (cell / dx) % params.dims.y > 0u && free(compact(cell - dx)) {
+        unite(v, compact(cell - dx));
     }
-    if cell >= dxy && free(index[cell - dxy]) {
-        unite(v, index[cell - dxy]);
+    if cell >= dxy && free(compact(cell - dxy)) {
+        unite(v, compact(cell - dxy));
     }
 }
 
@@ -242,7 +253,7 @@ fn neighbour_root(cell: u32, step: i32, ok: bool) -> u32 {
     if !ok {
         return NONE;
     }
-    let u = index[u32(i32(cell) + step)];
+    let u = compact(u32(i32(cell) + step));
     if !free(u) {
         return NONE;
     }
@@ -255,7 +266,7 @@ fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     if cell >= cells() {
         return;
     }
-    let v = index[cell];
+    let v = compact(cell);
     if v == NONE {
         return;
     }
