@@ -63,10 +63,10 @@ const ENTRIES: [(&str, &[u32]); 7] = [
     ("band_min", &[0, 1, 2, 3, 4]),
     ("band_arg", &[0, 1, 2, 3, 4]),
     ("cc_init", &[0, 5]),
-    ("cc_union", &[0, 1, 3, 5]),
+    ("cc_union", &[0, 1, 5, 11]),
     ("cc_flatten", &[0, 5]),
-    ("collect", &[0, 1, 3, 4, 5, 6, 7, 8]),
-    ("mark", &[0, 3, 5, 9, 10]),
+    ("collect", &[0, 1, 4, 6, 7, 8, 11, 12]),
+    ("mark", &[0, 9, 10, 11, 12]),
 ];
 
 /// The liver resident on the device, with the per-voxel work buffers.
@@ -319,6 +319,8 @@ impl GpuVolumetry {
             &io.roots,
             &io.resected,
             &l.mask,
+            &l.dkey,
+            &l.parent,
         ];
         Ok(which
             .iter()

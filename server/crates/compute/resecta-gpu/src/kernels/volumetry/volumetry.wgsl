@@ -34,6 +34,9 @@ struct Params {
 // Roots of the resected components, sorted.
 @group(0) @binding(9) var<storage, read> resected: array<u32>;
 @group(0) @binding(10) var<storage, read_write> mask: array<atomic<u32>>;
+// `dkey` and `parent` as plain reads, for the passes that only read them (no atomics needed).
+@group(0) @binding(11) var<storage, read> dkey_r: array<u32>;
+@group(0) @binding(12) var<storage, read> parent_r: array<u32>;
 
 const NONE: u32 = 0xffffffffu;
 const STRIDE: u32 = 18u;
@@ -206,7 +209,7 @@ fn unite(a0: u32, b0: u32) {
 }
 
 fn free(v: u32) -> bool {
-    return v != NONE && atomicLoad(&dkey[v]) == 0u;
+    return v != NONE && dkey_r[v] == 0u;
 }
 
 @compute @workgroup_size(64)
@@ -257,7 +260,7 @@ fn neighbour_root(cell: u32, step: i32, ok: bool) -> u32 {
     if !free(u) {
         return NONE;
     }
-    return atomicLoad(&parent[u]);
+    return parent_r[u];
 }
 
 @compute @workgroup_size(64)
@@ -270,8 +273,8 @@ fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     if v == NONE {
         return;
     }
-    if atomicLoad(&dkey[v]) == 0u {
-        if atomicLoad(&parent[v]) == v {
+    if dkey_r[v] == 0u {
+        if parent_r[v] == v {
             let s = atomicAdd(&counts[1], 1u);
             if s < params.caps.y {
                 roots_out[s] = v;
@@ -304,10 +307,10 @@ fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
 @compute @workgroup_size(64)
 fn mark(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let v = invocation(gid, groups);
-    if v >= params.dims.w || atomicLoad(&dkey[v]) != 0u {
+    if v >= params.dims.w || dkey_r[v] != 0u {
         return;
     }
-    let r = atomicLoad(&parent[v]);
+    let r = parent_r[v];
     // Binary search of the sorted resected roots.
     var lo = 0u;
     var hi = params.caps.z;
