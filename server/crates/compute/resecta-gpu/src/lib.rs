@@ -14,8 +14,8 @@
 //!   triangles and hints resident, one invocation per point walking the tree (f64), classes by
 //!   `MarginSettings::classify` on the host ([`GpuMarginField::margins_into`]).
 //! - [`kernels::volumetry`]: the band and side components of volumetry cuts as
-//!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver's index
-//!   resident, two read-backs per cut), results equal to `Volumetry`'s CPU path.
+//!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver resident,
+//!   bit-packed; two read-backs per cut), results equal to `Volumetry`'s CPU path.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
