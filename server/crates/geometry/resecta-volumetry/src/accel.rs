@@ -61,6 +61,16 @@ impl SlabDisc {
         (lo, hi)
     }
 
+    /// Whether bounding-box voxel `ijk` lies in the slab (an outer range and its column, in a box
+    /// of `dims`): what the CPU's walk visits before [`SlabDisc::reach`].
+    pub fn holds(&self, hs: Real, ijk: [usize; 3], dims: [usize; 3]) -> bool {
+        let [o1, o2] = self.outer_axes();
+        let [a, b, c] = [ijk[o1], ijk[o2], ijk[self.axis]].map(|x| x as i64);
+        let [[a0, a1], [b0, b1]] = self.outer;
+        let (lo, hi) = self.column(hs, a, b, dims[self.axis]);
+        (a0..=a1).contains(&a) && (b0..=b1).contains(&b) && (lo..=hi).contains(&c)
+    }
+
     /// For a voxel centre within `rho` of the sample laterally: its squared distance as `f32`
     /// (the key nearest samples are chosen by) and its offset `n·(c − S)`.
     pub fn reach(&self, centre: &Vec3, rho: Real) -> Option<(f32, Real)> {

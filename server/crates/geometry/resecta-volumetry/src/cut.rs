@@ -519,10 +519,11 @@ fn accelerated_band(
         if v == u32::MAX {
             return Err(bad("band voxel outside the liver"));
         }
-        let centre = l.centre(cell_coords(l, bv.cell));
-        let (_, off) = disc
-            .reach(&centre, q.rho)
-            .ok_or_else(|| bad("band voxel beyond its sample's disc"))?;
+        let ijk = cell_coords(l, bv.cell);
+        let reach = disc.reach(&l.centre(ijk), q.rho);
+        let (Some((_, off)), true) = (reach, disc.holds(q.hs, ijk, l.bdims())) else {
+            return Err(bad("band voxel outside its sample's slab-disc"));
+        };
         let offset = (sigma * off) as f32;
         band.push((
             v,

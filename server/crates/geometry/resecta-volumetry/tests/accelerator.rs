@@ -261,3 +261,47 @@ fn a_failing_accelerator_falls_back_to_the_cpu() {
     assert!(acc.set_accelerator(None).is_some());
     assert!(!acc.is_accelerated());
 }
+
+/// The reference with its output spoiled one way: a far sample, no roots, a duplicate voxel.
+#[derive(Debug, Default)]
+struct Spoiled(Reference, u8);
+
+impl CutAccelerator for Spoiled {
+    fn band_components(
+        &mut self,
+        liver: &LiverVoxels,
+        q: &BandQuery<'_>,
+    ) -> Result<BandComponents, AcceleratorError> {
+        let mut bc = self.0.band_components(liver, q)?;
+        match self.1 {
+            0 => {
+                bc.band[0].sample =
+                    (bc.band[0].sample + q.discs.len() as u32 / 2) % q.discs.len() as u32
+            }
+            1 => bc.roots.clear(),
+            _ => bc.band.push(bc.band[0]),
+        }
+        Ok(bc)
+    }
+    fn resected_mask(&mut self, roots: &[u32]) -> Result<Vec<u32>, AcceleratorError> {
+        self.0.resected_mask(roots)
+    }
+}
+
+#[test]
+fn spoiled_accelerator_output_falls_back_to_the_cpu() {
+    let m = &livers()[0];
+    let (net, t) = &cuts()[0];
+    let want = Volumetry::new(LiverVoxels::new(m).unwrap())
+        .cut(net, t)
+        .unwrap();
+    for how in 0..3 {
+        let mut acc = Volumetry::new(LiverVoxels::new(m).unwrap())
+            .with_accelerator(Box::new(Spoiled(Reference::default(), how)));
+        assert_eq!(acc.cut(net, t).unwrap(), want);
+        let (n, e) = acc.accelerator_fallbacks();
+        eprintln!("spoiled {how}: {e:?}");
+        assert_eq!(n, 1);
+        assert!(e.is_some_and(|e| e.0.starts_with("invalid accelerator output")));
+    }
+}
