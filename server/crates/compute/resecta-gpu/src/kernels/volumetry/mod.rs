@@ -11,10 +11,10 @@
 //! bits, then on the complemented index — deterministic, ties to the smallest index, as the
 //! CPU's strict `<` in sample order), `cc_init`, `cc_union` and `cc_flatten` (union–find on the
 //! non-band liver voxels with atomicMin on parents, each root its component's smallest compact
-//! index, as the CPU's) and `collect` (band voxels with their nearest sample and the roots of
-//! their face neighbours; the roots); one read-back. The host then computes fractions, sides,
-//! leaks and islands by the CPU's code, and `mark` writes the resected voxels as a bit set: the
-//! second read-back.
+//! index, as the CPU's; as there, runs along x first, joined once per overlap) and `collect`
+//! (band voxels with their nearest sample and the roots of their face neighbours; the roots);
+//! one read-back. The host then computes fractions, sides, leaks and islands by the CPU's code,
+//! and `mark` writes the resected voxels as a bit set: the second read-back.
 //!
 //! Exactness: membership and nearest samples are the CPU's as long as the device computes the
 //! same IEEE f64 operations (lavapipe does; a device that fuses multiply-adds may differ at
@@ -62,7 +62,7 @@ struct Params {
 const ENTRIES: [(&str, &[u32]); 7] = [
     ("band_min", &[0, 1, 2, 3, 4]),
     ("band_arg", &[0, 1, 2, 3, 4]),
-    ("cc_init", &[0, 5]),
+    ("cc_init", &[0, 1, 5, 11]),
     ("cc_union", &[0, 1, 5, 11]),
     ("cc_flatten", &[0, 5]),
     ("collect", &[0, 1, 4, 6, 7, 8, 11, 12]),
@@ -404,7 +404,8 @@ impl GpuVolumetry {
         enc.clear_buffer(&io.counts, 0, None);
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            let sizes = [ns as u32, ns as u32, l.voxels, l.cells, l.voxels, l.cells];
+            let rows = self.params.dims[1] * self.params.dims[2];
+            let sizes = [ns as u32, ns as u32, rows, l.cells, l.voxels, l.cells];
             for (e, (bind, count)) in binds.iter().zip(sizes).enumerate() {
                 self.dispatch(&mut pass, e, bind, count);
             }

@@ -212,14 +212,39 @@ fn free(v: u32) -> bool {
     return v != NONE && dkey_r[v] == 0u;
 }
 
+// One invocation per bounding-box row: a free voxel's parent is the first voxel of its run of
+// free voxels (the run's smallest compact index); other liver voxels are their own.
 @compute @workgroup_size(64)
 fn cc_init(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let v = invocation(gid, groups);
-    if v < params.dims.w {
-        atomicStore(&parent[v], v);
+    let row = invocation(gid, groups);
+    if row >= params.dims.y * params.dims.z {
+        return;
+    }
+    let base = row * params.dims.x;
+    var start = NONE;
+    for (var x = 0u; x < params.dims.x; x++) {
+        let v = compact(base + x);
+        if !free(v) {
+            start = NONE;
+            if v != NONE {
+                atomicStore(&parent[v], v);
+            }
+            continue;
+        }
+        if start == NONE {
+            start = v;
+        }
+        atomicStore(&parent[v], start);
     }
 }
 
+// Whether the free voxel at `cell` begins its run.
+fn starts(cell: u32) -> bool {
+    return cell % params.dims.x == 0u || !free(compact(cell - 1u));
+}
+
+// Runs are joined at the first voxel of their overlap with a run of the row below (−y) or the
+// slice below (−z), where one of the two runs starts: one union per overlap.
 @compute @workgroup_size(64)
 fn cc_union(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let cell = invocation(gid, groups);
@@ -232,14 +257,18 @@ fn cc_union(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
     }
     let dx = params.dims.x;
     let dxy = dx * params.dims.y;
-    if cell % dx > 0u && free(compact(cell - 1u)) {
-        unite(v, compact(cell - 1u));
+    let s = starts(cell);
+    if (cell / dx) % params.dims.y > 0u {
+        let u = compact(cell - dx);
+        if free(u) && (s || starts(cell - dx)) {
+            unite(v, u);
+        }
     }
-    if (cell / dx) % params.dims.y > 0u && free(compact(cell - dx)) {
-        unite(v, compact(cell - dx));
-    }
-    if cell >= dxy && free(compact(cell - dxy)) {
-        unite(v, compact(cell - dxy));
+    if cell >= dxy {
+        let u = compact(cell - dxy);
+        if free(u) && (s || starts(cell - dxy)) {
+            unite(v, u);
+        }
     }
 }
 
