@@ -281,3 +281,42 @@ fn a_lost_device_moves_the_cut_to_the_cpu() {
     assert_eq!(n, 1);
     assert!(e.is_some_and(|e| e.0.contains("device failed")), "{e:?}");
 }
+
+#[test]
+fn a_speckled_liver_of_many_components_equals_the_cpu() {
+    // The tumour phantom with 45 % of its voxels dropped at random: hundreds of components
+    // (isolated voxels alone), islands on both sides of the cut.
+    let m = tumour_liver();
+    let mut rng = crate::kernels::bezier::tests::Rng(11);
+    let data = m.data().iter().map(|&b| b && rng.unit() > 0.45).collect();
+    let m = Volume::from_vec(m.grid().clone(), data).unwrap();
+    let Some((mut cpu, mut gpu)) = engines(&m, false) else {
+        return;
+    };
+    let t = [Vec3::new(20.0, 5.0, 0.0)];
+    for (what, net) in [
+        (
+            "plane",
+            planar([8.0, -60.0, -60.0], [-6.0, 120.0, 0.0], [5.0, 0.0, 120.0]),
+        ),
+        ("curved", bent()),
+    ] {
+        same(
+            &cpu.cut(&net, &t).unwrap(),
+            &gpu.cut(&net, &t).unwrap(),
+            what,
+        );
+        let one = [(&net, t.as_slice())];
+        assert_eq!(
+            cpu.resected_labels(&one).unwrap().data(),
+            gpu.resected_labels(&one).unwrap().data(),
+            "{what}: label maps"
+        );
+    }
+    assert_eq!(
+        gpu.accelerator_fallbacks().0,
+        0,
+        "{:?}",
+        gpu.accelerator_fallbacks()
+    );
+}
