@@ -9,11 +9,11 @@
 //! as the CPU does: f64, the CPU's operations in its order, the squared distance rounded to
 //! f32 ties-to-even by hand; the nearest sample by integer atomicMax on the complemented f32
 //! bits, then on the complemented index — deterministic, ties to the smallest index, as the
-//! CPU's strict `<` in sample order), `cc_init`, `cc_union` and `cc_flatten` (union–find on the
-//! non-band liver voxels with atomicMin on parents, each root its component's smallest compact
-//! index, as the CPU's; as there, runs along x first, joined once per overlap) and `collect`
-//! (band voxels with their nearest sample and the roots of their face neighbours; the roots);
-//! one read-back. The host then computes fractions, sides, leaks and islands by the CPU's code,
+//! CPU's strict `<` in sample order; a voxel's first index write lists it), `cc_init`,
+//! `cc_union` and `cc_flatten` (union–find on the non-band liver voxels with atomicMin on
+//! parents, each root its component's smallest compact index, as the CPU's; as there, runs
+//! along x first, joined once per overlap; the roots listed) and `collect` (per listed band
+//! voxel its nearest sample and the roots of its face neighbours); one read-back. The host then computes fractions, sides, leaks and islands by the CPU's code,
 //! and `mark` writes the resected voxels as a bit set: the second read-back.
 //!
 //! Exactness: membership and nearest samples are the CPU's as long as the device computes the
@@ -60,12 +60,12 @@ struct Params {
 
 /// Entry points and the bindings each uses.
 const ENTRIES: [(&str, &[u32]); 7] = [
-    ("band_min", &[0, 1, 2, 3, 4]),
-    ("band_arg", &[0, 1, 2, 3, 4]),
+    ("band_min", &[0, 1, 2, 3, 4, 6, 7]),
+    ("band_arg", &[0, 1, 2, 3, 4, 6, 7]),
     ("cc_init", &[0, 1, 5, 11]),
     ("cc_union", &[0, 1, 5, 11]),
-    ("cc_flatten", &[0, 5]),
-    ("collect", &[0, 1, 4, 6, 7, 8, 11, 12]),
+    ("cc_flatten", &[0, 5, 6, 8, 11]),
+    ("collect", &[0, 1, 4, 6, 7, 11, 12]),
     ("mark", &[0, 9, 10, 11, 12]),
 ];
 
@@ -405,7 +405,14 @@ impl GpuVolumetry {
         {
             let mut pass = enc.begin_compute_pass(&Default::default());
             let rows = self.params.dims[1] * self.params.dims[2];
-            let sizes = [ns as u32, ns as u32, rows, l.cells, l.voxels, l.cells];
+            let sizes = [
+                ns as u32,
+                ns as u32,
+                rows,
+                l.cells,
+                l.voxels,
+                band_cap as u32,
+            ];
             for (e, (bind, count)) in binds.iter().zip(sizes).enumerate() {
                 self.dispatch(&mut pass, e, bind, count);
             }

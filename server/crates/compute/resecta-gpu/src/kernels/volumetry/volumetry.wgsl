@@ -28,7 +28,8 @@ struct Params {
 @group(0) @binding(5) var<storage, read_write> parent: array<atomic<u32>>;
 // Band voxels, component roots.
 @group(0) @binding(6) var<storage, read_write> counts: array<atomic<u32>>;
-// 8 per band voxel: cell, sample, roots of the face neighbours −x, +x, −y, +y, −z, +z.
+// 8 per band voxel: cell (by `band_arg`), then by `collect` its nearest sample and the roots of
+// its face neighbours −x, +x, −y, +y, −z, +z.
 @group(0) @binding(7) var<storage, read_write> band_out: array<u32>;
 @group(0) @binding(8) var<storage, read_write> roots_out: array<u32>;
 // Roots of the resected components, sorted.
@@ -146,8 +147,12 @@ fn visit(k: u32, arg: bool) {
                 let key = ~f32_bits(d2);
                 if !arg {
                     atomicMax(&dkey[v], key);
-                } else if atomicLoad(&dkey[v]) == key {
-                    atomicMax(&kkey[v], ~k);
+                } else if atomicLoad(&dkey[v]) == key && atomicMax(&kkey[v], ~k) == 0u {
+                    // The voxel's first write: list it once.
+                    let s = atomicAdd(&counts[0], 1u);
+                    if s < params.caps.x {
+                        band_out[8u * s] = ijk.x + dims.x * (ijk.y + dims.y * ijk.z);
+                    }
                 }
             }
         }
@@ -275,8 +280,16 @@ fn cc_union(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgrou
 @compute @workgroup_size(64)
 fn cc_flatten(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
     let v = invocation(gid, groups);
-    if v < params.dims.w {
-        atomicStore(&parent[v], find(v));
+    if v >= params.dims.w {
+        return;
+    }
+    let r = find(v);
+    atomicStore(&parent[v], r);
+    if r == v && dkey_r[v] == 0u {
+        let s = atomicAdd(&counts[1], 1u);
+        if s < params.caps.y {
+            roots_out[s] = v;
+        }
     }
 }
 
@@ -294,27 +307,13 @@ fn neighbour_root(cell: u32, step: i32, ok: bool) -> u32 {
 
 @compute @workgroup_size(64)
 fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let cell = invocation(gid, groups);
-    if cell >= cells() {
+    // One invocation per band voxel listed by `band_arg`.
+    let s = invocation(gid, groups);
+    if s >= min(atomicLoad(&counts[0]), params.caps.x) {
         return;
     }
+    let cell = band_out[8u * s];
     let v = compact(cell);
-    if v == NONE {
-        return;
-    }
-    if dkey_r[v] == 0u {
-        if parent_r[v] == v {
-            let s = atomicAdd(&counts[1], 1u);
-            if s < params.caps.y {
-                roots_out[s] = v;
-            }
-        }
-        return;
-    }
-    let s = atomicAdd(&counts[0], 1u);
-    if s >= params.caps.x {
-        return;
-    }
     let d = params.dims.xyz;
     let x = cell % d.x;
     let y = (cell / d.x) % d.y;
@@ -323,7 +322,6 @@ fn collect(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroup
     let sy = i32(d.x);
     let sz = i32(d.x * d.y);
     let o = 8u * s;
-    band_out[o] = cell;
     band_out[o + 1u] = ~atomicLoad(&kkey[v]);
     band_out[o + 2u] = neighbour_root(cell, -sx, x > 0u);
     band_out[o + 3u] = neighbour_root(cell, sx, x + 1u < d.x);
