@@ -13,8 +13,9 @@
 //! `cc_union` and `cc_flatten` (union–find on the non-band liver voxels with atomicMin on
 //! parents, each root its component's smallest compact index, as the CPU's; as there, runs
 //! along x first, joined once per overlap; the roots listed) and `collect` (per listed band
-//! voxel its nearest sample and the roots of its face neighbours); one read-back. The host then computes fractions, sides, leaks and islands by the CPU's code,
-//! and `mark` writes the resected voxels as a bit set: the second read-back.
+//! voxel its nearest sample and the roots of its face neighbours); one read-back. The host then
+//! computes fractions, sides, leaks and islands by the CPU's code, and `mark` writes the
+//! resected voxels as a bit set: the second read-back.
 //!
 //! Exactness: membership and nearest samples are the CPU's as long as the device computes the
 //! same IEEE f64 operations (lavapipe does; a device that fuses multiply-adds may differ at
@@ -429,7 +430,10 @@ impl GpuVolumetry {
             });
         self.ctx.check()?;
         read?;
-        let (nb, nr) = (words[0] as usize, words[1] as usize);
+        let [nb, nr] = match words.get(..2) {
+            Some(&[nb, nr]) => [nb as usize, nr as usize],
+            _ => return Err(GpuError::ReadBack("volumetry counts missing".into())),
+        };
         if nb > band_cap || nr > roots_cap {
             self.band_cap = self.band_cap.max(nb + nb / 4);
             self.roots_cap = self.roots_cap.max(nr + nr / 4);
