@@ -135,13 +135,14 @@ pub trait CutAccelerator: Send + Sync + std::fmt::Debug {
 /// Compact ranges `[a, b)` of the set bits of `mask` below `n`.
 pub(crate) fn mask_ranges(mask: &[u32], n: usize) -> Vec<(u32, u32)> {
     let mut out: Vec<(u32, u32)> = Vec::new();
-    for (w, &bits) in mask.iter().enumerate().filter(|(_, b)| **b != 0) {
+    let words = mask.iter().take(n.div_ceil(32)).enumerate();
+    for (w, &bits) in words.filter(|(_, b)| **b != 0) {
         let mut rest = bits;
         while rest != 0 {
             let lo = rest.trailing_zeros();
             let run = (rest >> lo).trailing_ones();
-            let a = (w as u32) * 32 + lo;
-            let b = (a + run).min(n as u32);
+            let a = (w * 32 + lo as usize).min(n) as u32;
+            let b = (w * 32 + (lo + run) as usize).min(n) as u32;
             match out.last_mut() {
                 Some(last) if last.1 == a => last.1 = b,
                 _ if a < b => out.push((a, b)),
@@ -173,5 +174,7 @@ mod tests {
         let mask = [0xF000_0001u32, 0x0000_0003, 0, 0x8000_0000, 0xFFFF_FFFF];
         assert_eq!(mask_ranges(&mask, 140), vec![(0, 1), (28, 34), (127, 140)]);
         assert!(mask_ranges(&[0, 0], 64).is_empty());
+        // Words beyond n are ignored.
+        assert_eq!(mask_ranges(&[1, 1, 1], 33), vec![(0, 1), (32, 33)]);
     }
 }
