@@ -15,7 +15,8 @@
 //!   `MarginSettings::classify` on the host ([`GpuMarginField::margins_into`]).
 //! - [`kernels::volumetry`]: the band and side components of volumetry cuts as
 //!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver resident,
-//!   bit-packed; two read-backs per cut), results equal to `Volumetry`'s CPU path.
+//!   bit-packed; two read-backs per cut), results equal to `Volumetry`'s CPU path;
+//!   [`gpu_volumetry`] makes them for planners.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -30,5 +31,5 @@ pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
 pub use kernels::margin::GpuMarginField;
-pub use kernels::volumetry::GpuVolumetry;
+pub use kernels::volumetry::{GpuVolumetry, gpu_volumetry};
 pub use surface::{GpuSurface, gpu_engine};

@@ -132,6 +132,49 @@ pub trait CutAccelerator: Send + Sync + std::fmt::Debug {
     fn resected_mask(&mut self, roots: &[u32]) -> Result<Vec<u32>, AcceleratorError>;
 }
 
+/// The function an [`AcceleratorFactory`] calls.
+type Make = dyn Fn() -> Result<Box<dyn CutAccelerator>, AcceleratorError> + Send + Sync;
+
+/// Makes accelerators, one per liver: what a planner holds to accelerate the volumetries it
+/// builds (`Volumetry::set_accelerator(factory.make().ok())`; the CPU where making one fails).
+/// Cheap to clone.
+#[derive(Clone)]
+pub struct AcceleratorFactory {
+    backend: &'static str,
+    make: std::sync::Arc<Make>,
+}
+
+impl AcceleratorFactory {
+    /// A factory named `backend` (e.g. `"wgpu"`).
+    pub fn new(
+        backend: &'static str,
+        make: impl Fn() -> Result<Box<dyn CutAccelerator>, AcceleratorError> + Send + Sync + 'static,
+    ) -> Self {
+        Self {
+            backend,
+            make: std::sync::Arc::new(make),
+        }
+    }
+
+    /// A new accelerator.
+    pub fn make(&self) -> Result<Box<dyn CutAccelerator>, AcceleratorError> {
+        (self.make)()
+    }
+
+    /// The backend's name.
+    pub fn backend(&self) -> &'static str {
+        self.backend
+    }
+}
+
+impl std::fmt::Debug for AcceleratorFactory {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AcceleratorFactory")
+            .field("backend", &self.backend)
+            .finish_non_exhaustive()
+    }
+}
+
 /// Compact ranges `[a, b)` of the set bits of `mask` below `n`.
 pub(crate) fn mask_ranges(mask: &[u32], n: usize) -> Vec<(u32, u32)> {
     let mut out: Vec<(u32, u32)> = Vec::new();

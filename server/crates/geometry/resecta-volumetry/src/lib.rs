@@ -9,7 +9,10 @@ pub mod error;
 pub mod liver;
 pub mod thesis;
 
-pub use accel::{AcceleratorError, BandComponents, BandQuery, BandVoxel, CutAccelerator, SlabDisc};
+pub use accel::{
+    AcceleratorError, AcceleratorFactory, BandComponents, BandQuery, BandVoxel, CutAccelerator,
+    SlabDisc,
+};
 pub use cut::{CutResult, IncompleteCut, MultiCut, Volumetry};
 pub use error::VolumetryError;
 pub use liver::LiverVoxels;

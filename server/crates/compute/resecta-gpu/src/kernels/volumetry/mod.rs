@@ -27,7 +27,8 @@
 //! [`GpuError::TooLarge`], and the CPU computes their cuts.
 
 use resecta_volumetry::{
-    AcceleratorError, BandComponents, BandQuery, BandVoxel, CutAccelerator, LiverVoxels,
+    AcceleratorError, AcceleratorFactory, BandComponents, BandQuery, BandVoxel, CutAccelerator,
+    LiverVoxels,
 };
 use wgpu::util::DeviceExt;
 
@@ -499,6 +500,15 @@ impl GpuVolumetry {
         out.truncate((l.voxels as usize).div_ceil(32));
         Ok(out)
     }
+}
+
+/// The factory of [`GpuVolumetry`]s on `ctx` (backend `"wgpu"`), for planners to install one
+/// per liver.
+pub fn gpu_volumetry(ctx: &GpuContext) -> AcceleratorFactory {
+    let ctx = ctx.clone();
+    AcceleratorFactory::new("wgpu", move || {
+        Ok(Box::new(GpuVolumetry::new(&ctx).map_err(accel)?) as Box<dyn CutAccelerator>)
+    })
 }
 
 impl CutAccelerator for GpuVolumetry {

@@ -4,7 +4,7 @@
 use resecta_bezier::ControlNet;
 use resecta_geom::{Real, RoleMap, Vec3, Volume};
 use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
-use resecta_volumetry::{CutResult, IncompleteCut, LiverVoxels, Volumetry};
+use resecta_volumetry::{CutAccelerator, CutResult, IncompleteCut, LiverVoxels, Volumetry};
 
 use super::{ENTRIES, GpuVolumetry, SOURCE};
 use crate::device::testing::context;
@@ -152,13 +152,18 @@ fn engines(m: &Volume<bool>, tiny: bool) -> Option<(Volumetry, Volumetry)> {
         eprintln!("SKIP: the device lacks SHADER_F64 ({})", ctx.info.name);
         return None;
     }
-    let mut gpu = GpuVolumetry::new(&ctx).unwrap();
-    if tiny {
-        (gpu.band_cap, gpu.roots_cap) = (1, 1);
-    }
+    let gpu: Box<dyn CutAccelerator> = if tiny {
+        let mut g = GpuVolumetry::new(&ctx).unwrap();
+        (g.band_cap, g.roots_cap) = (1, 1);
+        Box::new(g)
+    } else {
+        let factory = super::gpu_volumetry(&ctx);
+        assert_eq!(factory.backend(), "wgpu");
+        factory.make().unwrap()
+    };
     Some((
         Volumetry::new(LiverVoxels::new(m).unwrap()),
-        Volumetry::new(LiverVoxels::new(m).unwrap()).with_accelerator(Box::new(gpu)),
+        Volumetry::new(LiverVoxels::new(m).unwrap()).with_accelerator(gpu),
     ))
 }
 
