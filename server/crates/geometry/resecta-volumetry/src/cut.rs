@@ -23,7 +23,7 @@
 
 use rayon::prelude::*;
 use resecta_bezier::{ControlNet, MleEvaluator, Outputs, Resolution};
-use resecta_geom::{Real, Vec3, Volume};
+use resecta_geom::{Mat3, Real, Vec3, Volume};
 use serde::Serialize;
 
 use crate::accel::{
@@ -305,7 +305,7 @@ impl Volumetry {
 
     /// Step 2 and 3 on the CPU.
     fn cpu_sides(&mut self, q: &BandGeometry, samples: &Samples, sigma: Real) -> SidesParts {
-        let band = self.splat(q, sigma);
+        let band = self.splat(q, samples, sigma);
         if band.is_empty() {
             return (band, Vec::new(), false);
         }
@@ -329,8 +329,14 @@ impl Volumetry {
         let acc = self.accelerator.as_mut()?;
         let liver = &self.liver;
         let result = (|| {
-            let bc = acc.band_components(liver, &q.query())?;
-            let (band, sides) = accelerated_band(liver, q, &bc, sigma)?;
+            let discs = q.discs(liver, samples);
+            let query = BandQuery {
+                discs: &discs,
+                hs: q.hs,
+                rho: q.rho,
+            };
+            let bc = acc.band_components(liver, &query)?;
+            let (band, sides) = accelerated_band(liver, &query, &bc, sigma)?;
             if band.is_empty() {
                 return Ok((band, Vec::new(), false));
             }
@@ -355,7 +361,7 @@ impl Volumetry {
     /// Marks the band: every liver voxel in a sample's slab-disc — within `hs` of its tangent
     /// plane and `ρ` of it laterally — keeps the nearest such sample's offset and extent.
     /// Returns the band voxels with their tumour-side fractions.
-    fn splat(&mut self, q: &BandGeometry, sigma: Real) -> Vec<(u32, f32)> {
+    fn splat(&mut self, q: &BandGeometry, s: &Samples, sigma: Real) -> Vec<(u32, f32)> {
         self.epoch = self.epoch.wrapping_add(1);
         if self.epoch == 0 {
             self.stamp.fill(0);
@@ -365,7 +371,8 @@ impl Volumetry {
         let l = &self.liver;
         let bd = l.bdims();
         let mut touched = Vec::new();
-        for disc in &q.discs {
+        for (p, n) in s.points.iter().zip(&s.normals) {
+            let disc = q.disc(l, p, n);
             let (m, [o1, o2]) = (disc.axis, disc.outer_axes());
             let [[a0, a1], [b0, b1]] = disc.outer;
             for a in a0..=a1 {
@@ -413,7 +420,7 @@ fn fraction(offset: f32, extent: f32) -> f32 {
     (0.5 - offset / extent.max(f32::MIN_POSITIVE)).clamp(0.0, 1.0)
 }
 
-/// The slab-discs of one cut's samples.
+/// The slab-discs of one cut's samples, made one at a time (the CPU walks each at once).
 ///
 /// `hs` exceeds both half the largest voxel extent (so two face neighbours never lie outside
 /// the band on opposite sides: the barrier is watertight) and the longest voxel edge (so a
@@ -421,7 +428,9 @@ fn fraction(offset: f32, extent: f32) -> f32 {
 struct BandGeometry {
     hs: Real,
     rho: Real,
-    discs: Vec<SlabDisc>,
+    lin: Mat3,
+    edges: [Vec3; 3],
+    inv_rows: [Real; 3],
 }
 
 impl BandGeometry {
@@ -439,52 +448,55 @@ impl BandGeometry {
         let hs = (0.5 * w_max).max(a_max) + 0.05 * min_sp;
         // Lateral radius: every point of the surface lies within δ/√2 of a grid sample.
         let rho = 0.75 * s.delta;
-        let inv = l.to_index;
-        let inv_rows = [0, 1, 2].map(|a| inv.row(a).norm());
-        let bd = l.bdims();
-        let discs = s
-            .points
-            .iter()
-            .zip(&s.normals)
-            .map(|(p, n)| {
-                let g = l.to_box(p);
-                let extent = edges.iter().map(|e| n.dot(e).abs()).sum::<Real>();
-                // Offsets in index steps: s(Δg) = n_idx·Δg; the two outer axes span the
-                // slab-disc's extent, |s| ≤ hs is solved along the axis where s changes fastest.
-                let n_idx = lin.transpose() * n;
-                let n_inv = inv * n;
-                let axis = n_idx.iamax();
-                let range = |o: usize| {
-                    let e = hs * n_inv[o].abs() + rho * inv_rows[o];
-                    let lo = ((g[o] - e).ceil() as i64).max(0);
-                    let hi = ((g[o] + e).floor() as i64).min(bd[o] as i64 - 1);
-                    [lo, hi]
-                };
-                let outer = if n_idx[axis].abs() < 1e-12 {
-                    [[0, -1]; 2]
-                } else {
-                    [range((axis + 1) % 3), range((axis + 2) % 3)]
-                };
-                SlabDisc {
-                    point: *p,
-                    normal: *n,
-                    g,
-                    n_idx,
-                    axis,
-                    outer,
-                    extent,
-                }
-            })
-            .collect();
-        Self { hs, rho, discs }
+        let inv_rows = [0, 1, 2].map(|a| l.to_index.row(a).norm());
+        Self {
+            hs,
+            rho,
+            lin,
+            edges,
+            inv_rows,
+        }
     }
 
-    fn query(&self) -> BandQuery<'_> {
-        BandQuery {
-            discs: &self.discs,
-            hs: self.hs,
-            rho: self.rho,
+    /// The slab-disc of the sample at `p` with normal `n`.
+    fn disc(&self, l: &LiverVoxels, p: &Vec3, n: &Vec3) -> SlabDisc {
+        let (hs, rho, bd) = (self.hs, self.rho, l.bdims());
+        let g = l.to_box(p);
+        let extent = self.edges.iter().map(|e| n.dot(e).abs()).sum::<Real>();
+        // Offsets in index steps: s(Δg) = n_idx·Δg; the two outer axes span the slab-disc's
+        // extent, |s| ≤ hs is solved along the axis where s changes fastest.
+        let n_idx = self.lin.transpose() * n;
+        let n_inv = l.to_index * n;
+        let axis = n_idx.iamax();
+        let range = |o: usize| {
+            let e = hs * n_inv[o].abs() + rho * self.inv_rows[o];
+            let lo = ((g[o] - e).ceil() as i64).max(0);
+            let hi = ((g[o] + e).floor() as i64).min(bd[o] as i64 - 1);
+            [lo, hi]
+        };
+        let outer = if n_idx[axis].abs() < 1e-12 {
+            [[0, -1]; 2]
+        } else {
+            [range((axis + 1) % 3), range((axis + 2) % 3)]
+        };
+        SlabDisc {
+            point: *p,
+            normal: *n,
+            g,
+            n_idx,
+            axis,
+            outer,
+            extent,
         }
+    }
+
+    /// Every sample's slab-disc, for an accelerator.
+    fn discs(&self, l: &LiverVoxels, s: &Samples) -> Vec<SlabDisc> {
+        s.points
+            .iter()
+            .zip(&s.normals)
+            .map(|(p, n)| self.disc(l, p, n))
+            .collect()
     }
 }
 
@@ -502,7 +514,7 @@ type BandSide = (f32, [u32; 6]);
 /// formulas on the nearest samples it found), with each voxel's signed offset and neighbours.
 fn accelerated_band(
     l: &LiverVoxels,
-    q: &BandGeometry,
+    q: &BandQuery<'_>,
     bc: &BandComponents,
     sigma: Real,
 ) -> Result<(Band, Vec<BandSide>), AcceleratorError> {
