@@ -9,8 +9,14 @@
 //! the band as barrier, each named by its smallest compact index (the CPU's union–find root).
 //! Volumes then differ from the CPU's by nothing but summation order (in practice not at all).
 //!
+//! The host checks what it gets (each band voxel in the liver and in its sample's slab-disc,
+//! no voxel twice, every neighbour root listed); an error or a failed check sends the cut to
+//! the CPU, counted by [`Volumetry::accelerator_fallbacks`]. Cuts with non-finite samples stay
+//! on the CPU. Planners hold an [`AcceleratorFactory`] and install one accelerator per liver.
+//!
 //! [`Volumetry`]: crate::Volumetry
 //! [`Volumetry::with_accelerator`]: crate::Volumetry::with_accelerator
+//! [`Volumetry::accelerator_fallbacks`]: crate::Volumetry::accelerator_fallbacks
 
 use resecta_geom::{Real, Vec3};
 
