@@ -325,3 +325,53 @@ fn a_speckled_liver_of_many_components_equals_the_cpu() {
         gpu.accelerator_fallbacks()
     );
 }
+
+#[test]
+fn grid_aligned_cuts_with_exact_ties_equal_the_cpu() {
+    // An axis-aligned 1 mm grid and planes through voxel centres whose samples fall on voxel
+    // centres: many samples at exactly the same distance from a voxel (ties to the smallest
+    // index) and voxels exactly on the tangent plane.
+    let grid = resecta_geom::Grid::axis_aligned(
+        [48, 40, 36],
+        [1.0, 1.0, 1.0],
+        Vec3::new(-24.0, -20.0, -18.0),
+    )
+    .unwrap();
+    let data = (0..grid.len())
+        .map(|v| {
+            let p = grid.voxel_center(grid.ijk(v));
+            (p.x / 20.0).powi(2) + (p.y / 16.0).powi(2) + (p.z / 14.0).powi(2) <= 1.0
+        })
+        .collect();
+    let m = Volume::from_vec(grid, data).unwrap();
+    let Some((mut cpu, mut gpu)) = engines(&m, false) else {
+        return;
+    };
+    let t = [Vec3::new(10.0, 0.0, 0.0)];
+    for (what, net) in [
+        (
+            "x = 2",
+            planar([2.0, -20.0, -18.0], [0.0, 40.0, 0.0], [0.0, 0.0, 36.0]),
+        ),
+        (
+            "x = 0.5",
+            planar([0.5, -20.0, -18.0], [0.0, 40.0, 0.0], [0.0, 0.0, 36.0]),
+        ),
+        (
+            "diagonal",
+            planar([-16.0, -20.0, -18.0], [36.0, 36.0, 0.0], [0.0, 0.0, 36.0]),
+        ),
+    ] {
+        same(
+            &cpu.cut(&net, &t).unwrap(),
+            &gpu.cut(&net, &t).unwrap(),
+            what,
+        );
+    }
+    assert_eq!(
+        gpu.accelerator_fallbacks().0,
+        0,
+        "{:?}",
+        gpu.accelerator_fallbacks()
+    );
+}
