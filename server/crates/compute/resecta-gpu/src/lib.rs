@@ -18,6 +18,10 @@
 //! - [`probe`]: the planner's edit path, [`GpuProbe`] (`resecta_plan::SampleProbe`): surface,
 //!   inside levels and exact distances in one submission and one read-back per edit;
 //!   [`gpu_compute_engine`] makes the planner's engine.
+//! - [`kernels::volumetry`]: the band and side components of volumetry cuts as
+//!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver resident,
+//!   bit-packed; two read-backs per cut), results equal to `Volumetry`'s CPU path;
+//!   [`gpu_volumetry`] makes them for planners.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -34,5 +38,6 @@ pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
 pub use kernels::inside::GpuInsideField;
 pub use kernels::margin::GpuMarginField;
+pub use kernels::volumetry::{GpuVolumetry, gpu_volumetry};
 pub use probe::{GpuProbe, gpu_compute_engine};
 pub use surface::{GpuSurface, gpu_engine};

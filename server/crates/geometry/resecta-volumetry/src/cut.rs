@@ -23,9 +23,12 @@
 
 use rayon::prelude::*;
 use resecta_bezier::{ControlNet, MleEvaluator, Outputs, Resolution};
-use resecta_geom::{Real, Vec3, Volume};
+use resecta_geom::{Mat3, Real, Vec3, Volume};
 use serde::Serialize;
 
+use crate::accel::{
+    AcceleratorError, BandComponents, BandQuery, CutAccelerator, SlabDisc, cell_coords, mask_ranges,
+};
 use crate::error::VolumetryError;
 use crate::liver::LiverVoxels;
 
@@ -102,7 +105,14 @@ pub struct Volumetry {
     best_d2: Vec<f32>,
     offset: Vec<f32>,
     extent: Vec<f32>,
+    accelerator: Option<Box<dyn CutAccelerator>>,
+    fallbacks: usize,
+    last_error: Option<AcceleratorError>,
 }
+
+/// The band (sorted compact indices and tumour-side fractions), the resected compact ranges,
+/// and whether a component reaches both sides.
+type SidesParts = (Vec<(u32, f32)>, Vec<(u32, u32)>, bool);
 
 impl Volumetry {
     pub fn new(liver: LiverVoxels) -> Self {
@@ -114,7 +124,35 @@ impl Volumetry {
             best_d2: vec![0.0; n],
             offset: vec![0.0; n],
             extent: vec![0.0; n],
+            accelerator: None,
+            fallbacks: 0,
+            last_error: None,
         }
+    }
+
+    /// With the band and components of every cut computed by `accelerator` (see
+    /// [`crate::accel`]); a cut it fails is computed on the CPU.
+    pub fn with_accelerator(mut self, accelerator: Box<dyn CutAccelerator>) -> Self {
+        self.accelerator = Some(accelerator);
+        self
+    }
+
+    /// Installs (or, with `None`, removes) the accelerator; returns the previous one.
+    pub fn set_accelerator(
+        &mut self,
+        accelerator: Option<Box<dyn CutAccelerator>>,
+    ) -> Option<Box<dyn CutAccelerator>> {
+        std::mem::replace(&mut self.accelerator, accelerator)
+    }
+
+    /// Whether an accelerator is installed.
+    pub fn is_accelerated(&self) -> bool {
+        self.accelerator.is_some()
+    }
+
+    /// Cuts the accelerator failed and the CPU computed instead, and the last such failure.
+    pub fn accelerator_fallbacks(&self) -> (usize, Option<&AcceleratorError>) {
+        (self.fallbacks, self.last_error.as_ref())
     }
 
     pub fn liver(&self) -> &LiverVoxels {
@@ -221,7 +259,11 @@ impl Volumetry {
         let samples = Samples::new(net, &self.liver)?;
         let sigma = samples.tumour_side(tumour_points);
         let vox = self.liver.grid().voxel_volume_mm3();
-        let band = self.splat(&samples, sigma);
+        let query = BandGeometry::new(&self.liver, &samples);
+        let (band, resected_runs, leak) = match self.accelerated(&query, &samples, sigma) {
+            Some(parts) => parts,
+            None => self.cpu_sides(&query, &samples, sigma),
+        };
         let samples_dims = [samples.ru, samples.rv];
         let edge = samples.edge_inside(&self.liver);
         if band.is_empty() {
@@ -237,8 +279,6 @@ impl Volumetry {
                 resected_runs: Vec::new(),
             });
         }
-        let comps = Components::new(&self.liver, &self.stamp, self.epoch);
-        let (resected_runs, leak) = comps.classify(self, &band, &samples, sigma);
         let band_sum: Real = band.iter().map(|&(_, f)| Real::from(f)).sum();
         let run_sum: usize = resected_runs.iter().map(|&(a, b)| (b - a) as usize).sum();
         let incomplete = if let Some(p) = edge {
@@ -263,14 +303,65 @@ impl Volumetry {
         })
     }
 
+    /// Step 2 and 3 on the CPU.
+    fn cpu_sides(&mut self, q: &BandGeometry, samples: &Samples, sigma: Real) -> SidesParts {
+        let band = self.splat(q, samples, sigma);
+        if band.is_empty() {
+            return (band, Vec::new(), false);
+        }
+        let comps = Components::new(&self.liver, &self.stamp, self.epoch);
+        let (runs, leak) = comps.classify(self, &band, samples, sigma);
+        (band, runs, leak)
+    }
+
+    /// Step 2 and 3 by the accelerator, if one is installed and the samples are finite; `None`
+    /// (the CPU computes the cut) otherwise and when it fails (counted).
+    fn accelerated(
+        &mut self,
+        q: &BandGeometry,
+        samples: &Samples,
+        sigma: Real,
+    ) -> Option<SidesParts> {
+        let finite = |v: &Vec3| v.iter().all(|c| c.is_finite());
+        if !(samples.points.iter().all(finite) && samples.normals.iter().all(finite)) {
+            return None;
+        }
+        let acc = self.accelerator.as_mut()?;
+        let liver = &self.liver;
+        let result = (|| {
+            let discs = q.discs(liver, samples);
+            let query = BandQuery {
+                discs: &discs,
+                hs: q.hs,
+                rho: q.rho,
+            };
+            let bc = acc.band_components(liver, &query)?;
+            let (band, sides) = accelerated_band(liver, &query, &bc, sigma)?;
+            if band.is_empty() {
+                return Ok((band, Vec::new(), false));
+            }
+            let (roots, leak) = resected_roots(liver, &bc, &sides, samples, sigma)?;
+            let mask = if roots.is_empty() {
+                Vec::new()
+            } else {
+                acc.resected_mask(&roots)?
+            };
+            Ok((band, mask_ranges(&mask, liver.len()), leak))
+        })();
+        match result {
+            Ok(parts) => Some(parts),
+            Err(e) => {
+                self.fallbacks += 1;
+                self.last_error = Some(e);
+                None
+            }
+        }
+    }
+
     /// Marks the band: every liver voxel in a sample's slab-disc — within `hs` of its tangent
     /// plane and `ρ` of it laterally — keeps the nearest such sample's offset and extent.
     /// Returns the band voxels with their tumour-side fractions.
-    ///
-    /// `hs` exceeds both half the largest voxel extent (so two face neighbours never lie outside
-    /// the band on opposite sides: the barrier is watertight) and the longest voxel edge (so a
-    /// band voxel's non-band neighbours lie on its own side: the side flags are right).
-    fn splat(&mut self, s: &Samples, sigma: Real) -> Vec<(u32, f32)> {
+    fn splat(&mut self, q: &BandGeometry, s: &Samples, sigma: Real) -> Vec<(u32, f32)> {
         self.epoch = self.epoch.wrapping_add(1);
         if self.epoch == 0 {
             self.stamp.fill(0);
@@ -278,6 +369,72 @@ impl Volumetry {
         }
         let epoch = self.epoch;
         let l = &self.liver;
+        let bd = l.bdims();
+        let mut touched = Vec::new();
+        for (p, n) in s.points.iter().zip(&s.normals) {
+            let disc = q.disc(l, p, n);
+            let (m, [o1, o2]) = (disc.axis, disc.outer_axes());
+            let [[a0, a1], [b0, b1]] = disc.outer;
+            for a in a0..=a1 {
+                for b in b0..=b1 {
+                    let (lo, hi) = disc.column(q.hs, a, b, bd[m]);
+                    for c in lo..=hi {
+                        let mut ijk = [0usize; 3];
+                        ijk[m] = c as usize;
+                        ijk[o1] = a as usize;
+                        ijk[o2] = b as usize;
+                        let v = l.index[ijk[0] + bd[0] * (ijk[1] + bd[1] * ijk[2])];
+                        if v == u32::MAX {
+                            continue;
+                        }
+                        let Some((d2f, off)) = disc.reach(&l.centre(ijk), q.rho) else {
+                            continue;
+                        };
+                        let vi = v as usize;
+                        if self.stamp[vi] != epoch {
+                            self.stamp[vi] = epoch;
+                            touched.push(v);
+                        } else if d2f >= self.best_d2[vi] {
+                            continue;
+                        }
+                        self.best_d2[vi] = d2f;
+                        self.offset[vi] = (sigma * off) as f32;
+                        self.extent[vi] = disc.extent as f32;
+                    }
+                }
+            }
+        }
+        touched.sort_unstable();
+        touched
+            .into_iter()
+            .map(|v| {
+                let vi = v as usize;
+                (v, fraction(self.offset[vi], self.extent[vi]))
+            })
+            .collect()
+    }
+}
+
+/// A band voxel's tumour-side fraction from its signed offset and extent.
+fn fraction(offset: f32, extent: f32) -> f32 {
+    (0.5 - offset / extent.max(f32::MIN_POSITIVE)).clamp(0.0, 1.0)
+}
+
+/// The slab-discs of one cut's samples, made one at a time (the CPU walks each at once).
+///
+/// `hs` exceeds both half the largest voxel extent (so two face neighbours never lie outside
+/// the band on opposite sides: the barrier is watertight) and the longest voxel edge (so a
+/// band voxel's non-band neighbours lie on its own side: the side flags are right).
+struct BandGeometry {
+    hs: Real,
+    rho: Real,
+    lin: Mat3,
+    edges: [Vec3; 3],
+    inv_rows: [Real; 3],
+}
+
+impl BandGeometry {
+    fn new(l: &LiverVoxels, s: &Samples) -> Self {
         let lin = l.grid().linear();
         let edges = [0, 1, 2].map(|a| lin.column(a).into_owned());
         let w_max = edges.iter().map(|e| e.norm()).sum::<Real>();
@@ -291,75 +448,159 @@ impl Volumetry {
         let hs = (0.5 * w_max).max(a_max) + 0.05 * min_sp;
         // Lateral radius: every point of the surface lies within δ/√2 of a grid sample.
         let rho = 0.75 * s.delta;
-        let inv = l.to_index;
-        let inv_rows = [0, 1, 2].map(|a| inv.row(a).norm());
-        let bd = l.bdims();
-        let mut touched = Vec::new();
-        for (p, n) in s.points.iter().zip(&s.normals) {
-            let g = l.to_box(p);
-            let w = edges.iter().map(|e| n.dot(e).abs()).sum::<Real>();
-            // Offsets in index steps: s(Δg) = n_idx·Δg; iterate the two outer axes over the
-            // slab-disc's extent and solve |s| ≤ hs for the axis along which s changes fastest.
-            let n_idx = lin.transpose() * n;
-            let n_inv = inv * n;
-            let m = n_idx.iamax();
-            if n_idx[m].abs() < 1e-12 {
-                continue;
-            }
-            let (o1, o2) = ((m + 1) % 3, (m + 2) % 3);
-            let range = |o: usize| {
-                let e = hs * n_inv[o].abs() + rho * inv_rows[o];
-                let lo = ((g[o] - e).ceil() as i64).max(0);
-                let hi = ((g[o] + e).floor() as i64).min(bd[o] as i64 - 1);
-                lo..=hi
-            };
-            for a in range(o1) {
-                for b in range(o2) {
-                    let rest = n_idx[o1] * (a as Real - g[o1]) + n_idx[o2] * (b as Real - g[o2]);
-                    let (t0, t1) = ((-hs - rest) / n_idx[m], (hs - rest) / n_idx[m]);
-                    let lo = ((t0.min(t1) + g[m]).ceil() as i64).max(0);
-                    let hi = ((t0.max(t1) + g[m]).floor() as i64).min(bd[m] as i64 - 1);
-                    for c in lo..=hi {
-                        let mut ijk = [0usize; 3];
-                        ijk[m] = c as usize;
-                        ijk[o1] = a as usize;
-                        ijk[o2] = b as usize;
-                        let v = l.index[ijk[0] + bd[0] * (ijk[1] + bd[1] * ijk[2])];
-                        if v == u32::MAX {
-                            continue;
-                        }
-                        let d = l.centre(ijk) - p;
-                        let off = n.dot(&d);
-                        let d2 = d.norm_squared();
-                        if d2 - off * off > rho * rho {
-                            continue;
-                        }
-                        let vi = v as usize;
-                        let d2f = d2 as f32;
-                        if self.stamp[vi] != epoch {
-                            self.stamp[vi] = epoch;
-                            touched.push(v);
-                        } else if d2f >= self.best_d2[vi] {
-                            continue;
-                        }
-                        self.best_d2[vi] = d2f;
-                        self.offset[vi] = (sigma * off) as f32;
-                        self.extent[vi] = w as f32;
-                    }
-                }
-            }
+        let inv_rows = [0, 1, 2].map(|a| l.to_index.row(a).norm());
+        Self {
+            hs,
+            rho,
+            lin,
+            edges,
+            inv_rows,
         }
-        touched.sort_unstable();
-        touched
-            .into_iter()
-            .map(|v| {
-                let vi = v as usize;
-                let f = (0.5 - self.offset[vi] / self.extent[vi].max(f32::MIN_POSITIVE))
-                    .clamp(0.0, 1.0);
-                (v, f)
-            })
+    }
+
+    /// The slab-disc of the sample at `p` with normal `n`.
+    fn disc(&self, l: &LiverVoxels, p: &Vec3, n: &Vec3) -> SlabDisc {
+        let (hs, rho, bd) = (self.hs, self.rho, l.bdims());
+        let g = l.to_box(p);
+        let extent = self.edges.iter().map(|e| n.dot(e).abs()).sum::<Real>();
+        // Offsets in index steps: s(Δg) = n_idx·Δg; the two outer axes span the slab-disc's
+        // extent, |s| ≤ hs is solved along the axis where s changes fastest.
+        let n_idx = self.lin.transpose() * n;
+        let n_inv = l.to_index * n;
+        let axis = n_idx.iamax();
+        let range = |o: usize| {
+            let e = hs * n_inv[o].abs() + rho * self.inv_rows[o];
+            let lo = ((g[o] - e).ceil() as i64).max(0);
+            let hi = ((g[o] + e).floor() as i64).min(bd[o] as i64 - 1);
+            [lo, hi]
+        };
+        let outer = if n_idx[axis].abs() < 1e-12 {
+            [[0, -1]; 2]
+        } else {
+            [range((axis + 1) % 3), range((axis + 2) % 3)]
+        };
+        SlabDisc {
+            point: *p,
+            normal: *n,
+            g,
+            n_idx,
+            axis,
+            outer,
+            extent,
+        }
+    }
+
+    /// Every sample's slab-disc, for an accelerator.
+    fn discs(&self, l: &LiverVoxels, s: &Samples) -> Vec<SlabDisc> {
+        s.points
+            .iter()
+            .zip(&s.normals)
+            .map(|(p, n)| self.disc(l, p, n))
             .collect()
     }
+}
+
+fn bad(what: &str) -> AcceleratorError {
+    AcceleratorError(format!("invalid accelerator output: {what}"))
+}
+
+/// Band voxels (sorted compact indices) and their tumour-side fractions.
+type Band = Vec<(u32, f32)>;
+
+/// A band voxel's signed offset and the component roots of its face neighbours.
+type BandSide = (f32, [u32; 6]);
+
+/// An accelerator's band as the CPU's (sorted compact indices and fractions, by the CPU's
+/// formulas on the nearest samples it found), with each voxel's signed offset and neighbours.
+fn accelerated_band(
+    l: &LiverVoxels,
+    q: &BandQuery<'_>,
+    bc: &BandComponents,
+    sigma: Real,
+) -> Result<(Band, Vec<BandSide>), AcceleratorError> {
+    let mut band = Vec::with_capacity(bc.band.len());
+    for bv in &bc.band {
+        let v = *l
+            .index
+            .get(bv.cell as usize)
+            .ok_or_else(|| bad("band cell"))?;
+        let disc = q
+            .discs
+            .get(bv.sample as usize)
+            .ok_or_else(|| bad("sample"))?;
+        if v == u32::MAX {
+            return Err(bad("band voxel outside the liver"));
+        }
+        let ijk = cell_coords(l, bv.cell);
+        let reach = disc.reach(&l.centre(ijk), q.rho);
+        let (Some((_, off)), true) = (reach, disc.holds(q.hs, ijk, l.bdims())) else {
+            return Err(bad("band voxel outside its sample's slab-disc"));
+        };
+        let offset = (sigma * off) as f32;
+        band.push((
+            v,
+            fraction(offset, disc.extent as f32),
+            offset,
+            bv.neighbours,
+        ));
+    }
+    band.sort_unstable_by_key(|b| b.0);
+    if band.windows(2).any(|w| w[0].0 == w[1].0) {
+        return Err(bad("duplicate band voxel"));
+    }
+    Ok(band
+        .into_iter()
+        .map(|(v, f, o, n)| ((v, f), (o, n)))
+        .unzip())
+}
+
+/// The side flags of a component no band voxel touches (an island away from the cut): the side
+/// of `first`, its first voxel's centre, relative to the nearest sample's tangent plane.
+fn island_flags(samples: &Samples, sigma: Real, first: &Vec3) -> u8 {
+    if sigma * samples.side(first) < 0.0 {
+        1
+    } else {
+        2
+    }
+}
+
+/// The roots of the resected components of an accelerated cut, and whether a component
+/// reaches both sides (as [`Components::classify`]).
+fn resected_roots(
+    l: &LiverVoxels,
+    bc: &BandComponents,
+    sides: &[BandSide],
+    samples: &Samples,
+    sigma: Real,
+) -> Result<(Vec<u32>, bool), AcceleratorError> {
+    let mut roots = bc.roots.clone();
+    roots.sort_unstable();
+    if roots.windows(2).any(|w| w[0] == w[1]) {
+        return Err(bad("duplicate root"));
+    }
+    let mut flags = vec![0u8; roots.len()];
+    for (offset, neighbours) in sides {
+        let bit = if *offset < 0.0 { 1u8 } else { 2u8 };
+        for &r in neighbours.iter().filter(|&&r| r != u32::MAX) {
+            let k = roots.binary_search(&r).map_err(|_| bad("unknown root"))?;
+            flags[k] |= bit;
+        }
+    }
+    let mut leak = false;
+    for (f, &r) in flags.iter_mut().zip(&roots) {
+        leak |= *f == 3;
+        if *f == 0 {
+            let b = l.box_of(r).ok_or_else(|| bad("root"))?;
+            *f = island_flags(samples, sigma, &l.centre(b));
+        }
+    }
+    let resected = roots
+        .iter()
+        .zip(&flags)
+        .filter(|(_, f)| **f == 1)
+        .map(|(r, _)| *r)
+        .collect();
+    Ok((resected, leak))
 }
 
 /// Surface samples with unit normals.
@@ -606,7 +847,7 @@ impl Components {
                 let (x0, _, _) = self.subs[root];
                 let row = self.row_of(root);
                 let c = l.centre([x0 as usize, row % by, row / by]);
-                flags[root] = if sigma * samples.side(&c) < 0.0 { 1 } else { 2 };
+                flags[root] = island_flags(samples, sigma, &c);
             }
             side_of_root[k as usize] = flags[root];
         }

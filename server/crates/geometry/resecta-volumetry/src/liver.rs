@@ -114,9 +114,35 @@ impl LiverVoxels {
         self.count as Real * self.grid.voxel_volume_mm3()
     }
 
-    /// Bounding-box dims.
-    pub(crate) fn bdims(&self) -> [usize; 3] {
+    /// Dims of the liver's bounding box (index space).
+    pub fn bdims(&self) -> [usize; 3] {
         [0, 1, 2].map(|a| self.hi[a] - self.lo[a])
+    }
+
+    /// Grid index of the bounding box's first voxel.
+    pub fn box_lo(&self) -> [usize; 3] {
+        self.lo
+    }
+
+    /// Compact index of each bounding-box voxel (`x + bx·(y + by·z)`), `u32::MAX` outside the
+    /// liver; compact indices run along x, then y, then z.
+    pub fn box_index(&self) -> &[u32] {
+        &self.index
+    }
+
+    /// Bounding-box coordinates of the liver voxel with compact index `c`.
+    pub(crate) fn box_of(&self, c: u32) -> Option<[usize; 3]> {
+        let k = self
+            .runs
+            .partition_point(|r| r.offset <= c)
+            .checked_sub(1)?;
+        let r = self.runs[k];
+        if c >= r.offset + (r.x1 - r.x0) {
+            return None;
+        }
+        let row = self.row_start.partition_point(|&s| s as usize <= k) - 1;
+        let by = self.bdims()[1];
+        Some([(r.x0 + c - r.offset) as usize, row % by, row / by])
     }
 
     /// Compact index of the voxel at bounding-box coordinates, if liver.
