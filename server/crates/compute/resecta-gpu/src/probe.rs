@@ -19,6 +19,7 @@ use crate::device::{GpuContext, GpuError};
 use crate::kernels::bezier::Chained;
 use crate::kernels::inside::GpuInsideField;
 use crate::kernels::margin::GpuMarginField;
+use crate::kernels::volumetry::gpu_volumetry;
 use crate::surface::{GpuSurface, gpu_engine};
 
 /// Per-sample buffers, sized for `capacity` samples and kept while large enough.
@@ -249,7 +250,8 @@ impl Probes {
 }
 
 /// The planner's engine on `ctx`: surfaces by [`gpu_engine`], and with `SHADER_F64` their
-/// samples measured by [`GpuProbe`]s (without it, measured on the CPU).
+/// samples measured by [`GpuProbe`]s and volumetry's cuts by `GpuVolumetry` (without it, both
+/// on the CPU).
 pub fn gpu_compute_engine(ctx: &GpuContext) -> ComputeEngine {
     let probes = ctx.caps.f64.then(|| {
         let probes = Arc::new(Probes {
@@ -264,6 +266,7 @@ pub fn gpu_compute_engine(ctx: &GpuContext) -> ComputeEngine {
     ComputeEngine {
         surfaces: gpu_engine(ctx),
         probes,
+        volumetry: ctx.caps.f64.then(|| gpu_volumetry(ctx)),
         host_bytes_per_sample: host_bytes_per_sample(ctx),
     }
 }

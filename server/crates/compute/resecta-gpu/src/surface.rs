@@ -378,6 +378,15 @@ pub(crate) mod tests {
         gpu.edit(e.clone()).unwrap();
         cpu.edit(e).unwrap();
         assert_same(&gpu, &cpu, "57x33");
+        // Volumes: the band and side components on the GPU with probes, equal to the CPU's.
+        let (gv, cv) = (gpu.volumes().unwrap(), cpu.volumes().unwrap());
+        let v = gpu.volumetry().unwrap();
+        assert_eq!(v.is_accelerated(), probed);
+        assert_eq!(v.accelerator_fallbacks().0, 0);
+        assert!(gv.complete && cv.complete);
+        let (g, c) = (gv.resected_ml.unwrap(), cv.resected_ml.unwrap());
+        assert!((g - c).abs() <= 1e-9 * c, "resected {g} vs {c} ml");
+        assert_eq!(gv.remnant_ml, cv.remnant_ml);
     }
 
     fn res40() -> Resolution {

@@ -476,13 +476,22 @@ impl Planner {
         })
     }
 
+    /// The volumetry engine, once volumes were asked for (absent while a [`VolumeJob`] has it).
+    pub fn volumetry(&self) -> Option<&Volumetry> {
+        self.volumetry.as_ref()
+    }
+
     fn volumetry_engine(&mut self) -> Result<&mut Volumetry, PlanError> {
         if self.volumetry.is_none() {
             let liver = match self.anatomy.take_liver_voxels() {
                 Some(liver) => liver,
                 None => LiverVoxels::new(self.anatomy.functional())?,
             };
-            self.volumetry = Some(Volumetry::new(liver));
+            let mut volumetry = Volumetry::new(liver);
+            // A device that cannot make one leaves the cuts to the CPU.
+            let accelerator = self.compute.volumetry.as_ref().and_then(|f| f.make().ok());
+            volumetry.set_accelerator(accelerator);
+            self.volumetry = Some(volumetry);
         }
         self.volumetry.as_mut().ok_or(PlanError::EmptyLiver)
     }

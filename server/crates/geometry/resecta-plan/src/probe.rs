@@ -2,13 +2,14 @@
 //! its surface is evaluated: [`SampleProbe`] (the surface, then every sample's inside level and
 //! exact tumour distance, one device round trip when both run on one device), [`ProbeEngine`]
 //! (makes one per resection and target) and [`ComputeEngine`] (what a planner is given: its
-//! surface engine and, optionally, a probe engine). Without a probe engine the planner measures
+//! surface engine and, optionally, a probe engine and its volumetry's accelerator). Without a probe engine the planner measures
 //! on the CPU (inside levels by lookup, distances through `resecta_margin::evaluate_reusing`).
 
 use std::sync::Arc;
 
 use resecta_bezier::{BezierError, SurfaceEngine, SurfaceEvaluator, SurfaceGrid};
 use resecta_geom::Real;
+use resecta_volumetry::AcceleratorFactory;
 
 use crate::anatomy::Anatomy;
 use crate::engine::TargetModel;
@@ -82,6 +83,9 @@ impl std::fmt::Debug for ProbeEngine {
 pub struct ComputeEngine {
     pub surfaces: SurfaceEngine,
     pub probes: Option<ProbeEngine>,
+    /// Makes the accelerator of the planner's volumetry (band and side components of its cuts;
+    /// each cut falls back to the CPU when it fails).
+    pub volumetry: Option<AcceleratorFactory>,
     /// Host memory its evaluators and probes hold per surface sample beyond the planner's own
     /// buffers (a device's staging buffers; all its buffers on a software device), for memory
     /// budgets.
@@ -104,6 +108,7 @@ impl From<SurfaceEngine> for ComputeEngine {
         Self {
             surfaces,
             probes: None,
+            volumetry: None,
             host_bytes_per_sample: 0,
         }
     }

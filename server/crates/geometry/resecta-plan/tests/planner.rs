@@ -666,6 +666,7 @@ fn a_probe_measures_the_samples_and_its_device_failure_leaves_them_to_the_cpu() 
     let engine = resecta_plan::ComputeEngine {
         surfaces: resecta_bezier::SurfaceEngine::cpu(),
         probes: Some(probes),
+        volumetry: None,
         host_bytes_per_sample: 0,
     };
     let mut plan = Plan::new(spec().roles);
