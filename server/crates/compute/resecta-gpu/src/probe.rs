@@ -268,6 +268,8 @@ pub fn gpu_compute_engine(ctx: &GpuContext) -> ComputeEngine {
         probes,
         volumetry: ctx.caps.f64.then(|| gpu_volumetry(ctx)),
         host_bytes_per_sample: host_bytes_per_sample(ctx),
+        // GpuVolumetry's three u32 arrays over the liver's bounding box and its bit-packed copy.
+        host_bytes_per_voxel: if ctx.is_software() { 13 } else { 0 },
     }
 }
 

@@ -281,10 +281,11 @@ impl UploadMemory {
     }
 }
 
-/// What a loaded label map of `voxels` voxels holds, with a replay ring of `ring_bytes`.
-pub(crate) fn label_map_bytes(voxels: u64, ring_bytes: u64) -> u64 {
+/// What a loaded label map of `voxels` voxels holds, with a replay ring of `ring_bytes`, for a
+/// planner computing with `engine`.
+pub(crate) fn label_map_bytes(voxels: u64, ring_bytes: u64, engine: &ComputeEngine) -> u64 {
     voxels
-        .saturating_mul(BYTES_PER_VOXEL)
+        .saturating_mul(BYTES_PER_VOXEL + engine.host_bytes_per_voxel)
         .saturating_add(ring_bytes)
 }
 
@@ -451,7 +452,10 @@ pub(crate) mod tests {
 
     #[test]
     fn estimates_grow_with_what_they_hold() {
-        assert_eq!(label_map_bytes(1000, 64), 8064);
+        assert_eq!(label_map_bytes(1000, 64, &ComputeEngine::cpu()), 8064);
+        let mut gpu = ComputeEngine::cpu();
+        gpu.host_bytes_per_voxel = 16;
+        assert_eq!(label_map_bytes(1000, 64, &gpu), 24064);
         assert!(reconstruction_bytes(0, 8) > 7 * reconstruction_bytes(0, 7));
         assert_eq!(
             reconstruction_bytes(1, 40),

@@ -155,7 +155,7 @@ impl Service {
             (
                 Charge::LabelMap,
                 if loaded.is_some() {
-                    label_map_bytes(voxels, self.ring_bytes())
+                    label_map_bytes(voxels, self.ring_bytes(), &self.config.compute_engine)
                 } else {
                     0
                 },
@@ -248,7 +248,8 @@ impl Service {
             };
             // A first check before the log is read (the restore checks again, with the plan).
             let voxels = summary.map_or(0, |s| s.dims.iter().map(|&d| d as u64).product::<u64>());
-            if self.budget.in_use()? + label_map_bytes(voxels, self.ring_bytes())
+            if self.budget.in_use()?
+                + label_map_bytes(voxels, self.ring_bytes(), &self.config.compute_engine)
                 > self.budget.max()
             {
                 tracing::info!(session = %rec.id, "not restored in the background: memory budget");
@@ -325,7 +326,11 @@ impl Service {
         let t0 = std::time::Instant::now();
         let labels = blocking(move || labelmap::decode(&source, max_voxels)).await?;
         tracing::debug!(session = %s.id, ms = t0.elapsed().as_secs_f64() * 1e3, "label map decoded");
-        let need = label_map_bytes(labels.data().len() as u64, self.ring_bytes());
+        let need = label_map_bytes(
+            labels.data().len() as u64,
+            self.ring_bytes(),
+            &self.config.compute_engine,
+        );
         let reserved =
             self.budget
                 .reserve_replacing(Use::LabelMap, need, &s.id, Charge::LabelMap)?;

@@ -90,6 +90,9 @@ pub struct ComputeEngine {
     /// buffers (a device's staging buffers; all its buffers on a software device), for memory
     /// budgets.
     pub host_bytes_per_sample: u64,
+    /// Host memory its volumetry accelerator holds per label-map voxel (all its buffers on a
+    /// software device).
+    pub host_bytes_per_voxel: u64,
 }
 
 impl ComputeEngine {
@@ -110,6 +113,7 @@ impl From<SurfaceEngine> for ComputeEngine {
             probes: None,
             volumetry: None,
             host_bytes_per_sample: 0,
+            host_bytes_per_voxel: 0,
         }
     }
 }

@@ -668,6 +668,7 @@ fn a_probe_measures_the_samples_and_its_device_failure_leaves_them_to_the_cpu() 
         probes: Some(probes),
         volumetry: None,
         host_bytes_per_sample: 0,
+        host_bytes_per_voxel: 0,
     };
     let mut plan = Plan::new(spec().roles);
     plan.apply(&PlanEvent::AddResection {
