@@ -3,6 +3,7 @@
 
 pub mod bezier;
 pub mod margin;
+pub mod poisson;
 
 use resecta_bezier::BezierScalar;
 
