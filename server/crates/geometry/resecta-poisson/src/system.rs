@@ -13,7 +13,7 @@ use std::sync::Arc;
 use resecta_geom::Real;
 
 pub use crate::multigrid::COARSEST_SWEEPS;
-use crate::{PoissonError, PoissonParams};
+use crate::{CpuSobel, PoissonError, PoissonParams, SobelPass};
 
 /// One level of `lap·L x + diag(d) x = b` on `n³` nodes (`i` fastest), `L` the 7-point graph
 /// Laplacian with free boundaries.
@@ -65,23 +65,39 @@ impl MultigridSolver for CpuMultigrid {
     }
 }
 
-/// A shared [`MultigridSolver`] handle for options and services; [`PoissonSolver::cpu`] by
-/// default.
+/// The passes of a Poisson reconstruction that may run on a device, shared by options and
+/// services: a [`MultigridSolver`] and a [`SobelPass`]; [`PoissonSolver::cpu`] by default.
 #[derive(Clone)]
-pub struct PoissonSolver(Arc<dyn MultigridSolver>);
+pub struct PoissonSolver {
+    solver: Arc<dyn MultigridSolver>,
+    sobel: Arc<dyn SobelPass>,
+}
 
 impl PoissonSolver {
+    /// `solver` with the CPU's Sobel pass.
     pub fn new(solver: impl MultigridSolver + 'static) -> Self {
-        Self(Arc::new(solver))
+        Self {
+            solver: Arc::new(solver),
+            sobel: Arc::new(CpuSobel),
+        }
+    }
+    /// The same, with `sobel` computing the oriented points' gradients.
+    pub fn with_sobel(mut self, sobel: impl SobelPass + 'static) -> Self {
+        self.sobel = Arc::new(sobel);
+        self
     }
     pub fn cpu() -> Self {
         Self::new(CpuMultigrid)
     }
+    /// Where the multigrid runs.
     pub fn backend(&self) -> &'static str {
-        self.0.backend()
+        self.solver.backend()
     }
     pub fn solver(&self) -> &dyn MultigridSolver {
-        &*self.0
+        &*self.solver
+    }
+    pub fn sobel(&self) -> &dyn SobelPass {
+        &*self.sobel
     }
 }
 
@@ -95,6 +111,7 @@ impl std::fmt::Debug for PoissonSolver {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("PoissonSolver")
             .field("backend", &self.backend())
+            .field("sobel", &self.sobel.backend())
             .finish_non_exhaustive()
     }
 }
