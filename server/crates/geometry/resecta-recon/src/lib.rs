@@ -26,7 +26,7 @@ pub use models::{
 };
 pub use psr::{PsrModel, SurfaceDiff};
 pub use quality::{Quality, measure};
-pub use resecta_poisson::PoissonSolver;
+pub use resecta_poisson::{PoissonError, PoissonSolver};
 
 use resecta_geom::GeomError;
 

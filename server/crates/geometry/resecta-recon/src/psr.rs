@@ -7,7 +7,8 @@ use resecta_geom::{Real, TriMesh, Volume};
 use resecta_isosurface::{Options, extract};
 use resecta_meshmetrics::point_to_surface;
 use resecta_poisson::{
-    OrientedPoints, PoissonField, PoissonParams, PoissonSolver, oriented_points, solve_with,
+    OrientedPoints, PoissonField, PoissonParams, PoissonSolver, oriented_points,
+    oriented_points_with, solve_with,
 };
 
 use crate::{ReconError, mask};
@@ -24,6 +25,15 @@ pub struct PsrModel {
 pub fn points(mask: &Volume<bool>) -> Result<OrientedPoints, ReconError> {
     let crop = mask::crop(mask, 1)?;
     Ok(oriented_points(&crop)?)
+}
+
+/// [`points`] with the Sobel pass of `solver`.
+pub fn points_with(
+    mask: &Volume<bool>,
+    solver: &PoissonSolver,
+) -> Result<OrientedPoints, ReconError> {
+    let crop = mask::crop(mask, 1)?;
+    Ok(oriented_points_with(&crop, solver.sobel())?)
 }
 
 /// The PSR surface of `points` at `depth`, in RAS with vertex normals. The grid's border is
@@ -79,7 +89,7 @@ pub fn reconstruct_with(
     depth: u32,
     solver: &PoissonSolver,
 ) -> Result<PsrModel, ReconError> {
-    let points = points(mask)?;
+    let points = points_with(mask, solver)?;
     let mesh = surface_with(&points, depth, solver)?;
     Ok(PsrModel {
         mesh,
