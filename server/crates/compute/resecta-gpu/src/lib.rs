@@ -14,7 +14,8 @@
 //!   triangles and hints resident, one invocation per point walking the tree (f64), classes by
 //!   `MarginSettings::classify` on the host ([`GpuMarginField::margins_into`]).
 //! - [`kernels::poisson`]: the screened Poisson multigrid of `resecta-poisson` resident on the
-//!   device ([`GpuMultigrid`], f32; [`gpu_poisson_solver`] for `resecta_recon`'s `*_with` calls).
+//!   device ([`GpuMultigrid`], f32) and the oriented points' Sobel pass ([`GpuSobel`]);
+//!   [`gpu_poisson_solver`] for `resecta_recon`'s `*_with` calls.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -29,5 +30,5 @@ pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
 pub use kernels::margin::GpuMarginField;
-pub use kernels::poisson::{GpuMultigrid, gpu_poisson_solver};
+pub use kernels::poisson::{GpuMultigrid, GpuSobel, gpu_poisson_solver};
 pub use surface::{GpuSurface, gpu_engine};

@@ -15,9 +15,17 @@
 //! (the device may fuse or round division differently) and by the norm's `f32` tree sum (the
 //! CPU sums in `f64`), which can move the stopping cycle when a residual sits at the tolerance.
 //! Tests compare fields, iso-surfaces and volumes with the CPU's (`tests.rs`).
+//!
+//! Oriented points: [`GpuSobel`] is `resecta_poisson::CpuSobel` on the device, the integer 3D
+//! Sobel gradient of every voxel of the padded mask box (slabs of planes sized to the device's
+//! binding limit, one dispatch and one read-back each); the host turns gradients into samples
+//! (`resecta_poisson::oriented_points_with`, shared with the CPU), so the points are identical.
+//! Marching cubes stays on the host (`resecta_isosurface`), so both backends' meshes follow
+//! the same topology rules and are closed and manifold by construction.
 
 use resecta_poisson::{
-    COARSEST_SWEEPS, MultigridSolver, PoissonError, PoissonParams, PoissonSolver, Solution, System,
+    COARSEST_SWEEPS, MaskBox, MultigridSolver, PoissonError, PoissonParams, PoissonSolver,
+    SobelPass, Solution, System,
 };
 use wgpu::util::DeviceExt;
 
@@ -124,9 +132,121 @@ impl MultigridSolver for GpuMultigrid {
     }
 }
 
-/// A [`PoissonSolver`] on `ctx` (for `resecta_recon`'s options and the server).
+/// A [`PoissonSolver`] on `ctx`, multigrid and Sobel pass (for `resecta_recon`'s `*_with`
+/// calls and the server).
 pub fn gpu_poisson_solver(ctx: &GpuContext) -> PoissonSolver {
-    PoissonSolver::new(GpuMultigrid::new(ctx))
+    PoissonSolver::new(GpuMultigrid::new(ctx)).with_sobel(GpuSobel::new(ctx))
+}
+
+/// The oriented points' Sobel pass on a wgpu device.
+#[derive(Debug, Clone)]
+pub struct GpuSobel {
+    ctx: GpuContext,
+}
+
+impl GpuSobel {
+    pub fn new(ctx: &GpuContext) -> Self {
+        Self { ctx: ctx.clone() }
+    }
+
+    /// `resecta_poisson::CpuSobel::gradients` on the device.
+    pub fn run(&self, b: &MaskBox) -> Result<Vec<[i8; 3]>, GpuError> {
+        self.ctx.check()?;
+        let [px, py, pz] = b.dims;
+        let plane = px * py;
+        if b.data.len() != plane * pz || pz < 3 || px < 3 || py < 3 {
+            return Err(GpuError::Pipeline(format!(
+                "mask box of {:?} voxels holds {} values",
+                b.dims,
+                b.data.len()
+            )));
+        }
+        let limit = self.ctx.max_binding() as usize;
+        // Output planes per slab: 4 bytes per voxel out, and their planes ±1 in.
+        let slab = (limit / 4 / plane).min(pz - 2);
+        if slab == 0 || (slab + 2) * plane > limit {
+            return Err(too_large("Sobel plane", 4 * plane as u64, limit as u64));
+        }
+        let to_u32 = |v: usize| {
+            u32::try_from(v).map_err(|_| too_large("Sobel plane", 4 * plane as u64, limit as u64))
+        };
+        let (x, y) = (to_u32(px)?, to_u32(py)?);
+        let pipeline = self.ctx.compute_pipeline("poisson", SOURCE, "sobel")?;
+        let device = &self.ctx.device;
+        use wgpu::BufferUsages as U;
+        let buffer = |label, size: usize, usage| {
+            device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size as u64,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
+        let in_bytes = ((slab + 2) * plane).next_multiple_of(4);
+        let out_bytes = 4 * slab * plane;
+        let uniform = buffer("sobel-params", 16, U::UNIFORM | U::COPY_DST);
+        let input = buffer("sobel-mask", in_bytes, U::STORAGE | U::COPY_DST);
+        let out = buffer("sobel-gradients", out_bytes, U::STORAGE | U::COPY_SRC);
+        let staging = buffer("sobel-staging", out_bytes, U::MAP_READ | U::COPY_DST);
+        let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("sobel"),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &[(7, &uniform), (8, &input), (9, &out)].map(|(binding, b)| {
+                wgpu::BindGroupEntry {
+                    binding,
+                    resource: b.as_entire_binding(),
+                }
+            }),
+        });
+        let mut grads = vec![[0i8; 3]; b.data.len()];
+        let mut chunk = vec![0u8; in_bytes];
+        let max_dim = self.ctx.caps.limits.max_compute_workgroups_per_dimension;
+        for k0 in (1..pz - 1).step_by(slab) {
+            let m = slab.min(pz - 1 - k0);
+            let src = &b.data[(k0 - 1) * plane..(k0 + m + 1) * plane];
+            chunk[..src.len()].copy_from_slice(src);
+            let q = &self.ctx.queue;
+            q.write_buffer(&input, 0, &chunk[..(src.len()).next_multiple_of(4)]);
+            let params = [x, y, to_u32(m)?, 0];
+            q.write_buffer(&uniform, 0, bytemuck::cast_slice(&params));
+            let groups = to_u32(m * plane)?.div_ceil(GROUP);
+            let gx = groups.min(max_dim);
+            let mut enc = device.create_command_encoder(&Default::default());
+            {
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&pipeline);
+                pass.set_bind_group(0, &bind, &[]);
+                pass.dispatch_workgroups(gx, groups.div_ceil(gx), 1);
+            }
+            let used = (4 * m * plane) as u64;
+            enc.copy_buffer_to_buffer(&out, 0, &staging, 0, used);
+            q.submit([enc.finish()]);
+            let dst = &mut grads[k0 * plane..(k0 + m) * plane];
+            let read = self.ctx.read_back(&[(&staging, 0..used)], |_, bytes| {
+                for (g, w) in dst.iter_mut().zip(bytes.chunks_exact(4)) {
+                    let w = u32::from_le_bytes([w[0], w[1], w[2], w[3]]);
+                    if w != 0 {
+                        *g = [0, 6, 12].map(|s| ((w >> s & 63) as i32 - 16) as i8);
+                    }
+                }
+            });
+            self.ctx.check()?;
+            read?;
+        }
+        Ok(grads)
+    }
+}
+
+impl SobelPass for GpuSobel {
+    fn backend(&self) -> &'static str {
+        "gpu"
+    }
+    fn gradients(&self, b: &MaskBox) -> Result<Vec<[i8; 3]>, PoissonError> {
+        self.run(b).map_err(|e| PoissonError::Backend {
+            backend: "gpu",
+            reason: e.to_string(),
+        })
+    }
 }
 
 /// One dispatch: entry, uniform slot, invocations.

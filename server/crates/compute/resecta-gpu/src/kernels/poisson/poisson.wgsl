@@ -206,3 +206,54 @@ fn prolongation(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) 
     let o = p.off + t;
     x[o] = select(v, x[o] + v, p.flag == 1u);
 }
+
+// Oriented points' Sobel pass (CPU twin: `resecta_poisson::sobel`): one invocation per voxel of
+// a slab of `sp.z` planes of the padded mask box; `mask` holds those planes and one more on
+// either side (4 voxels per word). Writes the packed gradient (x + 16, y + 16, z + 16 in 6 bits
+// each, bit 18 set), 0 for background and border voxels.
+struct SobelParams {
+    x: u32,
+    y: u32,
+    z: u32,
+    pad: u32,
+}
+
+@group(0) @binding(7) var<uniform> sp: SobelParams;
+@group(0) @binding(8) var<storage, read> mask: array<u32>;
+@group(0) @binding(9) var<storage, read_write> grad: array<u32>;
+
+fn voxel(c: u32) -> i32 {
+    return i32((mask[c / 4u] >> (8u * (c % 4u))) & 0xffu);
+}
+
+@compute @workgroup_size(256)
+fn sobel(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
+         @builtin(local_invocation_index) lid: u32) {
+    let t = linear_id(wid, nwg) * GROUP + lid;
+    let px = sp.x;
+    let py = sp.y;
+    if (t >= px * py * sp.z) { return; }
+    let i = t % px;
+    let j = (t / px) % py;
+    let c = t + px * py;
+    if (i == 0u || j == 0u || i + 1u >= px || j + 1u >= py || voxel(c) == 0) {
+        grad[t] = 0u;
+        return;
+    }
+    var g = vec3<i32>(0, 0, 0);
+    var s = array<i32, 3>(1, 2, 1);
+    for (var zc = 0u; zc < 3u; zc++) {
+        for (var yb = 0u; yb < 3u; yb++) {
+            let r = c + px * (yb + py * zc) - px - px * py;
+            let l = voxel(r - 1u);
+            let m = voxel(r);
+            let rr = voxel(r + 1u);
+            g.x += s[yb] * s[zc] * (rr - l);
+            let row = l + 2 * m + rr;
+            g.y += (i32(yb) - 1) * s[zc] * row;
+            g.z += (i32(zc) - 1) * s[yb] * row;
+        }
+    }
+    let u = vec3<u32>(g + vec3<i32>(16, 16, 16));
+    grad[t] = u.x | (u.y << 6u) | (u.z << 12u) | (1u << 18u);
+}

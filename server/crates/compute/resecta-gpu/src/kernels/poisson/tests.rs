@@ -4,11 +4,12 @@
 use resecta_geom::{RoleMap, Volume};
 use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, generate};
 use resecta_poisson::{
-    MultigridSolver, PoissonError, PoissonParams, PoissonSolver, System, SystemLevel,
+    CpuSobel, MultigridSolver, PoissonError, PoissonParams, PoissonSolver, SobelPass, System,
+    SystemLevel, mask_box, oriented_points, oriented_points_with,
 };
 use resecta_recon::psr;
 
-use super::{GpuMultigrid, gpu_poisson_solver};
+use super::{GpuMultigrid, GpuSobel, gpu_poisson_solver};
 use crate::device::testing::context;
 
 /// Largest |GPU − CPU| of the field (its values span about −0.5…1): rounding of f32 sweeps.
@@ -123,4 +124,46 @@ fn a_malformed_system_is_a_typed_error() {
     );
     // The device is still usable afterwards.
     assert!(ctx.check().is_ok());
+}
+
+#[test]
+fn oriented_points_equal_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let gpu = GpuSobel::new(&ctx);
+    for (name, mask) in masks() {
+        let b = mask_box(&mask).unwrap();
+        assert_eq!(
+            gpu.gradients(&b).unwrap(),
+            CpuSobel.gradients(&b).unwrap(),
+            "{name}"
+        );
+        let c = oriented_points(&mask).unwrap();
+        let g = oriented_points_with(&mask, &gpu).unwrap();
+        eprintln!("{name}: {} points, identical", c.len());
+        assert_eq!(c, g, "{name}");
+    }
+    // Slabs: a binding limit of a few planes splits the box; the result is the same.
+    let (_, mask) = &masks()[1];
+    let b = mask_box(mask).unwrap();
+    let mut small = ctx.clone();
+    let plane = (b.dims[0] * b.dims[1]) as u64;
+    small.caps.limits.max_storage_buffer_binding_size = 4 * 5 * plane;
+    assert_eq!(
+        GpuSobel::new(&small).gradients(&b).unwrap(),
+        CpuSobel.gradients(&b).unwrap()
+    );
+}
+
+#[test]
+fn gpu_solver_reconstructs_like_the_cpu() {
+    let Some(ctx) = context() else { return };
+    let (_, mask) = &masks()[1];
+    let c = psr::reconstruct(mask, 6).unwrap();
+    let g = psr::reconstruct_with(mask, 6, &gpu_poisson_solver(&ctx)).unwrap();
+    assert_eq!(c.points, g.points);
+    let d = psr::surface_diff(&c.mesh, &g.mesh).unwrap();
+    assert!(
+        d.max_mm <= SURFACE_MM && d.volume_pct <= VOLUME_PCT,
+        "{d:?}"
+    );
 }
