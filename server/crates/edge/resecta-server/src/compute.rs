@@ -50,6 +50,7 @@ pub fn configure_compute(mode: GpuMode, service: &mut ServiceConfig) -> Result<(
                 f64: ctx.caps.f64,
             };
             service.surface_engine = gpu_engine(&ctx);
+            service.poisson_solver = resecta_gpu::gpu_poisson_solver(&ctx);
             service.capabilities.push("gpu".into());
             Ok(())
         }
