@@ -96,22 +96,23 @@ struct Report {
 
 const SPACING: [Real; 3] = [0.75, 0.75, 1.0];
 
-/// A liver-sized union of two ellipsoids (right lobe and left lobe), obliquely rotated, centred
-/// on a grid of `dims` voxels.
+/// A liver of about 1.4 l (right and left lobe, two obliquely rotated ellipsoids, 200 × 130 ×
+/// 120 mm) centred on a grid of `dims` voxels, shrunk along an axis where the grid is smaller
+/// than 240 mm.
 fn phantom_spec(dims: [usize; 3]) -> PhantomSpec {
-    let half = |a: usize| dims[a] as Real * SPACING[a] * 0.5;
-    let (rx, ry, rz) = (half(0), half(1), half(2));
+    let s: [Real; 3] = std::array::from_fn(|a| (dims[a] as Real * SPACING[a] / 240.0).min(1.0));
+    let at = |v: [Real; 3]| std::array::from_fn(|a| v[a] * s[a]);
     PhantomSpec {
         grid: GridSpec::centred(dims, SPACING, [0.0; 3], Orientation::default()),
         liver: vec![
             EllipsoidSpec {
-                center: [-0.2 * rx, 0.0, 0.0],
-                radii: [0.6 * rx, 0.55 * ry, 0.7 * rz],
+                center: at([-25.0, 0.0, 0.0]),
+                radii: at([75.0, 65.0, 60.0]),
                 rotation: Orientation::EulerDeg([5.0, -4.0, 18.0]),
             },
             EllipsoidSpec {
-                center: [0.35 * rx, 0.1 * ry, 0.15 * rz],
-                radii: [0.45 * rx, 0.35 * ry, 0.4 * rz],
+                center: at([45.0, 15.0, 15.0]),
+                radii: at([55.0, 40.0, 35.0]),
                 rotation: Orientation::EulerDeg([-6.0, 8.0, -12.0]),
             },
         ],
