@@ -4,6 +4,7 @@
 //! V-cycles and final relative residual; with both backends each depth also reports the
 //! CPU–GPU difference of the surfaces (symmetric vertex-to-surface max, mm) and volumes (%).
 //! A depth a backend cannot run (memory budget, device binding limit) is reported, not fatal.
+//! One d = 4 solve per backend first compiles the device's pipelines (not timed).
 //! On a software adapter (lavapipe) the GPU figures are correctness runs only.
 
 use std::time::Instant;
@@ -185,6 +186,14 @@ pub fn run(args: &ReconArgs) -> Result<(), CliError> {
         max_bytes: args.max_gib << 30,
         ..PoissonParams::default()
     };
+    // Warm-up: one d = 4 solve per backend compiles the device's pipelines before any timing.
+    for (_, solver) in &backends {
+        let warm = PoissonParams {
+            depth: 4,
+            ..base.clone()
+        };
+        psr::field(&points, &warm, solver).map_err(recon_err)?;
+    }
     let mut rows = Vec::new();
     let mut diffs = Vec::new();
     for &depth in &args.depths {
