@@ -14,7 +14,9 @@
 //! `f32`; red–black colours have no intra-colour dependency, so results differ only by rounding
 //! (the device may fuse or round division differently) and by the norm's `f32` tree sum (the
 //! CPU sums in `f64`), which can move the stopping cycle when a residual sits at the tolerance.
-//! Tests compare fields, iso-surfaces and volumes with the CPU's (`tests.rs`).
+//! Tests compare fields, iso-surfaces and volumes with the CPU's (`tests.rs`); on lavapipe the
+//! field is bitwise the CPU's (d = 5–8 measured), the bounds tested are 2e-4 on the field,
+//! 0.05 mm on the surface and 0.05 % on the volume.
 //!
 //! Oriented points: [`GpuSobel`] is `resecta_poisson::CpuSobel` on the device, the integer 3D
 //! Sobel gradient of every voxel of the padded mask box (slabs of planes sized to the device's
