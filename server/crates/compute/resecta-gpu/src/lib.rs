@@ -22,6 +22,9 @@
 //!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver resident,
 //!   bit-packed; two read-backs per cut), results equal to `Volumetry`'s CPU path;
 //!   [`gpu_volumetry`] makes them for planners.
+//! - [`kernels::poisson`]: the screened Poisson multigrid of `resecta-poisson` resident on the
+//!   device ([`GpuMultigrid`], f32) and the oriented points' Sobel pass ([`GpuSobel`]);
+//!   [`gpu_poisson_solver`] for `resecta_recon`'s `*_with` calls.
 //! - [`surface`]: [`GpuSurface`], the planner's `SurfaceEvaluator` on the GPU (f64 with
 //!   `SHADER_F64`, f32 otherwise), and [`gpu_engine`], the `SurfaceEngine` that makes them.
 //! - [`cooperation`]: CPU–GPU cooperation (Sec. 8.5.2), static (SDC) and dynamic (DDC) tiling.
@@ -38,6 +41,7 @@ pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
 pub use kernels::inside::GpuInsideField;
 pub use kernels::margin::GpuMarginField;
+pub use kernels::poisson::{GpuMultigrid, GpuSobel, gpu_poisson_solver};
 pub use kernels::volumetry::{GpuVolumetry, gpu_volumetry};
 pub use probe::{GpuProbe, gpu_compute_engine};
 pub use surface::{GpuSurface, gpu_engine};

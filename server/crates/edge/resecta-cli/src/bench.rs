@@ -18,6 +18,9 @@ pub enum Command {
     /// The planning server under load (issue #6): edit → delta latency at watching clients alone
     /// and with many sessions at once, memory per idle session, and a 512×512×300 upload.
     Server(crate::bench_server::ServerArgs),
+    /// Poisson reconstruction (issue #21): PSR of a phantom liver at several depths on the CPU
+    /// and the GPU, times, iterations and the CPU–GPU surface and volume differences.
+    Recon(crate::bench_recon::ReconArgs),
 }
 
 #[derive(Debug, clap::Args)]
@@ -64,9 +67,9 @@ struct Speedup {
 }
 
 #[derive(Debug, Serialize)]
-struct Machine {
-    cpu: String,
-    logical_cores: usize,
+pub(crate) struct Machine {
+    pub(crate) cpu: String,
+    pub(crate) logical_cores: usize,
 }
 
 #[derive(Debug, Serialize)]
@@ -125,6 +128,7 @@ pub fn run(cmd: &Command) -> Result<(), CliError> {
     match cmd {
         Command::Bezier(args) => bezier(args),
         Command::Server(args) => crate::bench_server::run(args),
+        Command::Recon(args) => crate::bench_recon::run(args),
     }
 }
 
@@ -322,7 +326,7 @@ fn speedups(rows: &[Row]) -> Vec<Speedup> {
         .collect()
 }
 
-fn machine() -> Machine {
+pub(crate) fn machine() -> Machine {
     let cpu = std::fs::read_to_string("/proc/cpuinfo")
         .ok()
         .and_then(|s| {

@@ -4,8 +4,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use resecta_geom::{LabelMap, Real, RoleMap, TriMesh, Volume, VoxelLimit};
+use resecta_gpu::{GpuContext, gpu_poisson_solver};
 use resecta_io::{read_label_map, read_mesh, write_mesh};
-use resecta_poisson::OrientedPoints;
+use resecta_poisson::{OrientedPoints, PoissonSolver};
 use resecta_recon::study::{self, StudyConfig};
 use resecta_recon::{
     McsdParams, ModelOptions, ParenchymaMethod, Quality, mask, mcsd, measure, patient_models, psr,
@@ -14,6 +15,44 @@ use serde::Serialize;
 
 use crate::error::CliError;
 use crate::output::{print_json, progress};
+
+/// Where the Poisson multigrid runs (points, splatting and marching cubes stay on the host).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    Cpu,
+    /// The first adapter of `WGPU_BACKEND` (all backends when unset).
+    Gpu,
+}
+
+/// The adapter a GPU backend ran on.
+#[derive(Debug, Clone, Serialize)]
+pub struct Adapter {
+    pub name: String,
+    pub backend: String,
+    pub driver: String,
+    /// A software rasteriser (lavapipe): timings are correctness runs only.
+    pub software: bool,
+}
+
+/// The solver of `backend`, with the adapter for the GPU; no adapter is [`CliError::Failed`]
+/// naming the backends searched.
+pub fn poisson_solver(backend: Backend) -> Result<(PoissonSolver, Option<Adapter>), CliError> {
+    match backend {
+        Backend::Cpu => Ok((PoissonSolver::cpu(), None)),
+        Backend::Gpu => {
+            let ctx =
+                GpuContext::new().map_err(|e| CliError::Failed(format!("--backend gpu: {e}")))?;
+            let adapter = Adapter {
+                name: ctx.info.name.clone(),
+                backend: format!("{:?}", ctx.info.backend).to_lowercase(),
+                driver: format!("{} {}", ctx.info.driver, ctx.info.driver_info),
+                software: ctx.is_software(),
+            };
+            Ok((gpu_poisson_solver(&ctx), Some(adapter)))
+        }
+    }
+}
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -66,6 +105,9 @@ pub struct ReconstructArgs {
     /// Also write the oriented points (positions and outward normals) as PLY.
     #[arg(long)]
     pub points_out: Option<PathBuf>,
+    /// Where PSR's multigrid runs.
+    #[arg(long, value_enum, default_value_t = Backend::Cpu)]
+    pub backend: Backend,
     #[arg(long)]
     pub json: bool,
 }
@@ -80,6 +122,10 @@ struct ReconstructSummary {
     smoothing: Option<Real>,
     #[serde(skip_serializing_if = "Option::is_none")]
     decimation: Option<Real>,
+    /// Where PSR's multigrid ran, and on which adapter.
+    backend: Backend,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    adapter: Option<Adapter>,
     #[serde(flatten)]
     quality: Quality,
     /// Volume of the selected voxels, ml.
@@ -103,17 +149,21 @@ fn read_labels(path: &Path) -> Result<LabelMap, CliError> {
     Ok(read_label_map(path, VoxelLimit::default())?)
 }
 
-fn recon_err(e: resecta_recon::ReconError) -> CliError {
+pub(crate) fn recon_err(e: resecta_recon::ReconError) -> CliError {
     use resecta_recon::ReconError as E;
     match e {
-        E::NoLabels
-        | E::LabelsAbsent { .. }
-        | E::EmptyMask
-        | E::InvalidParameter { .. }
-        | E::Poisson(_) => CliError::BadInput(e.to_string()),
-        E::Cancelled | E::Filter(_) | E::Isosurface(_) | E::Metrics(_) | E::Geometry(_) => {
-            CliError::Failed(e.to_string())
+        E::NoLabels | E::LabelsAbsent { .. } | E::EmptyMask | E::InvalidParameter { .. } => {
+            CliError::BadInput(e.to_string())
         }
+        E::Poisson(ref p) if !matches!(p, resecta_poisson::PoissonError::Backend { .. }) => {
+            CliError::BadInput(e.to_string())
+        }
+        E::Poisson(_)
+        | E::Cancelled
+        | E::Filter(_)
+        | E::Isosurface(_)
+        | E::Metrics(_)
+        | E::Geometry(_) => CliError::Failed(e.to_string()),
     }
 }
 
@@ -138,6 +188,7 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
             "--labels: give at least one label".into(),
         ));
     }
+    let (solver, adapter) = poisson_solver(args.backend)?;
     let pb = progress(args.json);
     let start = Instant::now();
     pb.set_message("reading label map");
@@ -156,11 +207,12 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
             let points = psr::points(&selected).map_err(recon_err)?;
             match args.depth {
                 DepthArg::Fixed(d) => {
-                    let mesh = psr::surface(&points, d).map_err(recon_err)?;
+                    let mesh = psr::surface_with(&points, d, &solver).map_err(recon_err)?;
                     (mesh, Some(points), Some(d), Vec::new())
                 }
                 DepthArg::Auto => {
-                    let auto = study::auto_depth(&points, &[5, 6, 7, 8]).map_err(recon_err)?;
+                    let auto = study::auto_depth_with(&points, &[5, 6, 7, 8], &solver)
+                        .map_err(recon_err)?;
                     (auto.mesh, Some(points), Some(auto.depth), auto.candidates)
                 }
             }
@@ -200,6 +252,8 @@ pub fn reconstruct(args: &ReconstructArgs) -> Result<(), CliError> {
         depth,
         smoothing: (args.method == Method::Mcsd).then_some(args.smoothing),
         decimation: (args.method == Method::Mcsd).then_some(args.decimation),
+        backend: args.backend,
+        adapter,
         quality,
         mask_ml: mask_ml(&selected),
         samples: points.positions.len(),

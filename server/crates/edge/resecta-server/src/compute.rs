@@ -50,6 +50,7 @@ pub fn configure_compute(mode: GpuMode, service: &mut ServiceConfig) -> Result<(
                 f64: ctx.caps.f64,
             };
             service.compute_engine = gpu_compute_engine(&ctx);
+            service.poisson_solver = resecta_gpu::gpu_poisson_solver(&ctx);
             service.capabilities.push("gpu".into());
             Ok(())
         }

@@ -4,6 +4,7 @@ use std::time::Duration;
 
 use resecta_delta::EncodeOptions;
 use resecta_plan::ComputeEngine;
+use resecta_recon::PoissonSolver;
 
 use crate::api::ComputeInfo;
 use crate::watch::RingBounds;
@@ -42,6 +43,9 @@ pub struct ServiceConfig {
     pub compute_engine: ComputeEngine,
     /// What [`Service::info`](crate::Service::info) reports of `compute_engine`.
     pub compute: ComputeInfo,
+    /// Solves the parenchyma's Poisson system in reconstructions (the CPU's by default); a
+    /// device failure reruns that reconstruction on the CPU.
+    pub poisson_solver: PoissonSolver,
 }
 
 impl Default for ServiceConfig {
@@ -64,6 +68,7 @@ impl Default for ServiceConfig {
             capabilities: Vec::new(),
             compute_engine: ComputeEngine::cpu(),
             compute: ComputeInfo::default(),
+            poisson_solver: PoissonSolver::cpu(),
         }
     }
 }

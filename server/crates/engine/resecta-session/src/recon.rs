@@ -6,7 +6,8 @@ use std::sync::Arc;
 use resecta_delta::{SurfaceFrame, encode_mesh};
 use resecta_geom::{Real, Role};
 use resecta_recon::{
-    McsdParams, ModelOptions, ParenchymaMethod, ReconError, SPECK_MM3, patient_models,
+    McsdParams, ModelOptions, ParenchymaMethod, PoissonError, ReconError, SPECK_MM3,
+    patient_models, patient_models_with,
 };
 use tokio::sync::mpsc;
 
@@ -127,6 +128,7 @@ impl Service {
             .reserve(Use::Reconstruction, reconstruction_bytes(voxels, depth))?;
         let (tx, rx) = mpsc::channel(64);
         let service = Arc::clone(self);
+        let solver = self.config.poisson_solver.clone();
         tokio::spawn(async move {
             let _memory = memory;
             let started = std::time::Instant::now();
@@ -141,7 +143,15 @@ impl Service {
                     };
                     progress_tx.blocking_send(Ok(event)).is_ok()
                 };
-                patient_models(&labels, &roles, &model_options, &mut progress).map_err(recon_error)
+                let built = patient_models_with(&labels, &roles, &model_options, &solver, &mut progress);
+                match built {
+                    Err(ReconError::Poisson(e @ PoissonError::Backend { .. })) => {
+                        tracing::warn!(error = %e, "Poisson solver failed: reconstructing on the CPU");
+                        patient_models(&labels, &roles, &model_options, &mut progress)
+                    }
+                    other => other,
+                }
+                .map_err(recon_error)
             })
             .await
             .and_then(|built| built);

@@ -1250,3 +1250,42 @@ async fn a_lost_device_leaves_the_edits_to_the_cpu_and_info_reports_the_compute(
         );
     }
 }
+
+/// A Poisson solver whose device always fails.
+struct FailingSolver;
+
+impl resecta_poisson::MultigridSolver for FailingSolver {
+    fn backend(&self) -> &'static str {
+        "failing"
+    }
+    fn solve(
+        &self,
+        _: resecta_poisson::System,
+        _: &resecta_poisson::PoissonParams,
+    ) -> Result<resecta_poisson::Solution, resecta_poisson::PoissonError> {
+        Err(resecta_poisson::PoissonError::Backend {
+            backend: "failing",
+            reason: "device lost".into(),
+        })
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failing_poisson_solver_leaves_the_reconstruction_to_the_cpu() {
+    let mut failing = config();
+    failing.poisson_solver = resecta_poisson::PoissonSolver::new(FailingSolver);
+    let store = || Arc::new(MemoryStore::new(StoreOptions::default()));
+    let mut models = Vec::new();
+    for config in [config(), failing] {
+        let service = Arc::new(Service::new(store(), config));
+        let id = service.create_session("Psr").await.unwrap().id;
+        let labels = phantom();
+        let raw = LabelMapSource::Raw(RawLabelMap::of(&labels));
+        service
+            .upload_label_map(&id, raw, RoleMap::default())
+            .await
+            .unwrap();
+        models.push(models_of(&service, &id, ReconOptions::default()).await);
+    }
+    assert_eq!(format!("{:?}", models[0]), format!("{:?}", models[1]));
+}

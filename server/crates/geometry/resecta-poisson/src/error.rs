@@ -33,4 +33,10 @@ pub enum PoissonError {
     },
     #[error("the mask's grid has a singular index-to-world matrix")]
     SingularGrid,
+    /// The solver's device failed (e.g. a lost GPU); the CPU solver never returns it.
+    #[error("the {backend} multigrid solver failed: {reason}")]
+    Backend {
+        backend: &'static str,
+        reason: String,
+    },
 }

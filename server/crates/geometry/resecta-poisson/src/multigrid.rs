@@ -7,6 +7,9 @@
 
 use rayon::prelude::*;
 
+use crate::solve::PoissonParams;
+use crate::system::{Solution, System};
+
 /// One level of the hierarchy.
 #[derive(Debug)]
 pub(crate) struct Level {
@@ -285,4 +288,46 @@ pub(crate) fn v_cycle(levels: &mut [Level], zeros: &[f32], l: usize, pre: u32, p
 }
 
 /// Sweeps on the coarsest (2³-node) level: enough to solve it.
-const COARSEST_SWEEPS: u32 = 50;
+pub const COARSEST_SWEEPS: u32 = 50;
+
+/// The CPU's schedule: full multigrid from the coarsest level, then V-cycles at the finest level
+/// until the relative residual is at most `tolerance` or `max_cycles` ran.
+pub(crate) fn solve_cpu(system: System, params: &PoissonParams) -> Solution {
+    let mut levels: Vec<Level> = system
+        .levels
+        .into_iter()
+        .map(|s| Level {
+            n: s.n,
+            lap: s.lap,
+            x: vec![0f32; s.b.len()],
+            r: vec![0f32; s.b.len()],
+            diag: s.diag,
+            b: s.b,
+        })
+        .collect();
+    let Some(top) = levels.len().checked_sub(1) else {
+        return Solution::default();
+    };
+    let zeros = vec![0f32; levels[top].n * levels[top].n];
+    let (pre, post) = (params.sweeps, params.sweeps);
+    v_cycle(&mut levels, &zeros, 0, pre, post);
+    for l in 1..levels.len() {
+        let (lower, upper) = levels.split_at_mut(l);
+        let (coarse, fine) = (&lower[l - 1], &mut upper[0]);
+        prolong(&coarse.x, coarse.n, &mut fine.x, fine.n, false);
+        v_cycle(&mut levels, &zeros, l, pre, post);
+    }
+    let mut out = Solution::default();
+    loop {
+        let (rr, bb) = residual(&mut levels[top], &zeros);
+        let rel = if bb > 0.0 { (rr / bb).sqrt() } else { 0.0 };
+        out.residuals.push(rel);
+        if rel <= params.tolerance || out.cycles >= params.max_cycles {
+            break;
+        }
+        v_cycle(&mut levels, &zeros, top, pre, post);
+        out.cycles += 1;
+    }
+    out.x = levels.pop().map(|l| l.x).unwrap_or_default();
+    out
+}

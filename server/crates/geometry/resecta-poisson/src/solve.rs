@@ -13,7 +13,7 @@
 //! field (≈ 0 on the samples, ≈ ½ inside, ≈ −½ outside) and makes the system positive definite.
 //! Everything is in finest-cell units, so `α` acts the same at every depth.
 //!
-//! **Solver.** Full multigrid from 2³ nodes up, then V-cycles at the finest level until the
+//! **Solver.** A [`MultigridSolver`] (the CPU's by default): full multigrid from 2³ nodes up, then V-cycles at the finest level until the
 //! relative residual `|b − Aχ|/|b|` is at most `tolerance`: red–black Gauss–Seidel smoothing,
 //! full-weighting restriction, trilinear prolongation, rediscretised coarse Laplacians
 //! (coefficient doubling per level) and restricted screening weights, all in `f32`.
@@ -26,8 +26,9 @@ use rayon::prelude::*;
 use resecta_geom::{Mat4, Real, Vec3};
 
 use crate::error::PoissonError;
-use crate::multigrid::{Level, hierarchy_bytes, prolong, residual, restrict, v_cycle};
+use crate::multigrid::{hierarchy_bytes, restrict};
 use crate::points::{MIN_POINTS, OrientedPoints};
+use crate::system::{CpuMultigrid, MultigridSolver, System, SystemLevel};
 
 /// Largest depth accepted (a dense depth-10 grid needs ~20 GB and is refused by the budget).
 pub const MAX_DEPTH: u32 = 10;
@@ -75,6 +76,8 @@ impl Default for PoissonParams {
 pub struct SolveReport {
     /// V-cycles after full multigrid.
     pub cycles: u32,
+    /// Where the multigrid ran ([`MultigridSolver::backend`]).
+    pub backend: &'static str,
     /// Relative residual after full multigrid and after each further V-cycle.
     pub residuals: Vec<Real>,
     /// Wall-clock seconds: splatting the samples, multigrid, iso-value.
@@ -200,10 +203,21 @@ fn tables(f: f32) -> ([f32; 4], [f32; 4]) {
     )
 }
 
-/// Screened Poisson indicator field of `points` (see the module docs of this crate's solver).
+/// Screened Poisson indicator field of `points` (see the module docs of this crate's solver),
+/// solved on the CPU ([`CpuMultigrid`]).
 pub fn solve(
     points: &OrientedPoints,
     params: &PoissonParams,
+) -> Result<PoissonField, PoissonError> {
+    solve_with(points, params, &CpuMultigrid)
+}
+
+/// [`solve`] with the multigrid run by `solver`: the same system, assembled here, and the same
+/// iso-value; only the solve differs.
+pub fn solve_with(
+    points: &OrientedPoints,
+    params: &PoissonParams,
+    solver: &dyn MultigridSolver,
 ) -> Result<PoissonField, PoissonError> {
     check_params(params)?;
     let np = points.positions.len();
@@ -347,25 +361,21 @@ pub fn solve(
 
     // Hierarchy, coarsest first: restricted right-hand sides and screening weights.
     let t1 = Instant::now();
-    let mut levels: Vec<Level> = Vec::with_capacity(depth as usize + 1);
-    let mut cur = Level {
+    let mut levels: Vec<SystemLevel> = Vec::with_capacity(depth as usize + 1);
+    let mut cur = SystemLevel {
         n,
         lap: 1.0,
         diag,
         b,
-        x: vec![0f32; n * plane],
-        r: vec![0f32; n * plane],
     };
     for l in (0..depth).rev() {
         let nc = (1usize << l) + 1;
         let len = nc * nc * nc;
-        let mut next = Level {
+        let mut next = SystemLevel {
             n: nc,
             lap: cur.lap * 2.0,
             diag: vec![0f32; len],
             b: vec![0f32; len],
-            x: vec![0f32; len],
-            r: vec![0f32; len],
         };
         restrict(&cur.diag, cur.n, &mut next.diag, nc);
         restrict(&cur.b, cur.n, &mut next.b, nc);
@@ -374,33 +384,27 @@ pub fn solve(
     }
     levels.push(cur);
     levels.reverse();
-    let zeros = vec![0f32; plane];
 
-    // Full multigrid, then V-cycles to tolerance.
-    let (pre, post) = (params.sweeps, params.sweeps);
-    v_cycle(&mut levels, &zeros, 0, pre, post);
-    for l in 1..levels.len() {
-        let (lower, upper) = levels.split_at_mut(l);
-        let (coarse, fine) = (&lower[l - 1], &mut upper[0]);
-        prolong(&coarse.x, coarse.n, &mut fine.x, fine.n, false);
-        v_cycle(&mut levels, &zeros, l, pre, post);
+    // Full multigrid, then V-cycles to tolerance, by the given solver.
+    let solution = solver.solve(System { levels }, params)?;
+    if solution.x.len() != n * plane {
+        return Err(PoissonError::Backend {
+            backend: solver.backend(),
+            reason: format!(
+                "{} values returned, {} expected",
+                solution.x.len(),
+                n * plane
+            ),
+        });
     }
-    let top = levels.len() - 1;
-    let mut report = SolveReport::default();
-    loop {
-        let (rr, bb) = residual(&mut levels[top], &zeros);
-        let rel = if bb > 0.0 { (rr / bb).sqrt() } else { 0.0 };
-        report.residuals.push(rel);
-        if rel <= params.tolerance || report.cycles >= params.max_cycles {
-            break;
-        }
-        v_cycle(&mut levels, &zeros, top, pre, post);
-        report.cycles += 1;
-    }
+    let mut report = SolveReport {
+        cycles: solution.cycles,
+        residuals: solution.residuals,
+        backend: solver.backend(),
+        ..SolveReport::default()
+    };
     report.solve_s = t1.elapsed().as_secs_f64();
-    let finest = levels.pop();
-    drop(levels);
-    let values = finest.map(|l| l.x).unwrap_or_default();
+    let values = solution.x;
 
     // Iso-value: mean of the field at the samples, fixed-size chunks summed in order.
     let t2 = Instant::now();

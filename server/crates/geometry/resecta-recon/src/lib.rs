@@ -1,6 +1,7 @@
 //! Surface models from label maps (thesis ch. 6, Paper I).
 //!
-//! - [`psr`]: Poisson surface reconstruction from the mask's oriented points (parenchyma).
+//! - [`psr`]: Poisson surface reconstruction from the mask's oriented points (parenchyma), its
+//!   multigrid on a [`PoissonSolver`] (CPU by default; `resecta-gpu` has the device's).
 //! - [`mcsd`]: marching cubes, decimation, windowed-sinc smoothing — 3D Slicer's method
 //!   (tumours, vessels, and the comparison).
 //! - [`models`]: the complete patient model of Fig. 6.9: one mesh per vessel label (segment), per
@@ -20,10 +21,12 @@ pub mod study;
 
 pub use mcsd::McsdParams;
 pub use models::{
-    Dropped, ModelOptions, ParenchymaMethod, PatientModel, PatientModels, SPECK_MM3, patient_models,
+    Dropped, ModelOptions, ParenchymaMethod, PatientModel, PatientModels, SPECK_MM3,
+    patient_models, patient_models_with,
 };
-pub use psr::PsrModel;
+pub use psr::{PsrModel, SurfaceDiff};
 pub use quality::{Quality, measure};
+pub use resecta_poisson::{PoissonError, PoissonSolver};
 
 use resecta_geom::GeomError;
 

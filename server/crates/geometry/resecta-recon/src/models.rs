@@ -6,7 +6,7 @@
 use resecta_geom::{LabelMap, Real, Role, RoleMap, TriMesh};
 
 use crate::mask::{self, Components};
-use crate::{McsdParams, ReconError, mcsd, psr};
+use crate::{McsdParams, PoissonSolver, ReconError, mcsd, psr};
 
 /// Default speck volume (mm³, 0.01 ml): smaller components are segmentation noise (one to a few
 /// voxels of a CT) and get no model. Tumours always use it, so the tumour models are exactly the
@@ -156,6 +156,17 @@ pub fn patient_models(
     options: &ModelOptions,
     progress: &mut dyn FnMut(&str) -> bool,
 ) -> Result<PatientModels, ReconError> {
+    patient_models_with(labels, roles, options, &PoissonSolver::cpu(), progress)
+}
+
+/// [`patient_models`] with the parenchyma's Poisson system solved by `solver`.
+pub fn patient_models_with(
+    labels: &LabelMap,
+    roles: &RoleMap,
+    options: &ModelOptions,
+    solver: &PoissonSolver,
+    progress: &mut dyn FnMut(&str) -> bool,
+) -> Result<PatientModels, ReconError> {
     options.check()?;
     let mcsd_params = &options.mcsd;
     let mut out = PatientModels {
@@ -177,7 +188,9 @@ pub fn patient_models(
         let envelope = mask::liver_envelope(&region, roles)?;
         let voxels = envelope.data().iter().filter(|&&b| b).count();
         let mesh = match options.parenchyma {
-            ParenchymaMethod::Psr { depth } => psr::reconstruct(&envelope, depth)?.mesh,
+            ParenchymaMethod::Psr { depth } => {
+                psr::reconstruct_with(&envelope, depth, solver)?.mesh
+            }
             ParenchymaMethod::Mcsd => mcsd::reconstruct(&envelope, mcsd_params)?,
         };
         out.models.push(PatientModel {

@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use resecta_geom::{Real, TriMesh, Volume};
 use resecta_meshmetrics::{ModelMethod, ModelRecord, Study, analyse};
-use resecta_poisson::OrientedPoints;
+use resecta_poisson::{OrientedPoints, PoissonSolver};
 
 use crate::{McsdParams, ReconError, mcsd, measure, psr};
 
@@ -170,11 +170,20 @@ pub struct AutoDepth {
 /// normalising over these candidates: the depth with the best accuracy–complexity trade-off
 /// for this patient (the thesis found 7 over its six livers).
 pub fn auto_depth(points: &OrientedPoints, depths: &[u32]) -> Result<AutoDepth, ReconError> {
+    auto_depth_with(points, depths, &PoissonSolver::cpu())
+}
+
+/// [`auto_depth`] with every candidate solved by `solver`.
+pub fn auto_depth_with(
+    points: &OrientedPoints,
+    depths: &[u32],
+    solver: &PoissonSolver,
+) -> Result<AutoDepth, ReconError> {
     let mut meshes = Vec::with_capacity(depths.len());
     let mut records = Vec::with_capacity(depths.len());
     for &d in depths {
         let t = Instant::now();
-        let mesh = psr::surface(points, d)?;
+        let mesh = psr::surface_with(points, d, solver)?;
         let (r, _) = record(
             format!("PSR d={d}"),
             ModelMethod::Psr { depth: d },

@@ -4,6 +4,7 @@
 pub mod bezier;
 pub mod inside;
 pub mod margin;
+pub mod poisson;
 pub mod volumetry;
 
 use resecta_bezier::BezierScalar;
