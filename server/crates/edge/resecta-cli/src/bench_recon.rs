@@ -138,7 +138,7 @@ fn run_one(
     let t = Instant::now();
     let field = psr::field(points, params, solver)?;
     let te = Instant::now();
-    let mesh = psr::field_surface(&field)?;
+    let mesh = psr::field_surface(&field, solver)?;
     let r = &field.report;
     let run = Run {
         splat_s: r.splat_s,

@@ -40,6 +40,8 @@ pub enum IsoError {
     NonFinite(usize),
     #[error("surface has more than u32::MAX vertices")]
     TooManyVertices,
+    #[error("device: {0}")]
+    Device(String),
     #[error(transparent)]
     Geometry(#[from] GeomError),
 }
@@ -83,7 +85,129 @@ pub fn extract<T: Sample>(
     iso: f32,
     options: Options,
 ) -> Result<TriMesh, IsoError> {
-    Lattice::new(dims, values, iso, options)?.extract()
+    check(dims, values.len(), iso)?;
+    let classes = classify(dims, values, iso, options);
+    Lattice::new(dims, values, iso, classes)?.extract()
+}
+
+/// The first pass of [`extract`], over every lattice node: its class (1 inside: `value > iso`
+/// and, with [`Options::close_border`], not on the border; else 0), and per node row (j, k) the
+/// state bits: 1 some node inside, 2 some node outside, 4 some value not finite.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct NodeClasses {
+    /// Per node, `i` fastest.
+    pub class: Vec<u8>,
+    /// Per node row, index `j + ny·k`.
+    pub rows: Vec<u8>,
+}
+
+/// Computes [`NodeClasses`] of an f32 lattice (a device may; [`CpuClassifier`] by default).
+pub trait NodeClassifier: Send + Sync + std::fmt::Debug {
+    /// `"cpu"`, `"wgpu"`, …
+    fn backend(&self) -> &'static str;
+    /// The classes of `values` (already checked against `dims`). [`IsoError::Device`] when the
+    /// device failed: [`extract_with`] then classifies on the CPU.
+    fn classify(
+        &self,
+        dims: [usize; 3],
+        values: &[f32],
+        iso: f32,
+        options: Options,
+    ) -> Result<NodeClasses, IsoError>;
+}
+
+/// The classification of [`extract`], on the CPU (rayon over node rows).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct CpuClassifier;
+
+impl NodeClassifier for CpuClassifier {
+    fn backend(&self) -> &'static str {
+        "cpu"
+    }
+    fn classify(
+        &self,
+        dims: [usize; 3],
+        values: &[f32],
+        iso: f32,
+        options: Options,
+    ) -> Result<NodeClasses, IsoError> {
+        check(dims, values.len(), iso)?;
+        Ok(classify(dims, values, iso, options))
+    }
+}
+
+/// [`extract`] of an f32 lattice with its nodes classified by `classifier` (the CPU's when its
+/// device fails); the same mesh as [`extract`] for the same classes.
+pub fn extract_with(
+    dims: [usize; 3],
+    values: &[f32],
+    iso: f32,
+    options: Options,
+    classifier: &dyn NodeClassifier,
+) -> Result<TriMesh, IsoError> {
+    check(dims, values.len(), iso)?;
+    let classes = match classifier.classify(dims, values, iso, options) {
+        Err(IsoError::Device(_)) => classify(dims, values, iso, options),
+        r => r?,
+    };
+    let nodes = values.len();
+    if classes.class.len() != nodes || classes.rows.len() != dims[1] * dims[2] {
+        return Err(IsoError::Device(format!(
+            "{} classifier returned {} classes and {} rows for {dims:?}",
+            classifier.backend(),
+            classes.class.len(),
+            classes.rows.len()
+        )));
+    }
+    Lattice::new(dims, values, iso, classes)?.extract()
+}
+
+/// Checks the lattice's dimensions, value count and iso-value.
+fn check(dims: [usize; 3], len: usize, iso: f32) -> Result<(), IsoError> {
+    if dims.iter().any(|&d| d < 2) {
+        return Err(IsoError::TooSmall { dims });
+    }
+    let expected = dims
+        .iter()
+        .try_fold(1usize, |a, &d| a.checked_mul(d))
+        .unwrap_or(usize::MAX);
+    if len != expected {
+        return Err(IsoError::DataLength {
+            dims,
+            expected,
+            got: len,
+        });
+    }
+    if !iso.is_finite() {
+        return Err(IsoError::BadIso(iso));
+    }
+    Ok(())
+}
+
+/// [`NodeClasses`] of a checked lattice.
+fn classify<T: Sample>(dims: [usize; 3], values: &[T], iso: f32, options: Options) -> NodeClasses {
+    let [nx, ny, nz] = dims;
+    let mut class = vec![0u8; values.len()];
+    let mut rows = vec![0u8; ny * nz];
+    class
+        .par_chunks_mut(nx)
+        .zip(rows.par_iter_mut())
+        .enumerate()
+        .for_each(|(r, (row, state))| {
+            let (j, k) = (r % ny, r / ny);
+            let border_row = j == 0 || k == 0 || j + 1 == ny || k + 1 == nz;
+            let mut st = 0u8;
+            for (i, (c, v)) in row.iter_mut().zip(&values[r * nx..][..nx]).enumerate() {
+                let v = v.value();
+                let border = border_row || i == 0 || i + 1 == nx;
+                let inside = v > iso && !(options.close_border && border);
+                *c = u8::from(inside);
+                st |= if inside { 1 } else { 2 };
+                st |= u8::from(!v.is_finite()) << 2;
+            }
+            *state = st;
+        });
+    NodeClasses { class, rows }
 }
 
 /// Boundary surface of a binary mask in voxel-index coordinates (vertices at edge midpoints, as
@@ -155,50 +279,14 @@ struct SliceCounts {
 }
 
 impl<'a, T: Sample> Lattice<'a, T> {
+    /// The lattice (checked) with its node classes.
     fn new(
         dims: [usize; 3],
         values: &'a [T],
         iso: f32,
-        options: Options,
+        classes: NodeClasses,
     ) -> Result<Self, IsoError> {
-        if dims.iter().any(|&d| d < 2) {
-            return Err(IsoError::TooSmall { dims });
-        }
-        let expected = dims
-            .iter()
-            .try_fold(1usize, |a, &d| a.checked_mul(d))
-            .unwrap_or(usize::MAX);
-        if values.len() != expected {
-            return Err(IsoError::DataLength {
-                dims,
-                expected,
-                got: values.len(),
-            });
-        }
-        if !iso.is_finite() {
-            return Err(IsoError::BadIso(iso));
-        }
-        let [nx, ny, nz] = dims;
-        let mut class = vec![0u8; expected];
-        let mut rows = vec![0u8; ny * nz];
-        class
-            .par_chunks_mut(nx)
-            .zip(rows.par_iter_mut())
-            .enumerate()
-            .for_each(|(r, (row, state))| {
-                let (j, k) = (r % ny, r / ny);
-                let border_row = j == 0 || k == 0 || j + 1 == ny || k + 1 == nz;
-                let mut st = 0u8;
-                for (i, (c, v)) in row.iter_mut().zip(&values[r * nx..][..nx]).enumerate() {
-                    let v = v.value();
-                    let border = border_row || i == 0 || i + 1 == nx;
-                    let inside = v > iso && !(options.close_border && border);
-                    *c = u8::from(inside);
-                    st |= if inside { 1 } else { 2 };
-                    st |= u8::from(!v.is_finite()) << 2;
-                }
-                *state = st;
-            });
+        let NodeClasses { class, rows } = classes;
         if rows.par_iter().any(|&st| st & 4 != 0) {
             let i = values.iter().position(|v| !v.value().is_finite());
             return Err(IsoError::NonFinite(i.unwrap_or(0)));

@@ -8,6 +8,7 @@
 //! red–black Gauss–Seidel (colour 0, then 1), full weighting, trilinear prolongation, `f32`.
 //! [`CpuMultigrid`] is the reference; `resecta-gpu` has the device's.
 
+use resecta_isosurface::{CpuClassifier, NodeClassifier};
 use std::sync::Arc;
 
 use resecta_geom::Real;
@@ -71,6 +72,7 @@ impl MultigridSolver for CpuMultigrid {
 pub struct PoissonSolver {
     solver: Arc<dyn MultigridSolver>,
     sobel: Arc<dyn SobelPass>,
+    classifier: Arc<dyn NodeClassifier>,
 }
 
 impl PoissonSolver {
@@ -79,7 +81,17 @@ impl PoissonSolver {
         Self {
             solver: Arc::new(solver),
             sobel: Arc::new(CpuSobel),
+            classifier: Arc::new(CpuClassifier),
         }
+    }
+    /// The same, with `classifier` classifying the field's nodes for the iso-surface.
+    pub fn with_classifier(mut self, classifier: impl NodeClassifier + 'static) -> Self {
+        self.classifier = Arc::new(classifier);
+        self
+    }
+    /// Classifies the field's nodes for the iso-surface (`resecta_isosurface::extract_with`).
+    pub fn classifier(&self) -> &dyn NodeClassifier {
+        &*self.classifier
     }
     /// The same, with `sobel` computing the oriented points' gradients.
     pub fn with_sobel(mut self, sobel: impl SobelPass + 'static) -> Self {
@@ -112,6 +124,7 @@ impl std::fmt::Debug for PoissonSolver {
         f.debug_struct("PoissonSolver")
             .field("backend", &self.backend())
             .field("sobel", &self.sobel.backend())
+            .field("classifier", &self.classifier.backend())
             .finish_non_exhaustive()
     }
 }

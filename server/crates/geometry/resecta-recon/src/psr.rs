@@ -4,7 +4,7 @@
 //! on the host, so backends differ only in the solved field.
 
 use resecta_geom::{Real, TriMesh, Volume};
-use resecta_isosurface::{Options, extract};
+use resecta_isosurface::{Options, extract_with};
 use resecta_meshmetrics::point_to_surface;
 use resecta_poisson::{
     OrientedPoints, PoissonField, PoissonParams, PoissonSolver, oriented_points,
@@ -52,7 +52,7 @@ pub fn surface_with(
         depth,
         ..PoissonParams::default()
     };
-    field_surface(&field(points, &params, solver)?)
+    field_surface(&field(points, &params, solver)?, solver)
 }
 
 /// The indicator field of `points` solved by `solver`; its
@@ -65,13 +65,15 @@ pub fn field(
     Ok(solve_with(points, params, solver.solver())?)
 }
 
-/// The closed iso-surface of `field` in RAS with vertex normals.
-pub fn field_surface(field: &PoissonField) -> Result<TriMesh, ReconError> {
-    let mesh = extract(
+/// The closed iso-surface of `field` in RAS with vertex normals, its nodes classified by
+/// `solver`'s classifier.
+pub fn field_surface(field: &PoissonField, solver: &PoissonSolver) -> Result<TriMesh, ReconError> {
+    let mesh = extract_with(
         field.dims,
         &field.values,
         field.iso,
         Options { close_border: true },
+        solver.classifier(),
     )?;
     let mesh = mesh.transformed(&field.index_to_ras())?;
     let normals = mesh.compute_vertex_normals();
