@@ -22,6 +22,8 @@
 //!   [`GpuVolumetry`], `resecta_volumetry::CutAccelerator` on the GPU (f64; the liver resident,
 //!   bit-packed; two read-backs per cut), results equal to `Volumetry`'s CPU path;
 //!   [`gpu_volumetry`] makes them for planners.
+//! - [`kernels::isosurface`]: marching cubes' node classification as [`GpuClassifier`]
+//!   (`resecta_isosurface::NodeClassifier`; classes identical to the CPU's).
 //! - [`kernels::poisson`]: the screened Poisson multigrid of `resecta-poisson` resident on the
 //!   device ([`GpuMultigrid`], f32) and the oriented points' Sobel pass ([`GpuSobel`]);
 //!   [`gpu_poisson_solver`] for `resecta_recon`'s `*_with` calls.
@@ -40,6 +42,7 @@ pub use device::{Capabilities, GpuContext, GpuError, backends_from_env};
 pub use kernels::GpuScalar;
 pub use kernels::bezier::{BezierBackend, GpuMle, GpuPrepared, OutputBand};
 pub use kernels::inside::GpuInsideField;
+pub use kernels::isosurface::GpuClassifier;
 pub use kernels::margin::GpuMarginField;
 pub use kernels::poisson::{GpuMultigrid, GpuSobel, gpu_poisson_solver};
 pub use kernels::volumetry::{GpuVolumetry, gpu_volumetry};

@@ -3,6 +3,7 @@
 
 pub mod bezier;
 pub mod inside;
+pub mod isosurface;
 pub mod margin;
 pub mod poisson;
 pub mod volumetry;

@@ -32,6 +32,7 @@ use resecta_poisson::{
 use wgpu::util::DeviceExt;
 
 use crate::device::{GpuContext, GpuError};
+use crate::kernels::isosurface::GpuClassifier;
 
 #[cfg(test)]
 mod tests;
@@ -134,10 +135,12 @@ impl MultigridSolver for GpuMultigrid {
     }
 }
 
-/// A [`PoissonSolver`] on `ctx`, multigrid and Sobel pass (for `resecta_recon`'s `*_with`
-/// calls and the server).
+/// A [`PoissonSolver`] on `ctx`: multigrid, Sobel pass and the iso-surface's node
+/// classification (for `resecta_recon`'s `*_with` calls and the server).
 pub fn gpu_poisson_solver(ctx: &GpuContext) -> PoissonSolver {
-    PoissonSolver::new(GpuMultigrid::new(ctx)).with_sobel(GpuSobel::new(ctx))
+    PoissonSolver::new(GpuMultigrid::new(ctx))
+        .with_sobel(GpuSobel::new(ctx))
+        .with_classifier(GpuClassifier::new(ctx))
 }
 
 /// The oriented points' Sobel pass on a wgpu device.

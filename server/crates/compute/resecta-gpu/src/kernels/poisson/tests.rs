@@ -76,8 +76,8 @@ fn fields_surfaces_and_volumes_match_the_cpu() {
                 .fold(0.0f32, f32::max);
             let (rc, rg) = (&c.report.residuals, &g.report.residuals);
             let rel = (rc[0] - rg[0]).abs() / rc[0];
-            let mc = psr::field_surface(&c).unwrap();
-            let mg = psr::field_surface(&g).unwrap();
+            let mc = psr::field_surface(&c, &PoissonSolver::cpu()).unwrap();
+            let mg = psr::field_surface(&g, &gpu).unwrap();
             let d = psr::surface_diff(&mc, &mg).unwrap();
             eprintln!(
                 "{name} d={depth}: max |field| diff {worst:.2e}, iso {:.2e}, residuals cpu \
