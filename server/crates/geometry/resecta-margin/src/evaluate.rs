@@ -264,15 +264,7 @@ fn evaluate_with(
     memo: Option<&mut MarginMemo>,
     out: &mut SurfaceMargins,
 ) -> Result<Verdict, MarginError> {
-    settings.validate()?;
-    if ru < 2 || rv < 2 {
-        return Err(MarginError::GridTooSmall { ru, rv });
-    }
-    let n = ru
-        .checked_mul(rv)
-        .ok_or(MarginError::GridTooSmall { ru, rv })?;
-    check_len("surface points", n, points.len())?;
-    check_len("inside levels", n, inside.len())?;
+    let n = check_grid(ru, rv, points, inside, settings)?;
     out.distance.resize(n, 0.0);
     out.class.resize(n, MarginClass::Outside);
     let (m, w) = (settings.margin_mm, settings.margin_mm + settings.band_mm);
@@ -388,6 +380,21 @@ pub fn evaluate_exact_into(
     oracle: &dyn SurfaceOracle,
     out: &mut SurfaceMargins,
 ) -> Result<Verdict, MarginError> {
+    let n = check_grid(ru, rv, points, inside, settings)?;
+    check_len("distances", n, out.distance.len())?;
+    out.class.resize(n, MarginClass::Outside);
+    Ok(finish(field, ru, rv, points, inside, settings, oracle, out))
+}
+
+/// Checks the settings and that `points` and `inside` hold the ru×rv samples (ru, rv ≥ 2):
+/// their count.
+fn check_grid(
+    ru: usize,
+    rv: usize,
+    points: &[Vec3],
+    inside: &[f64],
+    settings: &MarginSettings,
+) -> Result<usize, MarginError> {
     settings.validate()?;
     if ru < 2 || rv < 2 {
         return Err(MarginError::GridTooSmall { ru, rv });
@@ -397,9 +404,7 @@ pub fn evaluate_exact_into(
         .ok_or(MarginError::GridTooSmall { ru, rv })?;
     check_len("surface points", n, points.len())?;
     check_len("inside levels", n, inside.len())?;
-    check_len("distances", n, out.distance.len())?;
-    out.class.resize(n, MarginClass::Outside);
-    Ok(finish(field, ru, rv, points, inside, settings, oracle, out))
+    Ok(n)
 }
 
 /// Classes from the final distances, the clipped areas and the refined minimum.
