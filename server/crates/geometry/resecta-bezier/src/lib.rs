@@ -36,6 +36,7 @@
 
 pub mod basis;
 pub mod brf;
+pub mod curvature;
 pub mod error;
 pub mod evaluator;
 pub mod mat;
@@ -48,6 +49,7 @@ pub mod types;
 
 pub use basis::{basis_at, bernstein, bernstein_table, binomial, binomial_row, powi};
 pub use brf::{brf_into, evaluate_brf};
+pub use curvature::mean_curvature;
 pub use error::BezierError;
 pub use evaluator::{SurfaceEngine, SurfaceEvaluator, cpu_evaluator};
 pub use mat::{MatEvaluator, power_basis_matrix};

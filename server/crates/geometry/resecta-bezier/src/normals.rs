@@ -32,7 +32,7 @@ pub struct PointEval<T> {
     pub duv: P3<T>,
 }
 
-fn tensor_at<T: BezierScalar>(arr: &[P3<T>], bu: &[T], bv: &[T]) -> P3<T> {
+pub(crate) fn tensor_at<T: BezierScalar>(arr: &[P3<T>], bu: &[T], bv: &[T]) -> P3<T> {
     let nn = bv.len();
     let mut s = [T::ZERO; 3];
     for (i, &wu) in bu.iter().enumerate() {
