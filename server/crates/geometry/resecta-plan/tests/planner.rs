@@ -714,3 +714,39 @@ fn a_probe_measures_the_samples_and_its_device_failure_leaves_them_to_the_cpu() 
             .is_device()
     );
 }
+
+#[test]
+fn metrics_of_a_plane_and_a_parabolic_cylinder() {
+    use resecta_plan::resection_metrics;
+    // A plane: flat; its margin deviation is the verdict's minimum less the margin, whose exact
+    // value is the plane's distance to the tumour sphere (to the voxel boundary: within a voxel).
+    let p = planner_with(plane_x("r1", 12.0, 70.0));
+    let (s, r) = (p.state("r1").unwrap(), &p.plan().resections[0]);
+    let m = resection_metrics(s, r.margin_mm, Some(200.0), Some(160.0));
+    assert!(m.median_abs_mean_curvature_per_mm.unwrap() < 1e-12);
+    let exact = (TUMOUR[0] - TUMOUR_R - 12.0).abs() - r.margin_mm;
+    let dev = m.margin_deviation_mm.unwrap();
+    assert!((dev - exact).abs() <= 1.0, "{dev} vs {exact}");
+    assert_eq!(m.volume_deviation_pct, Some(25.0));
+    assert_eq!(
+        resection_metrics(s, r.margin_mm, Some(1.0), None).volume_deviation_pct,
+        None
+    );
+    // x = 12 + a·y² (quadratic in u along y, linear in v along z): H = a / (1 + 4a²y²)^{3/2},
+    // between a/1.03 and a over |y| ≤ 70 mm.
+    let a = 1e-3;
+    let pts = (0..6)
+        .map(|k| {
+            let (i, j) = (k / 2, k % 2);
+            let y = -70.0 + 70.0 * i as Real;
+            let x = 12.0 + if i == 1 { -a * 4900.0 } else { a * 4900.0 };
+            [x, y, -70.0 + 140.0 * j as Real]
+        })
+        .collect();
+    let p = planner_with(Resection::new("r1", [3, 2], pts));
+    let s = p.state("r1").unwrap();
+    let h = resection_metrics(s, 10.0, None, None)
+        .median_abs_mean_curvature_per_mm
+        .unwrap();
+    assert!(h <= a * (1.0 + 1e-9) && h >= a / 1.03, "{h}");
+}
