@@ -72,6 +72,42 @@ def test_init_then_plan_json_contract_and_volumes(resecta, phantom, tmp_path):
     assert again["resections"][0]["control_points"] == res["control_points"]
 
 
+def test_metrics_against_a_reference_plan(resecta, phantom, tmp_path):
+    """Sec. 7.4's metrics per resection: margin deviation = minimum − margin, volume deviation
+    against the reference plan's resection of the same name, the median |H| of a plane is 0;
+    a reference on another role map, or unreadable, is refused naming its file."""
+    labels = phantom["labels_file"]
+    roles = '{"parenchyma":[1],"tumor":[2],"portal":[3]}'
+    plan = write_plan(tmp_path, planar())
+    shifted = dict(planar(), control_points=[[p[0] + 5, p[1], p[2]] for p in planar()["control_points"]])
+    ref = tmp_path / "ref.json"
+    ref.write_text(json.dumps({"format": "resecta-plan/1", "roles": json.loads(roles),
+                               "resections": [shifted]}))
+    alone = resecta("plan", labels, plan, "--json").json()["resections"][0]
+    out = resecta("plan", labels, plan, "--reference", ref, "--json").json()["resections"][0]
+    refd = resecta("plan", labels, ref, "--json").json()["resections"][0]
+    m = out["metrics"]
+    assert m["margin_deviation_mm"] == pytest.approx(out["min_margin_mm"] - out["margin_mm"])
+    assert m["median_abs_mean_curvature_per_mm"] < 1e-9
+    assert alone["metrics"]["volume_deviation_pct"] is None
+    want = 100 * (out["resected_ml"] - refd["resected_ml"]) / refd["resected_ml"]
+    assert m["volume_deviation_pct"] == pytest.approx(want, rel=1e-9) and want != 0
+    # Against itself: no deviation.
+    same = resecta("plan", labels, plan, "--reference", plan, "--json").json()["resections"][0]
+    assert same["metrics"]["volume_deviation_pct"] == 0
+    human = resecta("plan", labels, plan, "--reference", ref).stdout
+    assert "margin deviation" in human and "median |H|" in human
+    bad = tmp_path / "nope.json"
+    r = resecta("plan", labels, plan, "--reference", bad, "--json", check=False)
+    assert r.code == 2 and "nope.json" in r.stderr and r.stdout == ""
+    other = tmp_path / "other-roles.json"
+    other.write_text(json.dumps({"format": "resecta-plan/1",
+                                 "roles": {"parenchyma": [1], "tumor": [3]},
+                                 "resections": [planar()]}))
+    r = resecta("plan", labels, plan, "--reference", other, "--json", check=False)
+    assert r.code == 2 and other.name in r.stderr, r.stderr
+
+
 def write_plan(tmp_path, resection, roles='{"parenchyma":[1],"tumor":[2],"portal":[3]}'):
     plan = {"format": "resecta-plan/1", "roles": json.loads(roles), "resections": [resection]}
     f = tmp_path / "bad.json"

@@ -9,7 +9,10 @@ use std::time::Instant;
 use clap::{Args, Subcommand};
 use resecta_geom::{LabelMap, Real, RoleMap, Volume, VoxelLimit};
 use resecta_io::{read_label_map, write_label_map, write_mesh};
-use resecta_plan::{Anatomy, Plan, PlanError, PlanEvent, Planner, Target, VolumeReport};
+use resecta_plan::{
+    Anatomy, Plan, PlanError, PlanEvent, Planner, ResectionMetrics, Target, VolumeReport,
+    resection_metrics,
+};
 use serde::Serialize;
 
 use crate::error::CliError;
@@ -33,6 +36,10 @@ pub struct PlanArgs {
     /// Future-liver-remnant warning threshold (% of the functional liver).
     #[arg(long, default_value_t = resecta_plan::DEFAULT_FLR_THRESHOLD_PCT)]
     pub flr_threshold: Real,
+    /// A reference plan (`resecta-plan/1`) on the same label map: each resection's volume
+    /// deviation is against the reference's resection of the same name.
+    #[arg(long)]
+    pub reference: Option<PathBuf>,
     /// Print one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
@@ -169,6 +176,7 @@ struct ResectionReport {
     warning_area_mm2: Real,
     inside_area_mm2: Real,
     vertices: usize,
+    metrics: ResectionMetrics,
 }
 
 #[derive(Debug, Serialize)]
@@ -187,13 +195,36 @@ struct PlanReport {
     volumetry_ms: Real,
 }
 
+fn read_plan(path: &Path) -> Result<Plan, CliError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| CliError::BadInput(format!("{}: {e}", path.display())))?;
+    Plan::from_json(&text).map_err(|e| CliError::BadInput(format!("{}: {e}", path.display())))
+}
+
+/// Resected volume (ml) of every complete resection of the reference plan on the planner's
+/// anatomy; the reference must name the same roles.
+fn reference_volumes(planner: &Planner, path: &Path) -> Result<BTreeMap<String, Real>, CliError> {
+    let named = |e: PlanError| CliError::BadInput(format!("{}: {e}", path.display()));
+    let plan = read_plan(path)?;
+    if plan.roles != planner.plan().roles {
+        return Err(CliError::BadInput(format!(
+            "{}: its roles differ from the plan's: the volumes would not be comparable",
+            path.display()
+        )));
+    }
+    let mut reference = Planner::new(planner.anatomy_shared(), plan).map_err(named)?;
+    let volumes = reference.volumes().map_err(named)?;
+    Ok(volumes
+        .resections
+        .into_iter()
+        .filter_map(|r| Some((r.name, r.resected_ml?)))
+        .collect())
+}
+
 fn evaluate(args: &PlanArgs, labels: &Path, plan_path: &Path) -> Result<(), CliError> {
     let pb = progress(args.json);
     let t0 = Instant::now();
-    let text = std::fs::read_to_string(plan_path)
-        .map_err(|e| CliError::BadInput(format!("{}: {e}", plan_path.display())))?;
-    let plan = Plan::from_json(&text)
-        .map_err(|e| CliError::BadInput(format!("{}: {e}", plan_path.display())))?;
+    let plan = read_plan(plan_path)?;
     pb.set_message("reading the label map");
     let labels = read_labels(labels)?;
     let read_ms = ms(t0);
@@ -209,10 +240,18 @@ fn evaluate(args: &PlanArgs, labels: &Path, plan_path: &Path) -> Result<(), CliE
     pb.set_message("volumetry");
     let t3 = Instant::now();
     let volumes = planner.volumes().map_err(plan_err)?;
+    let reference = match &args.reference {
+        Some(path) => {
+            pb.set_message("reference plan");
+            reference_volumes(&planner, path)?
+        }
+        None => BTreeMap::new(),
+    };
     let volumetry_ms = ms(t3);
     let report = report(
         &planner,
         volumes,
+        &reference,
         [read_ms, setup_ms, margins_ms, volumetry_ms],
     )?;
     if let Some(dir) = &args.out_dir {
@@ -231,6 +270,7 @@ fn evaluate(args: &PlanArgs, labels: &Path, plan_path: &Path) -> Result<(), CliE
 fn report(
     planner: &Planner,
     v: VolumeReport,
+    reference: &BTreeMap<String, Real>,
     [read_ms, setup_ms, margins_ms, volumetry_ms]: [Real; 4],
 ) -> Result<PlanReport, CliError> {
     let volumes: BTreeMap<&str, _> = v.resections.iter().map(|r| (r.name.as_str(), r)).collect();
@@ -239,6 +279,9 @@ fn report(
         let s = planner.state(&r.name).map_err(plan_err)?;
         let vol = volumes.get(r.name.as_str());
         let verdict = &s.verdict;
+        let resected_ml = vol.and_then(|x| x.resected_ml);
+        let metrics =
+            resection_metrics(s, r.margin_mm, resected_ml, reference.get(&r.name).copied());
         resections.push(ResectionReport {
             name: r.name.clone(),
             resected_ml: vol.and_then(|x| x.resected_ml),
@@ -256,6 +299,7 @@ fn report(
             warning_area_mm2: verdict.warning_area_mm2,
             inside_area_mm2: verdict.inside_area_mm2,
             vertices: s.margins.distance.len(),
+            metrics,
         });
     }
     Ok(PlanReport {
@@ -342,6 +386,14 @@ fn print_summary(r: &PlanReport) {
                 None => "complete cut".to_owned(),
                 Some(why) => format!("INCOMPLETE CUT: {why}"),
             }
+        );
+        let m = &s.metrics;
+        println!(
+            "  margin deviation {} · volume deviation {} · median |H| {}",
+            opt(m.margin_deviation_mm, "mm"),
+            opt(m.volume_deviation_pct, "%"),
+            m.median_abs_mean_curvature_per_mm
+                .map_or_else(|| "—".to_owned(), |h| format!("{h:.2e} mm⁻¹")),
         );
     }
 }
