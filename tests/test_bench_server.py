@@ -58,7 +58,8 @@ def test_bench_server_python_client_quick_smoke(resecta):
     for r in rows.values():
         assert r["edits"] == 20 and 0 < r["p50_ms"] <= r["p90_ms"] <= r["p99_ms"] <= r["max_ms"]
         assert 0 < r["ack_p50_ms"] <= r["ack_p99_ms"]
-        assert r["client_cores"] > 0 and r["server_cpu_ms_per_edit"] > 0
+        # CPU times come from /proc in clock ticks (10 ms): 20 quick 40×40 edits may read 0.
+        assert r["client_cores"] >= 0 and r["server_cpu_ms_per_edit"] >= 0
     (run,) = rep["python_runs"]
     assert run["client"] == "python" and run["edits"] == 20 and "samples_ms" not in run
     assert run["p50_ms"] == rows["python client, round 1"]["p50_ms"]
