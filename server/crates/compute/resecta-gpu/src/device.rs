@@ -192,6 +192,16 @@ impl GpuContext {
         Arc::ptr_eq(&self.pipelines, &other.pipelines)
     }
 
+    /// An uninitialised buffer of `size` bytes.
+    pub fn buffer(&self, label: &str, size: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
     /// Largest storage binding in bytes (128 MiB on lavapipe).
     pub fn max_binding(&self) -> u64 {
         self.caps

@@ -88,14 +88,7 @@ impl GpuProbe {
             }
             let each = (n * std::mem::size_of::<f64>()) as u64;
             use wgpu::BufferUsages as U;
-            let buffer = |label, size, usage| {
-                self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                    label: Some(label),
-                    size,
-                    usage,
-                    mapped_at_creation: false,
-                })
-            };
+            let buffer = |label, size, usage| self.ctx.buffer(label, size, usage);
             self.io = Some(Io {
                 capacity: n,
                 points: buffer("probe-points", bytes, U::STORAGE | U::COPY_DST),

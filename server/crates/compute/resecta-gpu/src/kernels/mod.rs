@@ -47,6 +47,15 @@ const POINT_GROUP: u32 = 64;
 /// Most workgroups along one dispatch dimension.
 const MAX_GROUPS: u32 = 65_535;
 
+/// `x` as a kernel's u32 index or count; [`GpuError::TooLarge`] naming `what` beyond it.
+pub(crate) fn u32_index(what: &'static str, x: usize) -> Result<u32, crate::GpuError> {
+    u32::try_from(x).map_err(|_| crate::GpuError::TooLarge {
+        what,
+        bytes: x as u64,
+        limit: u64::from(u32::MAX),
+    })
+}
+
 /// The first `bytes` of `buffer` as a binding.
 pub(crate) fn leading(buffer: &wgpu::Buffer, bytes: usize) -> wgpu::BindingResource<'_> {
     wgpu::BindingResource::Buffer(wgpu::BufferBinding {

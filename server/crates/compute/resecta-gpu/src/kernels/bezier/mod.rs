@@ -296,12 +296,7 @@ impl<T: GpuScalar> GpuMle<T> {
     }
 
     fn buffer(&self, label: &str, size: u64, usage: wgpu::BufferUsages) -> wgpu::Buffer {
-        self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size,
-            usage,
-            mapped_at_creation: false,
-        })
+        self.ctx.buffer(label, size, usage)
     }
 
     fn check_size(&self, what: &'static str, bytes: u64) -> Result<(), GpuError> {

@@ -11,7 +11,7 @@ use resecta_plan::InsideLayout;
 use wgpu::util::DeviceExt;
 
 use crate::device::{GpuContext, GpuError};
-use crate::kernels::{dispatch_points, leading};
+use crate::kernels::{dispatch_points, leading, u32_index};
 
 #[cfg(test)]
 mod tests;
@@ -38,14 +38,6 @@ pub struct GpuInsideField {
     words: wgpu::Buffer,
 }
 
-fn u32_of(what: &'static str, x: usize) -> Result<u32, GpuError> {
-    u32::try_from(x).map_err(|_| GpuError::TooLarge {
-        what,
-        bytes: x as u64,
-        limit: u64::from(u32::MAX),
-    })
-}
-
 impl GpuInsideField {
     /// Compiles the kernel and uploads the bricks. [`GpuError::NoF64`] without `SHADER_F64`,
     /// [`GpuError::TooLarge`] beyond the device's storage binding.
@@ -69,14 +61,14 @@ impl GpuInsideField {
         let params = Params {
             rows: [row(0), row(1), row(2)],
             dims: [
-                u32_of("inside grid", layout.dims[0])?,
-                u32_of("inside grid", layout.dims[1])?,
-                u32_of("inside grid", layout.dims[2])?,
+                u32_index("inside grid", layout.dims[0])?,
+                u32_index("inside grid", layout.dims[1])?,
+                u32_index("inside grid", layout.dims[2])?,
                 0,
             ],
             bricks: [
-                u32_of("inside bricks", layout.bricks[0])?,
-                u32_of("inside bricks", layout.bricks[1])?,
+                u32_index("inside bricks", layout.bricks[0])?,
+                u32_index("inside bricks", layout.bricks[1])?,
                 0,
                 0,
             ],
@@ -105,12 +97,11 @@ impl GpuInsideField {
 
     /// A parameter block for one user's encodings (one encoding per submission each).
     pub(crate) fn uniform(&self) -> wgpu::Buffer {
-        self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("inside-params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        })
+        self.ctx.buffer(
+            "inside-params",
+            std::mem::size_of::<Params>() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        )
     }
 
     /// Encodes the inside levels of the `count` points stored as f64 xyz triples at the start
@@ -123,7 +114,7 @@ impl GpuInsideField {
         count: usize,
         out: &wgpu::Buffer,
     ) -> Result<(), GpuError> {
-        let n = u32_of("inside query points", count)?;
+        let n = u32_index("inside query points", count)?;
         if n == 0 {
             return Ok(());
         }

@@ -12,7 +12,7 @@ use resecta_isosurface::{IsoError, NodeClasses, NodeClassifier, Options};
 use wgpu::util::DeviceExt;
 
 use crate::device::{GpuContext, GpuError};
-use crate::kernels::{dispatch_points, leading};
+use crate::kernels::{dispatch_points, leading, u32_index};
 
 #[cfg(test)]
 mod tests;
@@ -64,13 +64,6 @@ impl GpuClassifier {
         let ctx = &self.ctx;
         ctx.check()?;
         let [nx, ny, nz] = dims;
-        let u32_of = |what, x: usize| {
-            u32::try_from(x).map_err(|_| GpuError::TooLarge {
-                what,
-                bytes: x as u64,
-                limit: u64::from(u32::MAX),
-            })
-        };
         let words = nx.div_ceil(4);
         let plane_bytes = nx * ny * 4;
         let limit = (ctx.max_binding() as usize).min(self.slab_bytes.unwrap_or(usize::MAX));
@@ -86,14 +79,7 @@ impl GpuClassifier {
         let mut class = vec![0u8; values.len()];
         let mut rows = vec![0u8; ny * nz];
         use wgpu::BufferUsages as U;
-        let buffer = |label, size: usize, usage| {
-            ctx.device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size as u64,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
+        let buffer = |label, size: usize, usage| ctx.buffer(label, size as u64, usage);
         let slab_rows = ny * planes;
         let out_words = buffer(
             "iso-classes",
@@ -111,13 +97,13 @@ impl GpuClassifier {
             let n_rows = ny * (k1 - k0);
             let params = Params {
                 dims: [
-                    u32_of("lattice", nx)?,
-                    u32_of("lattice", ny)?,
-                    u32_of("lattice", nz)?,
-                    u32_of("lattice", k0)?,
+                    u32_index("lattice", nx)?,
+                    u32_index("lattice", ny)?,
+                    u32_index("lattice", nz)?,
+                    u32_index("lattice", k0)?,
                 ],
-                rows: u32_of("lattice rows", n_rows)?,
-                words: u32_of("lattice row words", words)?,
+                rows: u32_index("lattice rows", n_rows)?,
+                words: u32_index("lattice row words", words)?,
                 close: u32::from(options.close_border),
                 iso,
             };

@@ -35,7 +35,7 @@ use resecta_margin::{COUNT_BITS, MarginClass, MarginError, MarginField, MarginSe
 use wgpu::util::DeviceExt;
 
 use crate::device::{GpuContext, GpuError};
-use crate::kernels::{dispatch_points, leading};
+use crate::kernels::{dispatch_points, leading, u32_index};
 
 #[cfg(test)]
 mod tests;
@@ -103,11 +103,7 @@ fn words(n: &ObbNode) -> [f32; 16] {
 }
 
 fn u32_of(x: usize) -> Result<u32, GpuError> {
-    u32::try_from(x).map_err(|_| GpuError::TooLarge {
-        what: "margin index",
-        bytes: x as u64,
-        limit: u64::from(u32::MAX),
-    })
+    u32_index("margin index", x)
 }
 
 impl GpuMarginField {
@@ -195,12 +191,11 @@ impl GpuMarginField {
         let boxes = storage("margin-boxes", bytemuck::cast_slice(&boxes));
         let tris = storage("margin-triangles", bytemuck::cast_slice(&tris));
         let hints = storage("margin-hints", bytemuck::cast_slice(field.hints()));
-        let uniform = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("margin-params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let uniform = ctx.buffer(
+            "margin-params",
+            std::mem::size_of::<Params>() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
         ctx.check()?;
         Ok(Self {
             ctx: ctx.clone(),
@@ -240,15 +235,7 @@ impl GpuMarginField {
                 limit,
             });
         }
-        let device = &self.ctx.device;
-        let buffer = |label, size: u64, usage| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
+        let buffer = |label, size, usage| self.ctx.buffer(label, size, usage);
         use wgpu::BufferUsages as U;
         let out_bytes = (n * std::mem::size_of::<f64>()) as u64;
         let points = buffer("margin-points", bytes, U::STORAGE | U::COPY_DST);

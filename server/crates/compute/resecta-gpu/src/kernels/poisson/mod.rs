@@ -179,14 +179,7 @@ impl GpuSobel {
         let pipeline = self.ctx.compute_pipeline("poisson", SOURCE, "sobel")?;
         let device = &self.ctx.device;
         use wgpu::BufferUsages as U;
-        let buffer = |label, size: usize, usage| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size as u64,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
+        let buffer = |label, size: usize, usage| self.ctx.buffer(label, size as u64, usage);
         let in_bytes = ((slab + 2) * plane).next_multiple_of(4);
         let out_bytes = 4 * slab * plane;
         let uniform = buffer("sobel-params", 16, U::UNIFORM | U::COPY_DST);
@@ -333,14 +326,7 @@ impl<'a> Resident<'a> {
             contents: &slots,
             usage: U::UNIFORM,
         });
-        let buffer = |label, size: u64, usage| {
-            device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
+        let buffer = |label, size, usage| ctx.buffer(label, size, usage);
         let x = buffer("poisson-x", bytes, U::STORAGE | U::COPY_SRC);
         let b = buffer("poisson-b", bytes, U::STORAGE | U::COPY_DST);
         let diag = buffer("poisson-diag", bytes, U::STORAGE | U::COPY_DST);
@@ -481,12 +467,11 @@ impl<'a> Resident<'a> {
             .last()
             .ok_or(GpuError::ReadBack("no level".into()))?;
         let bytes = 4 * u64::from(n).pow(3);
-        let staging = self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("poisson-x-staging"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let staging = self.ctx.buffer(
+            "poisson-x-staging",
+            bytes,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
         let mut enc = self.ctx.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(&self.x, 4 * u64::from(off), &staging, 0, bytes);
         self.ctx.queue.submit([enc.finish()]);

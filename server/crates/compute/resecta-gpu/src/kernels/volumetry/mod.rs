@@ -126,7 +126,7 @@ fn too_large(what: &'static str, bytes: usize, limit: u64) -> GpuError {
 }
 
 fn u32_of(what: &'static str, x: usize) -> Result<u32, GpuError> {
-    u32::try_from(x).map_err(|_| too_large(what, x, u64::from(u32::MAX)))
+    crate::kernels::u32_index(what, x)
 }
 
 fn accel(e: GpuError) -> AcceleratorError {
@@ -144,12 +144,11 @@ impl GpuVolumetry {
             .iter()
             .map(|(entry, _)| ctx.compute_pipeline("volumetry", SOURCE, entry))
             .collect::<Result<_, _>>()?;
-        let uniform = ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("volumetry-params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let uniform = ctx.buffer(
+            "volumetry-params",
+            std::mem::size_of::<Params>() as u64,
+            wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        );
         Ok(Self {
             ctx: ctx.clone(),
             pipelines,
@@ -168,12 +167,8 @@ impl GpuVolumetry {
     }
 
     fn buffer(&self, label: &str, bytes: usize, usage: wgpu::BufferUsages) -> wgpu::Buffer {
-        self.ctx.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size: (bytes.max(4) as u64).next_multiple_of(4),
-            usage,
-            mapped_at_creation: false,
-        })
+        self.ctx
+            .buffer(label, (bytes.max(4) as u64).next_multiple_of(4), usage)
     }
 
     /// Uploads `liver` unless it is resident.
