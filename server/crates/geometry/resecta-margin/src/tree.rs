@@ -240,14 +240,15 @@ impl ObbTree {
         // root by at least δ): 16u·(reach + extent) covers all with room to spare.
         let pad = (16.0 * (f32::EPSILON as Real / 2.0) * (reach + extent)) as f32;
         let mut order: Vec<u32> = (0..n as u32).collect();
-        let placeholder = ObbNode {
+        // A node's slot is reserved when its parent splits and filled when it is popped.
+        let unfilled = ObbNode {
             c: [0.0; 3],
             a: [[0.0; 3]; 3],
             h: [0.0; 3],
             link: 0,
         };
         let mut nodes: Vec<ObbNode> = Vec::with_capacity(2 * n);
-        nodes.push(placeholder);
+        nodes.push(unfilled);
         // (node, start, end, depth)
         let mut stack = vec![(0usize, 0usize, n, 0usize)];
         while let Some((node, start, end, depth)) = stack.pop() {
@@ -262,7 +263,7 @@ impl ObbTree {
             let left = nodes.len();
             b.link = (left as u32) << COUNT_BITS;
             nodes[node] = b;
-            nodes.extend([placeholder, placeholder]);
+            nodes.extend([unfilled, unfilled]);
             stack.push((left + 1, mid, end, depth + 1));
             stack.push((left, start, mid, depth + 1));
         }
