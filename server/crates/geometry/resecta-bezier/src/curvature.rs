@@ -1,17 +1,14 @@
-//! Mean curvature of a Bézier surface (thesis Eq. 7.10, `H = (κ₁ + κ₂)/2`) from its exact first
-//! and second derivatives: `H = (E·N − 2F·M + G·L) / (2(EG − F²))` with the first fundamental
-//! form E, F, G of ∂S/∂u, ∂S/∂v and the second L, M, N of ∂²S/∂u², ∂²S/∂u∂v, ∂²S/∂v² on the
-//! unit normal ∂S/∂u × ∂S/∂v. Its sign follows that normal; in the units of the net's
-//! coordinates⁻¹ (mm⁻¹ for a resection).
+//! A Bézier net as a [`CutSurface`]: exact first and second derivatives, hence the mean
+//! curvature of thesis Eq. 7.10 (`H = (κ₁ + κ₂)/2`, signed by the normal ∂S/∂u × ∂S/∂v, in the
+//! net's coordinates⁻¹: mm⁻¹ for a resection); samples by the multi-level evaluator.
+
+use resecta_geom::{CutSurface, Real, SurfacePoint, Vec3};
 
 use crate::basis::{basis_at, binomial_row};
+use crate::mle::MleEvaluator;
 use crate::normals::{eval_point, tensor_at};
-use crate::scalar::{P3, cross3, norm3};
-use crate::types::ControlNet;
-
-fn dot(a: P3<f64>, b: P3<f64>) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
+use crate::scalar::P3;
+use crate::types::{ControlNet, Outputs, Resolution};
 
 fn basis(count: usize, t: f64) -> Vec<f64> {
     let mut b = vec![0.0; count];
@@ -37,22 +34,59 @@ fn second_u(net: &ControlNet<f64>, u: f64, v: f64) -> P3<f64> {
     tensor_at(&d2, &basis(m - 2, u), &basis(n, v))
 }
 
+fn v3(p: P3<f64>) -> Vec3 {
+    Vec3::new(p[0], p[1], p[2])
+}
+
+impl CutSurface for ControlNet<f64> {
+    fn at(&self, u: Real, v: Real) -> SurfacePoint {
+        let e = eval_point(self, u, v);
+        SurfacePoint {
+            p: v3(e.point),
+            du: v3(e.du),
+            dv: v3(e.dv),
+            duu: v3(second_u(self, u, v)),
+            duv: v3(e.duv),
+            dvv: v3(second_u(&self.transposed(), v, u)),
+        }
+    }
+
+    /// The control polygon's longest row and column: they bound the iso-curves' lengths.
+    fn lengths(&self) -> [Real; 2] {
+        let (m, n) = self.dims();
+        let p = |i: usize, j: usize| v3(self.points()[i * n + j]);
+        let lu = (0..n)
+            .map(|j| (1..m).map(|i| (p(i, j) - p(i - 1, j)).norm()).sum::<Real>())
+            .fold(0.0, Real::max);
+        let lv = (0..m)
+            .map(|i| (1..n).map(|j| (p(i, j) - p(i, j - 1)).norm()).sum::<Real>())
+            .fold(0.0, Real::max);
+        [lu, lv]
+    }
+
+    /// By the multi-level evaluator, degenerate normals repaired as it does.
+    fn sample(&self, ru: usize, rv: usize, points: &mut Vec<Vec3>, normals: &mut Vec<Vec3>) {
+        let Ok(res) = Resolution::new(ru, rv) else {
+            points.clear();
+            normals.clear();
+            return;
+        };
+        let mut e = MleEvaluator::new(self.clone(), res);
+        let g = e.evaluate(Outputs::Normals);
+        *points = g.points().iter().map(|&q| v3(q)).collect();
+        *normals = g
+            .normals()
+            .unwrap_or_default()
+            .iter()
+            .map(|&q| v3(q))
+            .collect();
+    }
+}
+
 /// Mean curvature at (u, v) ∈ [0, 1]²; `None` where the surface is not regular (∂S/∂u and
 /// ∂S/∂v parallel or vanishing: no tangent plane).
 pub fn mean_curvature(net: &ControlNet<f64>, u: f64, v: f64) -> Option<f64> {
-    let e = eval_point(net, u, v);
-    let normal = cross3(e.du, e.dv);
-    let area = norm3(normal);
-    let regular = area > 1e-12 * norm3(e.du) * norm3(e.dv) && area.is_finite();
-    if !regular {
-        return None;
-    }
-    let nu = normal.map(|c| c / area);
-    let suu = second_u(net, u, v);
-    let svv = second_u(&net.transposed(), v, u);
-    let (ee, ff, gg) = (dot(e.du, e.du), dot(e.du, e.dv), dot(e.dv, e.dv));
-    let (l, m, n) = (dot(nu, suu), dot(nu, e.duv), dot(nu, svv));
-    Some((ee * n - 2.0 * ff * m + gg * l) / (2.0 * area * area))
+    net.at(u, v).mean_curvature()
 }
 
 #[cfg(test)]

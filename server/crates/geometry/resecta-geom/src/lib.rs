@@ -13,6 +13,7 @@ pub mod pca;
 pub mod primitives;
 pub mod roles;
 pub mod slice;
+pub mod surface;
 
 pub use bvh::{Aabb, ClosestPoint, Feature, MeshBvh, MeshSdf, Ray, RayHit, SignedDistance};
 pub use edt::{
@@ -26,3 +27,4 @@ pub use mesh::{MeshReport, TriMesh};
 pub use pca::Pca;
 pub use roles::{Role, RoleMap};
 pub use slice::{Plane, Polyline, slice};
+pub use surface::{CutSurface, SurfacePoint, grid_param};
