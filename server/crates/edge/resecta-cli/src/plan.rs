@@ -11,7 +11,6 @@ use resecta_geom::{LabelMap, Real, RoleMap, Volume, VoxelLimit};
 use resecta_io::{read_label_map, write_label_map, write_mesh};
 use resecta_plan::{
     Anatomy, Plan, PlanError, PlanEvent, Planner, ResectionMetrics, Target, VolumeReport,
-    resection_metrics,
 };
 use serde::Serialize;
 
@@ -201,24 +200,11 @@ fn read_plan(path: &Path) -> Result<Plan, CliError> {
     Plan::from_json(&text).map_err(|e| CliError::BadInput(format!("{}: {e}", path.display())))
 }
 
-/// Resected volume (ml) of every complete resection of the reference plan on the planner's
-/// anatomy; the reference must name the same roles.
-fn reference_volumes(planner: &Planner, path: &Path) -> Result<BTreeMap<String, Real>, CliError> {
-    let named = |e: PlanError| CliError::BadInput(format!("{}: {e}", path.display()));
-    let plan = read_plan(path)?;
-    if plan.roles != planner.plan().roles {
-        return Err(CliError::BadInput(format!(
-            "{}: its roles differ from the plan's: the volumes would not be comparable",
-            path.display()
-        )));
-    }
-    let mut reference = Planner::new(planner.anatomy_shared(), plan).map_err(named)?;
-    let volumes = reference.volumes().map_err(named)?;
-    Ok(volumes
-        .resections
-        .into_iter()
-        .filter_map(|r| Some((r.name, r.resected_ml?)))
-        .collect())
+/// The volumes of the reference plan on the planner's anatomy (same roles).
+fn reference_volumes(planner: &Planner, path: &Path) -> Result<VolumeReport, CliError> {
+    planner
+        .reference_volumes(read_plan(path)?)
+        .map_err(|e| CliError::BadInput(format!("{}: {e}", path.display())))
 }
 
 fn evaluate(args: &PlanArgs, labels: &Path, plan_path: &Path) -> Result<(), CliError> {
@@ -239,19 +225,15 @@ fn evaluate(args: &PlanArgs, labels: &Path, plan_path: &Path) -> Result<(), CliE
     let margins_ms = ms(t2);
     pb.set_message("volumetry");
     let t3 = Instant::now();
-    let volumes = planner.volumes().map_err(plan_err)?;
-    let reference = match &args.reference {
-        Some(path) => {
-            pb.set_message("reference plan");
-            reference_volumes(&planner, path)?
-        }
-        None => BTreeMap::new(),
-    };
+    let mut volumes = planner.volumes().map_err(plan_err)?;
+    if let Some(path) = &args.reference {
+        pb.set_message("reference plan");
+        volumes.compare_with(&reference_volumes(&planner, path)?);
+    }
     let volumetry_ms = ms(t3);
     let report = report(
         &planner,
         volumes,
-        &reference,
         [read_ms, setup_ms, margins_ms, volumetry_ms],
     )?;
     if let Some(dir) = &args.out_dir {
@@ -270,7 +252,6 @@ fn evaluate(args: &PlanArgs, labels: &Path, plan_path: &Path) -> Result<(), CliE
 fn report(
     planner: &Planner,
     v: VolumeReport,
-    reference: &BTreeMap<String, Real>,
     [read_ms, setup_ms, margins_ms, volumetry_ms]: [Real; 4],
 ) -> Result<PlanReport, CliError> {
     let volumes: BTreeMap<&str, _> = v.resections.iter().map(|r| (r.name.as_str(), r)).collect();
@@ -279,9 +260,9 @@ fn report(
         let s = planner.state(&r.name).map_err(plan_err)?;
         let vol = volumes.get(r.name.as_str());
         let verdict = &s.verdict;
-        let resected_ml = vol.and_then(|x| x.resected_ml);
-        let metrics =
-            resection_metrics(s, r.margin_mm, resected_ml, reference.get(&r.name).copied());
+        let metrics = vol.map(|x| x.metrics).ok_or_else(|| {
+            CliError::Failed(format!("volumetry left out resection {:?}", r.name))
+        })?;
         resections.push(ResectionReport {
             name: r.name.clone(),
             resected_ml: vol.and_then(|x| x.resected_ml),

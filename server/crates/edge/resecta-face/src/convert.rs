@@ -10,7 +10,7 @@ use resecta_geom::{Mat3, Real, Role, RoleMap};
 use resecta_io::mesh::MeshFormat;
 use resecta_plan::resection::ResectionKind;
 use resecta_plan::{
-    Group, IncompleteCut, LabelSlice, PlanEvent, Resection, SliceAxis, SlicePositions,
+    Deformation, Group, IncompleteCut, LabelSlice, PlanEvent, Resection, SliceAxis, SlicePositions,
     SliceProjections, Target, Verdict, VolumeReport,
 };
 use resecta_session::api::{
@@ -141,13 +141,46 @@ fn resection_in(field: &str, r: Option<&pb::Resection>) -> Wire<Resection> {
     let r = r.ok_or_else(|| WireError::invalid(field, "is required"))?;
     Ok(Resection {
         name: r.name.clone(),
-        kind: ResectionKind::Bezier,
+        // 0 is BEZIER (the default: resections of older clients).
+        kind: match pb::ResectionKind::try_from(r.kind).map_err(|_| {
+            WireError::invalid(format!("{field}.kind"), format!("unknown value {}", r.kind))
+        })? {
+            pb::ResectionKind::Bezier => ResectionKind::Bezier,
+            pb::ResectionKind::Ds => ResectionKind::Ds,
+            pb::ResectionKind::Cp => ResectionKind::Cp,
+        },
         grid: [r.grid_m as usize, r.grid_n as usize],
         control_points: points(&format!("{field}.control_points"), &r.control_points)?,
+        traces: r
+            .traces
+            .iter()
+            .enumerate()
+            .map(|(k, t)| trace(&format!("{field}.traces[{k}]"), Some(t)))
+            .collect::<Wire<_>>()?,
+        deformations: r
+            .deformations
+            .iter()
+            .enumerate()
+            .map(|(k, d)| deformation(&format!("{field}.deformations[{k}]"), Some(d)))
+            .collect::<Wire<_>>()?,
         margin_mm: finite(&format!("{field}.margin_mm"), r.margin_mm)?,
         band_mm: finite(&format!("{field}.band_mm"), r.band_mm)?,
         target: target(&format!("{field}.target"), r.target.as_ref())?,
         resolution: [r.ru as usize, r.rv as usize],
+    })
+}
+
+fn trace(field: &str, t: Option<&pb::Trace>) -> Wire<Vec<[Real; 3]>> {
+    let t = t.ok_or_else(|| WireError::invalid(field, "is required"))?;
+    points(&format!("{field}.points"), &t.points)
+}
+
+fn deformation(field: &str, d: Option<&pb::Deformation>) -> Wire<Deformation> {
+    let d = d.ok_or_else(|| WireError::invalid(field, "is required"))?;
+    Ok(Deformation {
+        point: required(&format!("{field}.point"), d.point.as_ref())?,
+        offset_mm: finite(&format!("{field}.offset_mm"), d.offset_mm)?,
+        radius_mm: finite(&format!("{field}.radius_mm"), d.radius_mm)?,
     })
 }
 
@@ -237,6 +270,26 @@ pub fn edit(edit: Option<&pb::edit_request::Edit>) -> Wire<EditOp> {
         }),
         E::AddResection(e) => event(PlanEvent::AddResection {
             resection: resection_in("add_resection.resection", e.resection.as_ref())?,
+        }),
+        E::AddTrace(e) => event(PlanEvent::AddTrace {
+            name: e.name.clone(),
+            trace: trace("add_trace.trace", e.trace.as_ref())?,
+        }),
+        E::SetTrace(e) => event(PlanEvent::SetTrace {
+            name: e.name.clone(),
+            index: e.index as usize,
+            trace: trace("set_trace.trace", e.trace.as_ref())?,
+        }),
+        E::RemoveTrace(e) => event(PlanEvent::RemoveTrace {
+            name: e.name.clone(),
+            index: e.index as usize,
+        }),
+        E::AddDeformation(e) => event(PlanEvent::AddDeformation {
+            name: e.name.clone(),
+            deformation: deformation("add_deformation.deformation", e.deformation.as_ref())?,
+        }),
+        E::UndoDeformation(e) => event(PlanEvent::UndoDeformation {
+            name: e.name.clone(),
         }),
         E::Undo(_) => Ok(EditOp::Undo),
         E::Redo(_) => Ok(EditOp::Redo),
@@ -527,6 +580,27 @@ pub fn resection(r: &Resection) -> pb::Resection {
         target: Some(target_pb(&r.target)),
         ru: r.resolution[0] as u32,
         rv: r.resolution[1] as u32,
+        kind: match r.kind {
+            ResectionKind::Bezier => pb::ResectionKind::Bezier,
+            ResectionKind::Ds => pb::ResectionKind::Ds,
+            ResectionKind::Cp => pb::ResectionKind::Cp,
+        } as i32,
+        traces: r
+            .traces
+            .iter()
+            .map(|t| pb::Trace {
+                points: t.iter().copied().map(vec3).collect(),
+            })
+            .collect(),
+        deformations: r
+            .deformations
+            .iter()
+            .map(|d| pb::Deformation {
+                point: Some(vec3(d.point)),
+                offset_mm: d.offset_mm,
+                radius_mm: d.radius_mm,
+            })
+            .collect(),
     }
 }
 
@@ -586,6 +660,11 @@ pub fn volumes(v: &VolumeReport) -> pb::VolumeReport {
                     Some(IncompleteCut::EdgeInsideLiver { point }) => Some(vec3(point)),
                     _ => None,
                 },
+                metrics: Some(pb::ResectionMetrics {
+                    margin_deviation_mm: r.metrics.margin_deviation_mm,
+                    volume_deviation_pct: r.metrics.volume_deviation_pct,
+                    median_abs_mean_curvature_per_mm: r.metrics.median_abs_mean_curvature_per_mm,
+                }),
             })
             .collect(),
     }

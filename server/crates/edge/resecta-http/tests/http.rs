@@ -906,7 +906,7 @@ async fn the_openapi_document_matches_the_router_and_the_protos() {
     }
     assert_eq!(edit["properties"].get("sessionId"), None, "{edit}");
     assert_eq!(edit["properties"]["baseVersion"]["format"], "uint64");
-    assert_eq!(edit["oneOf"].as_array().unwrap().len(), 15, "{edit}");
+    assert_eq!(edit["oneOf"].as_array().unwrap().len(), 20, "{edit}");
     assert_eq!(
         schemas["resecta.v1.ControlGroup"]["enum"],
         json!([

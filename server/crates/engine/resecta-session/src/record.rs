@@ -16,7 +16,7 @@
 use std::collections::BTreeMap;
 
 use resecta_geom::{Real, RoleMap};
-use resecta_plan::{Group, LogEntry, PlanEvent, Resection, Target};
+use resecta_plan::{Deformation, Group, LogEntry, PlanEvent, Resection, Target};
 use serde::{Deserialize, Serialize};
 
 use crate::api::{LabelMapSummary, ModelInfo, SurfaceKind};
@@ -170,6 +170,34 @@ enum EventRecord {
         name: String,
         target: TargetRecord,
     },
+    AddTrace {
+        name: String,
+        trace: Vec<[Real; 3]>,
+    },
+    SetTrace {
+        name: String,
+        index: usize,
+        trace: Vec<[Real; 3]>,
+    },
+    RemoveTrace {
+        name: String,
+        index: usize,
+    },
+    AddDeformation {
+        name: String,
+        deformation: DeformationRecord,
+    },
+    UndoDeformation {
+        name: String,
+    },
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DeformationRecord {
+    point: [Real; 3],
+    offset_mm: Real,
+    radius_mm: Real,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -233,6 +261,18 @@ impl From<&PlanEvent> for EventRecord {
                     points: target.points,
                 },
             },
+            PlanEvent::AddTrace { name, trace } => Self::AddTrace { name, trace },
+            PlanEvent::SetTrace { name, index, trace } => Self::SetTrace { name, index, trace },
+            PlanEvent::RemoveTrace { name, index } => Self::RemoveTrace { name, index },
+            PlanEvent::AddDeformation { name, deformation } => Self::AddDeformation {
+                name,
+                deformation: DeformationRecord {
+                    point: deformation.point,
+                    offset_mm: deformation.offset_mm,
+                    radius_mm: deformation.radius_mm,
+                },
+            },
+            PlanEvent::UndoDeformation { name } => Self::UndoDeformation { name },
         }
     }
 }
@@ -282,6 +322,18 @@ impl From<EventRecord> for PlanEvent {
                     points: target.points,
                 },
             },
+            EventRecord::AddTrace { name, trace } => Self::AddTrace { name, trace },
+            EventRecord::SetTrace { name, index, trace } => Self::SetTrace { name, index, trace },
+            EventRecord::RemoveTrace { name, index } => Self::RemoveTrace { name, index },
+            EventRecord::AddDeformation { name, deformation } => Self::AddDeformation {
+                name,
+                deformation: Deformation {
+                    point: deformation.point,
+                    offset_mm: deformation.offset_mm,
+                    radius_mm: deformation.radius_mm,
+                },
+            },
+            EventRecord::UndoDeformation { name } => Self::UndoDeformation { name },
         }
     }
 }

@@ -6,8 +6,7 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use rayon::prelude::*;
-use resecta_bezier::ControlNet;
-use resecta_geom::{Plane, Real, TriMesh, Vec3, Volume};
+use resecta_geom::{CutSurface, Plane, Real, TriMesh, Vec3, Volume};
 use resecta_margin::{
     MarginClass, MarginField, MarginMemo, MarginSettings, SurfaceMargins, SurfaceOracle, Verdict,
     evaluate_exact_into,
@@ -19,6 +18,7 @@ use crate::anatomy::Anatomy;
 use crate::error::PlanError;
 use crate::history::{Change, History, Staged};
 use crate::init::{Initialisation, initialise, slicing_plane};
+use crate::metrics::{ResectionMetrics, resection_metrics, volume_deviation_pct};
 use crate::plan::{Plan, PlanEvent};
 use crate::probe::{ComputeEngine, SampleProbe};
 use crate::resection::{Resection, Target, arr};
@@ -144,6 +144,24 @@ pub struct ResectionVolume {
     pub complete_cut: bool,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub incomplete: Option<IncompleteCut>,
+    /// Sec. 7.4's metrics (the volume deviation once compared with a reference,
+    /// [`VolumeReport::compare_with`]).
+    pub metrics: ResectionMetrics,
+}
+
+impl VolumeReport {
+    /// Sets every resection's volume deviation against the same-named resection of
+    /// `reference` (absent there or incomplete on either side: none).
+    pub fn compare_with(&mut self, reference: &VolumeReport) {
+        for r in &mut self.resections {
+            let v_ref = reference
+                .resections
+                .iter()
+                .find(|x| x.name == r.name)
+                .and_then(|x| x.resected_ml);
+            r.metrics.volume_deviation_pct = volume_deviation_pct(r.resected_ml, v_ref);
+        }
+    }
 }
 
 /// One patient's planning session (without the network).
@@ -377,13 +395,13 @@ impl Planner {
         let target = self.target_model(&r.target)?;
         let before = prev.as_ref().map_or(0, |s| s.surface.device_fallbacks());
         let (mut surface, mut inside, mut margins, mut memo, probe) = match prev {
-            Some(mut s) => {
+            Some(mut s) if s.surface.fits(r) => {
                 s.surface.set(r)?;
                 // A probe measures against its own target.
                 let probe = s.probe.filter(|_| Arc::ptr_eq(&s.target, &target));
                 (s.surface, s.inside, s.margins, s.memo, probe)
             }
-            None => (
+            _ => (
                 LiveSurface::unevaluated(r, &self.compute.surfaces)?,
                 Vec::new(),
                 SurfaceMargins::default(),
@@ -393,7 +411,8 @@ impl Planner {
         };
         let mut probe = match (probe, &self.compute.probes) {
             (Some(p), _) => Some(p),
-            (None, Some(engine)) if surface.device_fallbacks() == 0 => {
+            // Probes measure Bézier surfaces.
+            (None, Some(engine)) if surface.device_fallbacks() == 0 && surface.net().is_some() => {
                 match engine.make(&self.anatomy, &target) {
                     Ok(p) => Some(p),
                     Err(e) if e.is_device() => {
@@ -496,25 +515,23 @@ impl Planner {
         self.volumetry.as_mut().ok_or(PlanError::EmptyLiver)
     }
 
-    /// Every resection's net and tumour points: what a volumetry needs of the plan.
+    /// Every resection's surface and tumour points: what a volumetry needs of the plan.
     fn cut_inputs(&self) -> Result<Vec<CutInput>, PlanError> {
         self.plan()
             .resections
             .iter()
-            .map(|r| Ok((r.net()?, self.state(&r.name)?.target.centroids.clone())))
+            .map(|r| Ok((r.shape()?, self.state(&r.name)?.target.centroids.clone())))
             .collect()
     }
 
-    /// Runs `f` on the volumetry engine with every resection's net and tumour points.
+    /// Runs `f` on the volumetry engine with every resection's surface and tumour points.
     fn run_cuts<T>(
         &mut self,
-        f: impl FnOnce(&mut Volumetry, &[(&ControlNet<Real>, &[Vec3])]) -> Result<T, VolumetryError>,
+        f: impl FnOnce(&mut Volumetry, &[(&dyn CutSurface, &[Vec3])]) -> Result<T, VolumetryError>,
     ) -> Result<T, PlanError> {
         let inputs = self.cut_inputs()?;
         let engine = self.volumetry_engine()?;
-        let cuts: Vec<(&ControlNet<Real>, &[Vec3])> =
-            inputs.iter().map(|(n, p)| (n, p.as_slice())).collect();
-        Ok(f(engine, &cuts)?)
+        Ok(f(engine, &cut_refs(&inputs))?)
     }
 
     /// Resected and remnant volumes of every resection and of the plan.
@@ -530,6 +547,12 @@ impl Planner {
     /// [`Planner::restore_volumetry`] (until then a volumetry on the planner builds a new one).
     pub fn volume_job(&mut self) -> Result<VolumeJob, PlanError> {
         let inputs = self.cut_inputs()?;
+        let metrics = self
+            .plan()
+            .resections
+            .iter()
+            .map(|r| Ok(resection_metrics(self.state(&r.name)?, r.margin_mm)))
+            .collect::<Result<_, PlanError>>()?;
         self.volumetry_engine()?;
         let engine = self.volumetry.take().ok_or(PlanError::EmptyLiver)?;
         Ok(VolumeJob {
@@ -540,9 +563,28 @@ impl Planner {
                 .iter()
                 .map(|r| r.name.clone())
                 .collect(),
+            metrics,
             inputs,
             threshold: self.flr_threshold_pct,
         })
+    }
+
+    /// The volumes of `reference` (a plan with the same roles) on this planner's anatomy: what
+    /// [`VolumeReport::compare_with`] takes.
+    pub fn reference_volumes(&self, reference: Plan) -> Result<VolumeReport, PlanError> {
+        self.reference(reference)?.volumes()
+    }
+
+    /// A planner for `reference` (a plan with the same roles) on this planner's anatomy and
+    /// engine.
+    pub fn reference(&self, reference: Plan) -> Result<Planner, PlanError> {
+        if reference.roles != self.plan().roles {
+            return Err(PlanError::InvalidArgument(
+                "the reference plan's roles differ from the plan's: its volumes would not be comparable"
+                    .into(),
+            ));
+        }
+        Planner::with_engine(self.anatomy_shared(), reference, self.compute.clone())
     }
 
     /// Takes back the engine of a [`VolumeJob`] (one built for the same anatomy).
@@ -557,14 +599,22 @@ impl Planner {
     }
 }
 
-/// A resection's control net and the tumour points on its resected side.
-type CutInput = (ControlNet<Real>, Vec<Vec3>);
+/// A resection's surface and the tumour points on its resected side.
+type CutInput = (Arc<dyn CutSurface>, Vec<Vec3>);
+
+fn cut_refs(inputs: &[CutInput]) -> Vec<(&dyn CutSurface, &[Vec3])> {
+    inputs
+        .iter()
+        .map(|(s, p)| (s.as_ref(), p.as_slice()))
+        .collect()
+}
 
 /// A volumetry of one plan version, detached from its [`Planner`].
 #[derive(Debug)]
 pub struct VolumeJob {
     engine: Volumetry,
     names: Vec<String>,
+    metrics: Vec<ResectionMetrics>,
     inputs: Vec<CutInput>,
     threshold: Real,
 }
@@ -572,12 +622,10 @@ pub struct VolumeJob {
 impl VolumeJob {
     /// The volumes, and the engine to give back to the planner.
     pub fn run(mut self) -> (Volumetry, Result<VolumeReport, PlanError>) {
-        let cuts: Vec<(&ControlNet<Real>, &[Vec3])> =
-            self.inputs.iter().map(|(n, p)| (n, p.as_slice())).collect();
         let report = self
             .engine
-            .cuts(&cuts)
-            .map(|multi| volume_report(&self.names, &multi, self.threshold))
+            .cuts(&cut_refs(&self.inputs))
+            .map(|multi| volume_report(&self.names, &self.metrics, &multi, self.threshold))
             .map_err(PlanError::from);
         (self.engine, report)
     }
@@ -587,18 +635,25 @@ fn ml(mm3: Real) -> Real {
     mm3 / 1000.0
 }
 
-fn volume_report(names: &[String], multi: &MultiCut, threshold: Real) -> VolumeReport {
+fn volume_report(
+    names: &[String],
+    metrics: &[ResectionMetrics],
+    multi: &MultiCut,
+    threshold: Real,
+) -> VolumeReport {
     let total = multi.total_mm3;
     let pct = |v: Real| if total > 0.0 { 100.0 * v / total } else { 0.0 };
     let resections = names
         .iter()
         .zip(&multi.cuts)
-        .map(|(name, c)| ResectionVolume {
+        .zip(metrics)
+        .map(|((name, c), m)| ResectionVolume {
             name: name.clone(),
             resected_ml: c.complete.then(|| ml(c.resected_mm3)),
             resected_pct: c.complete.then(|| pct(c.resected_mm3)),
             complete_cut: c.complete,
             incomplete: c.incomplete.clone(),
+            metrics: *m,
         })
         .collect();
     let ok = multi.complete;

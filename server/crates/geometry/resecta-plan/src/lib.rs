@@ -27,10 +27,13 @@ pub use history::{Change, History, LogEntry, Staged};
 pub use init::{Initialisation, initialise, plane_from, slicing_plane};
 pub use inside::InsideLayout;
 pub use label_slice::{LabelSlice, SliceAxis, label_slice};
-pub use metrics::{ResectionMetrics, VIOLATION_DEVIATION_MM, resection_metrics};
+pub use metrics::{
+    ResectionMetrics, VIOLATION_DEVIATION_MM, resection_metrics, volume_deviation_pct,
+};
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
 pub use probe::{ComputeEngine, ProbeEngine, SampleProbe};
 pub use resecta_margin::{MarginClass, Verdict};
+pub use resecta_traces::{Deformation, SliceOrientation};
 pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};
 pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};

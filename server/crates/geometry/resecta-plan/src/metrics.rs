@@ -4,8 +4,7 @@
 //! unit of every other length here (the thesis prints m⁻¹: 0.01 m⁻¹ = 1e-5 mm⁻¹).
 
 use rayon::prelude::*;
-use resecta_bezier::{mean_curvature, param};
-use resecta_geom::Real;
+use resecta_geom::{Real, grid_param};
 use serde::{Deserialize, Serialize};
 
 use crate::engine::ResectionState;
@@ -28,33 +27,36 @@ pub struct ResectionMetrics {
     pub median_abs_mean_curvature_per_mm: Option<Real>,
 }
 
-/// The metrics of a resection's state with margin `margin_mm`, its resected volume and the
-/// reference's (ml, `None` when incomplete or absent).
-pub fn resection_metrics(
-    state: &ResectionState,
-    margin_mm: Real,
-    resected_ml: Option<Real>,
-    reference_ml: Option<Real>,
-) -> ResectionMetrics {
-    let volume_deviation_pct = match (resected_ml, reference_ml) {
-        (Some(v), Some(r)) if r > 0.0 => Some(100.0 * (v - r) / r),
-        _ => None,
-    };
+/// The metrics of a resection's state with margin `margin_mm`, without a volume deviation
+/// (see [`volume_deviation_pct`]).
+pub fn resection_metrics(state: &ResectionState, margin_mm: Real) -> ResectionMetrics {
     ResectionMetrics {
         margin_deviation_mm: state.verdict.min_margin_mm.map(|d| d - margin_mm),
-        volume_deviation_pct,
+        volume_deviation_pct: None,
         median_abs_mean_curvature_per_mm: median_abs_mean_curvature(state),
+    }
+}
+
+/// `100·(V − V_ref)/V_ref` (ml); `None` when either is absent (an incomplete cut) or V_ref ≤ 0.
+pub fn volume_deviation_pct(resected_ml: Option<Real>, reference_ml: Option<Real>) -> Option<Real> {
+    match (resected_ml, reference_ml) {
+        (Some(v), Some(r)) if r > 0.0 => Some(100.0 * (v - r) / r),
+        _ => None,
     }
 }
 
 /// Median |H| over the state's samples inside the liver (inside level > 0).
 pub fn median_abs_mean_curvature(state: &ResectionState) -> Option<Real> {
     let [ru, rv] = state.surface.resolution();
-    let net = state.surface.net();
+    let surface = state.surface.cut_surface();
     let mut h: Vec<Real> = (0..ru * rv)
         .into_par_iter()
         .filter(|&k| state.inside.get(k).is_some_and(|&l| l > 0.0))
-        .filter_map(|k| mean_curvature(net, param(k / rv, ru), param(k % rv, rv)))
+        .filter_map(|k| {
+            surface
+                .at(grid_param(k / rv, ru), grid_param(k % rv, rv))
+                .mean_curvature()
+        })
         .map(Real::abs)
         .collect();
     median(&mut h)

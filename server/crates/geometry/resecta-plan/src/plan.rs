@@ -4,7 +4,8 @@ use resecta_geom::{Real, RoleMap};
 use serde::{Deserialize, Serialize};
 
 use crate::error::PlanError;
-use crate::resection::{Group, Resection, Target, check_length};
+use crate::resection::{Group, Resection, ResectionKind, Target, check_length};
+use resecta_traces::Deformation;
 
 /// The plan file format this engine reads and writes.
 pub const FORMAT: &str = "resecta-plan/1";
@@ -82,6 +83,31 @@ pub enum PlanEvent {
         name: String,
         target: Target,
     },
+    /// DS, CP: appends a trace.
+    AddTrace {
+        name: String,
+        trace: Vec<[Real; 3]>,
+    },
+    /// DS, CP: redraws trace `index`.
+    SetTrace {
+        name: String,
+        index: usize,
+        trace: Vec<[Real; 3]>,
+    },
+    /// DS, CP: removes trace `index`.
+    RemoveTrace {
+        name: String,
+        index: usize,
+    },
+    /// CP: appends a deformation.
+    AddDeformation {
+        name: String,
+        deformation: Deformation,
+    },
+    /// CP: takes back the last deformation.
+    UndoDeformation {
+        name: String,
+    },
 }
 
 impl PlanEvent {
@@ -98,7 +124,12 @@ impl PlanEvent {
             | PlanEvent::SetMargin { name, .. }
             | PlanEvent::SetBand { name, .. }
             | PlanEvent::SetResolution { name, .. }
-            | PlanEvent::SetTarget { name, .. } => name,
+            | PlanEvent::SetTarget { name, .. }
+            | PlanEvent::AddTrace { name, .. }
+            | PlanEvent::SetTrace { name, .. }
+            | PlanEvent::RemoveTrace { name, .. }
+            | PlanEvent::AddDeformation { name, .. }
+            | PlanEvent::UndoDeformation { name } => name,
         }
     }
 
@@ -111,6 +142,11 @@ impl PlanEvent {
                 | PlanEvent::MoveGroup { .. }
                 | PlanEvent::Translate { .. }
                 | PlanEvent::Rotate { .. }
+                | PlanEvent::AddTrace { .. }
+                | PlanEvent::SetTrace { .. }
+                | PlanEvent::RemoveTrace { .. }
+                | PlanEvent::AddDeformation { .. }
+                | PlanEvent::UndoDeformation { .. }
         )
     }
 }
@@ -223,7 +259,20 @@ impl Plan {
                     .map_err(|w| PlanError::resection(&r.name, w))?;
                 r.band_mm = *band_mm;
             }
-            PlanEvent::SetResolution { resolution, .. } => r.resolution = *resolution,
+            PlanEvent::SetResolution { resolution, .. } => {
+                if r.kind == ResectionKind::Cp {
+                    return Err(PlanError::resection(
+                        &r.name,
+                        "a CP resection is sampled at its grid of 30 × n quads: it has no resolution to set",
+                    ));
+                }
+                r.resolution = *resolution
+            }
+            PlanEvent::AddTrace { trace, .. } => r.add_trace(trace.clone())?,
+            PlanEvent::SetTrace { index, trace, .. } => r.set_trace(*index, trace.clone())?,
+            PlanEvent::RemoveTrace { index, .. } => r.remove_trace(*index)?,
+            PlanEvent::AddDeformation { deformation, .. } => r.add_deformation(*deformation)?,
+            PlanEvent::UndoDeformation { .. } => r.undo_deformation()?,
             PlanEvent::SetTarget { target, .. } => r.target = target.clone(),
             PlanEvent::AddResection { .. } | PlanEvent::DeleteResection { .. } => {}
         }

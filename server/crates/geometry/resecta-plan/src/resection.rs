@@ -1,8 +1,12 @@
-//! A resection: a tensor-product Bézier surface given by its control points in RAS, with the
-//! safety margin it must keep from its target tumours.
+//! A resection: a cut surface — a tensor-product Bézier surface given by its control points,
+//! a surface drawn on slices (DS) or a deformable cutting plane (CP) given by traces — in RAS,
+//! with the safety margin it must keep from its target tumours.
+
+use std::sync::Arc;
 
 use resecta_bezier::{ControlNet, MAX_CONTROL_POINTS};
-use resecta_geom::{Mat3, Real, Vec3};
+use resecta_geom::{CutSurface, Mat3, Real, Vec3};
+use resecta_traces::{CpSurface, Deformation, DsSurface};
 use serde::{Deserialize, Serialize};
 
 use crate::error::PlanError;
@@ -32,12 +36,27 @@ pub const MAX_COORDINATE_MM: Real = 1.0e5;
 /// Longest resection name (bytes).
 pub const MAX_NAME_LEN: usize = 128;
 
-/// The kind of resection surface; only Bézier surfaces for now.
+/// The kind of resection surface (thesis Table 7.1).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ResectionKind {
+    /// A Bézier surface given by its control points (`grid`, `control_points`).
     #[default]
     Bezier,
+    /// Drawn on slices: 3 or more `traces` on parallel slices.
+    Ds,
+    /// A deformable cutting plane: `traces` on the liver surface and `deformations`.
+    Cp,
+}
+
+impl ResectionKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            ResectionKind::Bezier => "Bézier",
+            ResectionKind::Ds => "DS",
+            ResectionKind::Cp => "CP",
+        }
+    }
 }
 
 /// Which tumours a resection must keep its margin from and resect: tumour labels (empty: every
@@ -60,10 +79,18 @@ pub struct Resection {
     pub name: String,
     #[serde(default)]
     pub kind: ResectionKind,
-    /// Control points per direction [m (along u), n (along v)].
+    /// Bézier: control points per direction [m (along u), n (along v)]; [0, 0] for the others.
+    #[serde(default, skip_serializing_if = "grid_is_none")]
     pub grid: [usize; 2],
-    /// m·n points, row-major: index i·n + j is P_ij.
+    /// Bézier: m·n points, row-major: index i·n + j is P_ij; empty for the others.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub control_points: Vec<[Real; 3]>,
+    /// DS and CP: the traces (polylines in RAS mm); empty for Bézier.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub traces: Vec<Vec<[Real; 3]>>,
+    /// CP: local deformations, applied in order; empty for the others.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub deformations: Vec<Deformation>,
     #[serde(default = "default_margin")]
     pub margin_mm: Real,
     #[serde(default = "default_band")]
@@ -83,6 +110,9 @@ fn default_band() -> Real {
 }
 fn default_resolution() -> [usize; 2] {
     DEFAULT_RESOLUTION
+}
+fn grid_is_none(g: &[usize; 2]) -> bool {
+    *g == [0, 0]
 }
 fn target_is_default(t: &Target) -> bool {
     t == &Target::default()
@@ -156,13 +186,15 @@ pub(crate) fn check_length(what: &str, value: Real, min_exclusive: bool) -> Resu
 }
 
 impl Resection {
-    /// A resection with default margin, band and resolution.
+    /// A Bézier resection with default margin, band and resolution.
     pub fn new(name: &str, grid: [usize; 2], control_points: Vec<[Real; 3]>) -> Self {
         Self {
             name: name.to_owned(),
             kind: ResectionKind::Bezier,
             grid,
             control_points,
+            traces: Vec::new(),
+            deformations: Vec::new(),
             margin_mm: DEFAULT_MARGIN_MM,
             band_mm: DEFAULT_BAND_MM,
             target: Target::default(),
@@ -178,25 +210,11 @@ impl Resection {
                 "name must be 1..={MAX_NAME_LEN} bytes and not blank"
             )));
         }
-        let [m, n] = self.grid;
-        let sides = MIN_CONTROL_POINTS..=MAX_CONTROL_POINTS;
-        if !sides.contains(&m) || !sides.contains(&n) {
-            return Err(bad(format!(
-                "grid {m}×{n}: each side must be {MIN_CONTROL_POINTS}..={MAX_CONTROL_POINTS}"
-            )));
-        }
-        if self.control_points.len() != m * n {
-            return Err(bad(format!(
-                "grid {m}×{n} needs {} control points, got {}",
-                m * n,
-                self.control_points.len()
-            )));
-        }
-        for (k, &p) in self.control_points.iter().enumerate() {
-            check_point(
-                || format!("resection {:?}: control point {k}", self.name),
-                p,
-            )?;
+        match self.kind {
+            ResectionKind::Bezier => self.validate_net()?,
+            ResectionKind::Ds | ResectionKind::Cp => {
+                self.shape()?;
+            }
         }
         check_length("margin_mm", self.margin_mm, true).map_err(bad)?;
         check_length("band_mm", self.band_mm, false).map_err(bad)?;
@@ -220,6 +238,172 @@ impl Resection {
         Ok(())
     }
 
+    fn validate_net(&self) -> Result<(), PlanError> {
+        let bad = |what: String| PlanError::resection(&self.name, what);
+        if !self.traces.is_empty() || !self.deformations.is_empty() {
+            return Err(bad(
+                "a Bézier resection has control points, not traces or deformations".into(),
+            ));
+        }
+        let [m, n] = self.grid;
+        let sides = MIN_CONTROL_POINTS..=MAX_CONTROL_POINTS;
+        if !sides.contains(&m) || !sides.contains(&n) {
+            return Err(bad(format!(
+                "grid {m}×{n}: each side must be {MIN_CONTROL_POINTS}..={MAX_CONTROL_POINTS}"
+            )));
+        }
+        if self.control_points.len() != m * n {
+            return Err(bad(format!(
+                "grid {m}×{n} needs {} control points, got {}",
+                m * n,
+                self.control_points.len()
+            )));
+        }
+        for (k, &p) in self.control_points.iter().enumerate() {
+            check_point(
+                || format!("resection {:?}: control point {k}", self.name),
+                p,
+            )?;
+        }
+        Ok(())
+    }
+
+    /// A DS resection of `traces` with default margin, band and resolution.
+    pub fn ds(name: &str, traces: Vec<Vec<[Real; 3]>>) -> Self {
+        Self {
+            kind: ResectionKind::Ds,
+            grid: [0, 0],
+            control_points: Vec::new(),
+            traces,
+            ..Self::new(name, [0, 0], Vec::new())
+        }
+    }
+
+    /// A CP resection of `traces` and `deformations` with default margin and band.
+    pub fn cp(name: &str, traces: Vec<Vec<[Real; 3]>>, deformations: Vec<Deformation>) -> Self {
+        Self {
+            kind: ResectionKind::Cp,
+            deformations,
+            ..Self::ds(name, traces)
+        }
+    }
+
+    /// The cut surface (a DS or CP surface built from the traces: an error names what is wrong
+    /// with them).
+    pub fn shape(&self) -> Result<Arc<dyn CutSurface>, PlanError> {
+        let bad = |what: String| PlanError::resection(&self.name, what);
+        let no_net = || {
+            if self.grid == [0, 0] && self.control_points.is_empty() {
+                Ok(())
+            } else {
+                Err(bad(format!(
+                    "a {} resection is given by its traces, not a control grid",
+                    self.kind.name()
+                )))
+            }
+        };
+        Ok(match self.kind {
+            ResectionKind::Bezier => Arc::new(self.net()?),
+            ResectionKind::Ds => {
+                no_net()?;
+                if !self.deformations.is_empty() {
+                    return Err(bad("deformations apply to CP resections only".into()));
+                }
+                Arc::new(DsSurface::new(&self.traces).map_err(|e| bad(format!("DS: {e}")))?)
+            }
+            ResectionKind::Cp => {
+                no_net()?;
+                Arc::new(
+                    CpSurface::new(&self.traces, &self.deformations)
+                        .map_err(|e| bad(format!("CP: {e}")))?,
+                )
+            }
+        })
+    }
+
+    /// The samples per direction the planner evaluates: the resolution, or a CP's vertex grid.
+    pub fn sample_resolution(&self) -> Result<[usize; 2], PlanError> {
+        match self.kind {
+            ResectionKind::Cp => Ok(CpSurface::new(&self.traces, &self.deformations)
+                .map_err(|e| PlanError::resection(&self.name, format!("CP: {e}")))?
+                .dims()),
+            ResectionKind::Bezier | ResectionKind::Ds => Ok(self.resolution),
+        }
+    }
+
+    /// Refuses an edit of the wrong kind.
+    fn require(&self, kinds: &[ResectionKind], edit: &str) -> Result<(), PlanError> {
+        if kinds.contains(&self.kind) {
+            Ok(())
+        } else {
+            Err(PlanError::resection(
+                &self.name,
+                format!("{edit} does not apply to a {} resection", self.kind.name()),
+            ))
+        }
+    }
+
+    /// Appends a trace (DS, CP).
+    pub fn add_trace(&mut self, trace: Vec<[Real; 3]>) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Ds, ResectionKind::Cp], "adding a trace")?;
+        self.traces.push(trace);
+        Ok(())
+    }
+
+    /// Replaces (redraws) trace `index` (DS, CP).
+    pub fn set_trace(&mut self, index: usize, trace: Vec<[Real; 3]>) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Ds, ResectionKind::Cp], "redrawing a trace")?;
+        *self.trace_mut(index)? = trace;
+        Ok(())
+    }
+
+    /// Removes trace `index` (DS, CP).
+    pub fn remove_trace(&mut self, index: usize) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Ds, ResectionKind::Cp], "removing a trace")?;
+        self.trace_mut(index)?;
+        self.traces.remove(index);
+        Ok(())
+    }
+
+    fn trace_mut(&mut self, index: usize) -> Result<&mut Vec<[Real; 3]>, PlanError> {
+        let count = self.traces.len();
+        self.traces.get_mut(index).ok_or_else(|| {
+            PlanError::resection(
+                &self.name,
+                format!("trace {index} does not exist (the resection has {count})"),
+            )
+        })
+    }
+
+    /// Appends a deformation (CP).
+    pub fn add_deformation(&mut self, d: Deformation) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Cp], "a deformation")?;
+        self.deformations.push(d);
+        Ok(())
+    }
+
+    /// Takes back the last deformation (CP).
+    pub fn undo_deformation(&mut self) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Cp], "undoing a deformation")?;
+        self.deformations
+            .pop()
+            .map(|_| ())
+            .ok_or_else(|| PlanError::resection(&self.name, "it has no deformation to undo"))
+    }
+
+    /// Every point of the resection's definition moved by `f`: control points, or trace and
+    /// deformation points.
+    fn map_points(&mut self, f: impl Fn(Vec3) -> Vec3) -> Result<(), PlanError> {
+        let mut next = self.clone();
+        let g = |p: &mut [Real; 3]| *p = arr(f(vec3(*p)));
+        next.control_points.iter_mut().for_each(g);
+        next.traces.iter_mut().flatten().for_each(g);
+        next.deformations.iter_mut().for_each(|d| g(&mut d.point));
+        next.validate()?;
+        *self = next;
+        Ok(())
+    }
+
     /// The control net (validated).
     pub fn net(&self) -> Result<ControlNet<Real>, PlanError> {
         Ok(ControlNet::new(
@@ -229,10 +413,15 @@ impl Resection {
         )?)
     }
 
-    /// Centroid of the control points (the centre rotations default to).
+    /// Centroid of the control points, or of the trace points (the centre rotations default
+    /// to).
     pub fn centre(&self) -> Vec3 {
-        let sum: Vec3 = self.control_points.iter().map(|&p| vec3(p)).sum();
-        sum / self.control_points.len().max(1) as Real
+        let pts = self
+            .control_points
+            .iter()
+            .chain(self.traces.iter().flatten());
+        let (sum, n) = pts.fold((Vec3::zeros(), 0usize), |(s, n), &p| (s + vec3(p), n + 1));
+        sum / n.max(1) as Real
     }
 
     fn index(&self, i: usize, j: usize) -> Result<usize, PlanError> {
@@ -249,6 +438,7 @@ impl Resection {
 
     /// Moves P_ij to `p`.
     pub fn set_control_point(&mut self, i: usize, j: usize, p: [Real; 3]) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Bezier], "moving a control point")?;
         let k = self.index(i, j)?;
         check_point(|| format!("resection {:?}: point ({i}, {j})", self.name), p)?;
         self.control_points[k] = p;
@@ -257,6 +447,7 @@ impl Resection {
 
     /// Replaces all control points (same grid).
     pub fn set_control_points(&mut self, points: &[[Real; 3]]) -> Result<(), PlanError> {
+        self.require(&[ResectionKind::Bezier], "setting control points")?;
         let mut next = self.clone();
         next.control_points = points.to_vec();
         next.validate()?;
@@ -264,9 +455,14 @@ impl Resection {
         Ok(())
     }
 
-    /// Moves every point of `group` by `delta`.
+    /// Moves every point of `group` by `delta` (a translation, [`Group::All`], moves any kind).
     pub fn move_group(&mut self, group: Group, delta: [Real; 3]) -> Result<(), PlanError> {
         check_point(|| format!("resection {:?}: delta", self.name), delta)?;
+        if group == Group::All {
+            let d = vec3(delta);
+            return self.map_points(|p| p + d);
+        }
+        self.require(&[ResectionKind::Bezier], "moving a group of control points")?;
         let [m, n] = self.grid;
         if !(0..m * n).any(|k| group.contains(m, n, k / n, k % n)) {
             return Err(PlanError::resection(
@@ -317,12 +513,7 @@ impl Resection {
             None => self.centre(),
         };
         let r = rotation(a / norm, angle_deg.to_radians());
-        let rotated: Vec<[Real; 3]> = self
-            .control_points
-            .iter()
-            .map(|&p| arr(c + r * (vec3(p) - c)))
-            .collect();
-        self.set_control_points(&rotated)
+        self.map_points(|p| c + r * (p - c))
     }
 }
 

@@ -1,24 +1,37 @@
 //! The resection surface sampled for display and analysis: points and unit normals on the
-//! resection's ru×rv grid by the multi-level evaluator (only what an edit invalidates is
-//! recomputed), the triangulated mesh, and slice projections (thesis Sec. 7.3.4).
+//! resection's ru×rv grid — a Bézier surface by its engine's evaluator (only what an edit
+//! invalidates is recomputed), a DS or CP surface on the CPU —, the triangulated mesh, and
+//! slice projections (thesis Sec. 7.3.4).
+
+use std::sync::Arc;
 
 use resecta_bezier::{
     BezierError, ControlNet, Outputs, P3, Resolution, SurfaceEngine, SurfaceEvaluator, SurfaceGrid,
-    cpu_evaluator, eval_point, grid_triangles,
+    cpu_evaluator, grid_triangles,
 };
-use resecta_geom::{Plane, Polyline, Real, TriMesh, Vec3, slice};
+use resecta_geom::{CutSurface, Plane, Polyline, Real, TriMesh, Vec3, slice};
 use serde::{Deserialize, Serialize};
 
 use crate::error::PlanError;
 use crate::probe::SampleProbe;
-use crate::resection::Resection;
+use crate::resection::{Resection, ResectionKind};
 
-/// A resection surface kept up to date across edits, evaluated by its engine's evaluator. When
-/// that evaluator's device fails, the surface moves to the CPU evaluator and evaluates again
-/// (the edit succeeds) and counts it ([`LiveSurface::device_fallbacks`]).
+/// What a surface is evaluated with.
+#[derive(Debug)]
+enum Shape {
+    /// A Bézier surface's evaluator (its engine's, or the CPU's).
+    Bezier(Box<dyn SurfaceEvaluator>),
+    /// A DS or CP surface, sampled on the CPU.
+    Traced(Arc<dyn CutSurface>),
+}
+
+/// A resection surface kept up to date across edits. A Bézier surface is evaluated by its
+/// engine's evaluator; when that evaluator's device fails, the surface moves to the CPU
+/// evaluator and evaluates again (the edit succeeds) and counts it
+/// ([`LiveSurface::device_fallbacks`]).
 #[derive(Debug)]
 pub struct LiveSurface {
-    evaluator: Box<dyn SurfaceEvaluator>,
+    shape: Shape,
     grid: SurfaceGrid<Real>,
     fallbacks: u32,
     device_error: Option<BezierError>,
@@ -44,16 +57,25 @@ impl LiveSurface {
 
     /// The evaluator of `engine` for the resection, nothing evaluated yet.
     pub(crate) fn unevaluated(r: &Resection, engine: &SurfaceEngine) -> Result<Self, PlanError> {
+        if r.kind != ResectionKind::Bezier {
+            let [ru, rv] = r.sample_resolution()?;
+            return Ok(Self {
+                shape: Shape::Traced(r.shape()?),
+                grid: SurfaceGrid::zeroed(Resolution::new(ru, rv)?, Outputs::Normals),
+                fallbacks: 0,
+                device_error: None,
+            });
+        }
         let res = Resolution::new(r.resolution[0], r.resolution[1])?;
         let net = r.net()?;
         let mut surface = Self {
-            evaluator: cpu_evaluator(net.clone(), res),
+            shape: Shape::Bezier(cpu_evaluator(net.clone(), res)),
             grid: SurfaceGrid::zeroed(res, Outputs::Normals),
             fallbacks: 0,
             device_error: None,
         };
         match engine.make(net, res) {
-            Ok(e) => surface.evaluator = e,
+            Ok(e) => surface.shape = Shape::Bezier(e),
             Err(e) if e.is_device() => surface.fall_back(e),
             Err(e) => return Err(e.into()),
         }
@@ -67,13 +89,31 @@ impl LiveSurface {
         self.evaluate()
     }
 
-    /// Hands the resection's net and resolution to the evaluator, evaluating nothing.
+    /// Whether the surface is of `r`'s kind (else it is made anew).
+    pub(crate) fn fits(&self, r: &Resection) -> bool {
+        matches!(self.shape, Shape::Bezier(_)) == (r.kind == ResectionKind::Bezier)
+    }
+
+    /// Hands the resection's net and resolution to the evaluator (a DS or CP surface is built
+    /// anew), evaluating nothing.
     pub(crate) fn set(&mut self, r: &Resection) -> Result<(), PlanError> {
+        let evaluator = match &mut self.shape {
+            Shape::Bezier(e) => e,
+            Shape::Traced(_) => {
+                let [ru, rv] = r.sample_resolution()?;
+                self.shape = Shape::Traced(r.shape()?);
+                let res = Resolution::new(ru, rv)?;
+                if self.grid.resolution() != res {
+                    self.grid = SurfaceGrid::zeroed(res, Outputs::Normals);
+                }
+                return Ok(());
+            }
+        };
         let res = Resolution::new(r.resolution[0], r.resolution[1])?;
-        if self.evaluator.net().dims() != (r.grid[0], r.grid[1]) {
-            self.evaluator.set_net(r.net()?);
+        if evaluator.net().dims() != (r.grid[0], r.grid[1]) {
+            evaluator.set_net(r.net()?);
         } else {
-            let (old, new) = (self.evaluator.net().points(), &r.control_points);
+            let (old, new) = (evaluator.net().points(), &r.control_points);
             let moved: Vec<usize> = if old.len() == new.len() {
                 (0..old.len()).filter(|&k| old[k] != new[k]).collect()
             } else {
@@ -84,13 +124,13 @@ impl LiveSurface {
                 [] => {}
                 [k] if k < new.len() => {
                     let n = r.grid[1];
-                    self.evaluator.set_control_point(k / n, k % n, new[k])?;
+                    evaluator.set_control_point(k / n, k % n, new[k])?;
                 }
-                _ => self.evaluator.set_control_points(new)?,
+                _ => evaluator.set_control_points(new)?,
             }
         }
-        if self.evaluator.resolution() != res {
-            self.evaluator.set_resolution(res);
+        if evaluator.resolution() != res {
+            evaluator.set_resolution(res);
             self.grid = SurfaceGrid::zeroed(res, Outputs::Normals);
         }
         Ok(())
@@ -98,21 +138,28 @@ impl LiveSurface {
 
     /// Moves the surface to the CPU evaluator after a device failure.
     pub(crate) fn fall_back(&mut self, error: BezierError) {
-        self.evaluator = cpu_evaluator(self.evaluator.net().clone(), self.evaluator.resolution());
+        if let Shape::Bezier(e) = &self.shape {
+            self.shape = Shape::Bezier(cpu_evaluator(e.net().clone(), e.resolution()));
+        }
         self.fallbacks += 1;
         self.device_error = Some(error);
     }
 
     /// Evaluates through `probe`, which also measures the samples' inside levels and tumour
     /// distances: `Ok(true)`. When its device fails the surface moves to the CPU and is
-    /// evaluated there, the samples unmeasured: `Ok(false)`.
+    /// evaluated there, the samples unmeasured: `Ok(false)`, as for a DS or CP surface (probes
+    /// measure Bézier surfaces).
     pub(crate) fn evaluate_probed(
         &mut self,
         probe: &mut dyn SampleProbe,
         inside: &mut Vec<Real>,
         distance: &mut Vec<Real>,
     ) -> Result<bool, PlanError> {
-        match probe.measure(self.evaluator.as_mut(), &mut self.grid, inside, distance) {
+        let Shape::Bezier(evaluator) = &mut self.shape else {
+            self.evaluate()?;
+            return Ok(false);
+        };
+        match probe.measure(evaluator.as_mut(), &mut self.grid, inside, distance) {
             Ok(()) => Ok(true),
             Err(e) if e.is_device() => {
                 self.fall_back(e);
@@ -124,10 +171,25 @@ impl LiveSurface {
     }
 
     pub(crate) fn evaluate(&mut self) -> Result<(), PlanError> {
-        match self.evaluator.evaluate_into(&mut self.grid) {
+        let evaluator = match &mut self.shape {
+            Shape::Bezier(e) => e,
+            Shape::Traced(s) => {
+                let res = self.grid.resolution();
+                let (mut points, mut normals) = (Vec::new(), Vec::new());
+                s.sample(res.ru(), res.rv(), &mut points, &mut normals);
+                let (p, _, _, n) = self.grid.parts_mut();
+                let a = |v: &Vec3| [v.x, v.y, v.z];
+                p.iter_mut().zip(&points).for_each(|(o, v)| *o = a(v));
+                if let Some(n) = n {
+                    n.iter_mut().zip(&normals).for_each(|(o, v)| *o = a(v));
+                }
+                return Ok(());
+            }
+        };
+        match evaluator.evaluate_into(&mut self.grid) {
             Err(e) if e.is_device() => {
                 self.fall_back(e);
-                Ok(self.evaluator.evaluate_into(&mut self.grid)?)
+                self.evaluate()
             }
             r => Ok(r?),
         }
@@ -135,7 +197,10 @@ impl LiveSurface {
 
     /// Where the surface is evaluated now (`"cpu"`, `"wgpu"`, …).
     pub fn backend(&self) -> &'static str {
-        self.evaluator.backend()
+        match &self.shape {
+            Shape::Bezier(e) => e.backend(),
+            Shape::Traced(_) => "cpu",
+        }
     }
     /// How often a device failure moved this surface to the CPU evaluator.
     pub fn device_fallbacks(&self) -> u32 {
@@ -151,8 +216,19 @@ impl LiveSurface {
         let r = self.grid.resolution();
         [r.ru(), r.rv()]
     }
-    pub fn net(&self) -> &ControlNet<Real> {
-        self.evaluator.net()
+    /// A Bézier surface's control net.
+    pub fn net(&self) -> Option<&ControlNet<Real>> {
+        match &self.shape {
+            Shape::Bezier(e) => Some(e.net()),
+            Shape::Traced(_) => None,
+        }
+    }
+    /// The surface as a [`CutSurface`] (points, derivatives and curvature anywhere).
+    pub fn cut_surface(&self) -> &dyn CutSurface {
+        match &self.shape {
+            Shape::Bezier(e) => e.net(),
+            Shape::Traced(s) => s.as_ref(),
+        }
     }
     /// Sample points, index `a·rv + b`.
     pub fn points(&self) -> Vec<Vec3> {
@@ -171,7 +247,7 @@ impl LiveSurface {
     }
     /// The surface at any (u, v) ∈ [0, 1]².
     pub fn point_at(&self, u: Real, v: Real) -> Vec3 {
-        to_vec3(&eval_point(self.evaluator.net(), u, v).point)
+        self.cut_surface().at(u, v).p
     }
 
     /// The triangulated surface with its normals.

@@ -717,21 +717,19 @@ fn a_probe_measures_the_samples_and_its_device_failure_leaves_them_to_the_cpu() 
 
 #[test]
 fn metrics_of_a_plane_and_a_parabolic_cylinder() {
-    use resecta_plan::resection_metrics;
+    use resecta_plan::{resection_metrics, volume_deviation_pct};
     // A plane: flat; its margin deviation is the verdict's minimum less the margin, whose exact
     // value is the plane's distance to the tumour sphere (to the voxel boundary: within a voxel).
     let p = planner_with(plane_x("r1", 12.0, 70.0));
     let (s, r) = (p.state("r1").unwrap(), &p.plan().resections[0]);
-    let m = resection_metrics(s, r.margin_mm, Some(200.0), Some(160.0));
+    let m = resection_metrics(s, r.margin_mm);
     assert!(m.median_abs_mean_curvature_per_mm.unwrap() < 1e-12);
     let exact = (TUMOUR[0] - TUMOUR_R - 12.0).abs() - r.margin_mm;
     let dev = m.margin_deviation_mm.unwrap();
     assert!((dev - exact).abs() <= 1.0, "{dev} vs {exact}");
-    assert_eq!(m.volume_deviation_pct, Some(25.0));
-    assert_eq!(
-        resection_metrics(s, r.margin_mm, Some(1.0), None).volume_deviation_pct,
-        None
-    );
+    assert_eq!(m.volume_deviation_pct, None);
+    assert_eq!(volume_deviation_pct(Some(200.0), Some(160.0)), Some(25.0));
+    assert_eq!(volume_deviation_pct(Some(1.0), None), None);
     // x = 12 + a·y² (quadratic in u along y, linear in v along z): H = a / (1 + 4a²y²)^{3/2},
     // between a/1.03 and a over |y| ≤ 70 mm.
     let a = 1e-3;
@@ -745,7 +743,7 @@ fn metrics_of_a_plane_and_a_parabolic_cylinder() {
         .collect();
     let p = planner_with(Resection::new("r1", [3, 2], pts));
     let s = p.state("r1").unwrap();
-    let h = resection_metrics(s, 10.0, None, None)
+    let h = resection_metrics(s, 10.0)
         .median_abs_mean_curvature_per_mm
         .unwrap();
     assert!(h <= a * (1.0 + 1e-9) && h >= a / 1.03, "{h}");

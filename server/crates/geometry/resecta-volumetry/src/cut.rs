@@ -1,4 +1,5 @@
-//! Volumes on either side of a Bézier cut.
+//! Volumes on either side of a cut surface (any [`CutSurface`]: Bézier, drawn on slices,
+//! deformable cutting plane).
 //!
 //! 1. The surface is sampled with spacing δ ≤ the smallest voxel spacing (points and unit
 //!    normals), estimated from the control polygon's lengths.
@@ -22,8 +23,7 @@
 //! incomplete cut `resected_mm3` holds this sum all the same but is not a valid volume.
 
 use rayon::prelude::*;
-use resecta_bezier::{ControlNet, MleEvaluator, Outputs, Resolution};
-use resecta_geom::{Mat3, Real, Vec3, Volume};
+use resecta_geom::{CutSurface, Mat3, Real, Vec3, Volume};
 use serde::Serialize;
 
 use crate::accel::{
@@ -162,23 +162,23 @@ impl Volumetry {
     /// One resection; the resected side is the side holding `tumour_points`.
     pub fn cut(
         &mut self,
-        net: &ControlNet<Real>,
+        surface: &dyn CutSurface,
         tumour_points: &[Vec3],
     ) -> Result<CutResult, VolumetryError> {
-        Ok(self.sides(net, tumour_points)?.result)
+        Ok(self.sides(surface, tumour_points)?.result)
     }
 
     /// Several resections: each one's result, their union and the remnant.
     pub fn cuts(
         &mut self,
-        cuts: &[(&ControlNet<Real>, &[Vec3])],
+        cuts: &[(&dyn CutSurface, &[Vec3])],
     ) -> Result<MultiCut, VolumetryError> {
         let n = self.liver.len();
         let vox = self.liver.grid().voxel_volume_mm3();
         let mut union = vec![0f32; if cuts.len() > 1 { n } else { 0 }];
         let mut results = Vec::with_capacity(cuts.len());
-        for (net, pts) in cuts {
-            let s = self.sides(net, pts)?;
+        for &(surface, pts) in cuts {
+            let s = self.sides(surface, pts)?;
             if cuts.len() > 1 {
                 for &(a, b) in &s.resected_runs {
                     union[a as usize..b as usize].fill(1.0);
@@ -209,13 +209,13 @@ impl Volumetry {
     /// fraction ≥ ½; the first cut wins where they overlap).
     pub fn resected_labels(
         &mut self,
-        cuts: &[(&ControlNet<Real>, &[Vec3])],
+        cuts: &[(&dyn CutSurface, &[Vec3])],
     ) -> Result<Volume<u8>, VolumetryError> {
         let n = self.liver.len();
         let mut label = vec![1u8; n];
-        for (i, (net, pts)) in cuts.iter().enumerate().rev() {
+        for (i, &(surface, pts)) in cuts.iter().enumerate().rev() {
             let tag = u8::try_from(i + 2).unwrap_or(u8::MAX);
-            let s = self.sides(net, pts)?;
+            let s = self.sides(surface, pts)?;
             for &(a, b) in &s.resected_runs {
                 label[a as usize..b as usize].fill(tag);
             }
@@ -244,7 +244,7 @@ impl Volumetry {
 
     fn sides(
         &mut self,
-        net: &ControlNet<Real>,
+        surface: &dyn CutSurface,
         tumour_points: &[Vec3],
     ) -> Result<Sides, VolumetryError> {
         if tumour_points.is_empty() {
@@ -256,7 +256,7 @@ impl Volumetry {
         {
             return Err(VolumetryError::NonFinitePoint(k));
         }
-        let samples = Samples::new(net, &self.liver)?;
+        let samples = Samples::new(surface, &self.liver);
         let sigma = samples.tumour_side(tumour_points);
         let vox = self.liver.grid().voxel_volume_mm3();
         let query = BandGeometry::new(&self.liver, &samples);
@@ -613,39 +613,25 @@ struct Samples {
 }
 
 impl Samples {
-    fn new(net: &ControlNet<Real>, liver: &LiverVoxels) -> Result<Self, VolumetryError> {
+    fn new(surface: &dyn CutSurface, liver: &LiverVoxels) -> Self {
         let spacing = liver.grid().spacing();
         let delta = spacing.iter().copied().fold(Real::INFINITY, Real::min);
-        let (m, n) = net.dims();
-        let p = |i: usize, j: usize| {
-            let q = net.points()[i * n + j];
-            Vec3::new(q[0], q[1], q[2])
-        };
-        // Control-polygon lengths bound the curve lengths along u and v.
-        let lu = (0..n)
-            .map(|j| (1..m).map(|i| (p(i, j) - p(i - 1, j)).norm()).sum::<Real>())
-            .fold(0.0, Real::max);
-        let lv = (0..m)
-            .map(|i| (1..n).map(|j| (p(i, j) - p(i, j - 1)).norm()).sum::<Real>())
-            .fold(0.0, Real::max);
+        let [lu, lv] = surface.lengths();
         let count = |l: Real| ((l / delta).ceil() as usize + 1).clamp(2, MAX_SAMPLES_PER_AXIS);
         let (ru, rv) = (count(lu), count(lv));
         // The achieved spacing (may exceed the voxel size when clamped).
         let delta = (lu / (ru - 1) as Real)
             .max(lv / (rv - 1) as Real)
             .max(delta);
-        let mut e = MleEvaluator::new(net.clone(), Resolution::new(ru, rv)?);
-        let g = e.evaluate(Outputs::Normals);
-        let v3 = |q: &[Real; 3]| Vec3::new(q[0], q[1], q[2]);
-        let points = g.points().iter().map(v3).collect();
-        let normals = g.normals().unwrap_or_default().iter().map(v3).collect();
-        Ok(Self {
+        let (mut points, mut normals) = (Vec::new(), Vec::new());
+        surface.sample(ru, rv, &mut points, &mut normals);
+        Self {
             ru,
             rv,
             points,
             normals,
             delta,
-        })
+        }
     }
 
     fn nearest(&self, q: &Vec3) -> usize {

@@ -227,8 +227,8 @@ fn the_reference_accelerator_gives_the_cpu_results_bit_for_bit() {
             eprintln!("liver {li} cut {k}: {b:?}");
             assert_eq!(a, b, "liver {li} cut {k}");
         }
-        let pairs: Vec<(&ControlNet<Real>, &[Vec3])> =
-            cuts.iter().map(|(n, t)| (n, t.as_slice())).collect();
+        let pairs: Vec<(&dyn resecta_geom::CutSurface, &[Vec3])> =
+            cuts.iter().map(|(n, t)| (n as _, t.as_slice())).collect();
         let two = &pairs[..2];
         assert_eq!(cpu.cuts(two).unwrap(), acc.cuts(two).unwrap());
         assert_eq!(

@@ -2,7 +2,7 @@
 //! incomplete cuts, unions and label maps, on the test device (lavapipe in CI).
 
 use resecta_bezier::ControlNet;
-use resecta_geom::{Real, RoleMap, Vec3, Volume};
+use resecta_geom::{CutSurface, Real, RoleMap, Vec3, Volume};
 use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
 use resecta_volumetry::{CutAccelerator, CutResult, IncompleteCut, LiverVoxels, Volumetry};
 
@@ -211,7 +211,8 @@ fn phantom_cuts_unions_and_labels_equal_the_cpu() {
     ));
     assert_eq!(kinds[3], Some(IncompleteCut::MissesLiver));
     // Two cuts: the union, and the label map of all five.
-    let two = [(&cases[0].1, t1.as_slice()), (&cases[4].1, t2.as_slice())];
+    let two: [(&dyn CutSurface, &[Vec3]); 2] =
+        [(&cases[0].1, t1.as_slice()), (&cases[4].1, t2.as_slice())];
     let (c, g) = (cpu.cuts(&two).unwrap(), gpu.cuts(&two).unwrap());
     assert_eq!(c.complete, g.complete);
     for (a, b) in c.cuts.iter().zip(&g.cuts) {
@@ -223,7 +224,10 @@ fn phantom_cuts_unions_and_labels_equal_the_cpu() {
         g.resected_mm3 / 1e3
     );
     assert!(rel <= REL && relative(c.remnant_mm3, g.remnant_mm3) <= REL);
-    let all: Vec<_> = cases.iter().map(|(_, n, t)| (n, t.as_slice())).collect();
+    let all: Vec<(&dyn CutSurface, &[Vec3])> = cases
+        .iter()
+        .map(|(_, n, t)| (n as &dyn CutSurface, t.as_slice()))
+        .collect();
     assert_eq!(
         cpu.resected_labels(&all).unwrap().data(),
         gpu.resected_labels(&all).unwrap().data(),
@@ -311,7 +315,7 @@ fn a_speckled_liver_of_many_components_equals_the_cpu() {
             &gpu.cut(&net, &t).unwrap(),
             what,
         );
-        let one = [(&net, t.as_slice())];
+        let one: [(&dyn CutSurface, &[Vec3]); 1] = [(&net, t.as_slice())];
         assert_eq!(
             cpu.resected_labels(&one).unwrap().data(),
             gpu.resected_labels(&one).unwrap().data(),
