@@ -194,7 +194,7 @@ class ReconstructResponse(_message.Message):
     def __init__(self, progress: _Optional[_Union[_reconstruction_pb2.ReconstructProgress, _Mapping]] = ..., model: _Optional[_Union[_reconstruction_pb2.ModelInfo, _Mapping]] = ..., done: _Optional[_Union[_reconstruction_pb2.ReconstructDone, _Mapping]] = ...) -> None: ...
 
 class EditRequest(_message.Message):
-    __slots__ = ("session_id", "base_version", "init_from_end_point", "init_from_plane", "set_control_point", "set_control_points", "move_group", "translate", "rotate", "set_margin", "set_band", "set_resolution", "set_target", "delete_resection", "undo", "redo", "add_resection")
+    __slots__ = ("session_id", "base_version", "init_from_end_point", "init_from_plane", "set_control_point", "set_control_points", "move_group", "translate", "rotate", "set_margin", "set_band", "set_resolution", "set_target", "delete_resection", "undo", "redo", "add_resection", "add_trace", "set_trace", "remove_trace", "add_deformation", "undo_deformation")
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]
     BASE_VERSION_FIELD_NUMBER: _ClassVar[int]
     INIT_FROM_END_POINT_FIELD_NUMBER: _ClassVar[int]
@@ -212,6 +212,11 @@ class EditRequest(_message.Message):
     UNDO_FIELD_NUMBER: _ClassVar[int]
     REDO_FIELD_NUMBER: _ClassVar[int]
     ADD_RESECTION_FIELD_NUMBER: _ClassVar[int]
+    ADD_TRACE_FIELD_NUMBER: _ClassVar[int]
+    SET_TRACE_FIELD_NUMBER: _ClassVar[int]
+    REMOVE_TRACE_FIELD_NUMBER: _ClassVar[int]
+    ADD_DEFORMATION_FIELD_NUMBER: _ClassVar[int]
+    UNDO_DEFORMATION_FIELD_NUMBER: _ClassVar[int]
     session_id: str
     base_version: int
     init_from_end_point: _resection_pb2.InitFromEndPoint
@@ -229,7 +234,12 @@ class EditRequest(_message.Message):
     undo: _resection_pb2.Undo
     redo: _resection_pb2.Redo
     add_resection: _resection_pb2.AddResection
-    def __init__(self, session_id: _Optional[str] = ..., base_version: _Optional[int] = ..., init_from_end_point: _Optional[_Union[_resection_pb2.InitFromEndPoint, _Mapping]] = ..., init_from_plane: _Optional[_Union[_resection_pb2.InitFromPlane, _Mapping]] = ..., set_control_point: _Optional[_Union[_resection_pb2.SetControlPoint, _Mapping]] = ..., set_control_points: _Optional[_Union[_resection_pb2.SetControlPoints, _Mapping]] = ..., move_group: _Optional[_Union[_resection_pb2.MoveGroup, _Mapping]] = ..., translate: _Optional[_Union[_resection_pb2.Translate, _Mapping]] = ..., rotate: _Optional[_Union[_resection_pb2.Rotate, _Mapping]] = ..., set_margin: _Optional[_Union[_resection_pb2.SetMargin, _Mapping]] = ..., set_band: _Optional[_Union[_resection_pb2.SetBand, _Mapping]] = ..., set_resolution: _Optional[_Union[_resection_pb2.SetResolution, _Mapping]] = ..., set_target: _Optional[_Union[_resection_pb2.SetTarget, _Mapping]] = ..., delete_resection: _Optional[_Union[_resection_pb2.DeleteResection, _Mapping]] = ..., undo: _Optional[_Union[_resection_pb2.Undo, _Mapping]] = ..., redo: _Optional[_Union[_resection_pb2.Redo, _Mapping]] = ..., add_resection: _Optional[_Union[_resection_pb2.AddResection, _Mapping]] = ...) -> None: ...
+    add_trace: _resection_pb2.AddTrace
+    set_trace: _resection_pb2.SetTrace
+    remove_trace: _resection_pb2.RemoveTrace
+    add_deformation: _resection_pb2.AddDeformation
+    undo_deformation: _resection_pb2.UndoDeformation
+    def __init__(self, session_id: _Optional[str] = ..., base_version: _Optional[int] = ..., init_from_end_point: _Optional[_Union[_resection_pb2.InitFromEndPoint, _Mapping]] = ..., init_from_plane: _Optional[_Union[_resection_pb2.InitFromPlane, _Mapping]] = ..., set_control_point: _Optional[_Union[_resection_pb2.SetControlPoint, _Mapping]] = ..., set_control_points: _Optional[_Union[_resection_pb2.SetControlPoints, _Mapping]] = ..., move_group: _Optional[_Union[_resection_pb2.MoveGroup, _Mapping]] = ..., translate: _Optional[_Union[_resection_pb2.Translate, _Mapping]] = ..., rotate: _Optional[_Union[_resection_pb2.Rotate, _Mapping]] = ..., set_margin: _Optional[_Union[_resection_pb2.SetMargin, _Mapping]] = ..., set_band: _Optional[_Union[_resection_pb2.SetBand, _Mapping]] = ..., set_resolution: _Optional[_Union[_resection_pb2.SetResolution, _Mapping]] = ..., set_target: _Optional[_Union[_resection_pb2.SetTarget, _Mapping]] = ..., delete_resection: _Optional[_Union[_resection_pb2.DeleteResection, _Mapping]] = ..., undo: _Optional[_Union[_resection_pb2.Undo, _Mapping]] = ..., redo: _Optional[_Union[_resection_pb2.Redo, _Mapping]] = ..., add_resection: _Optional[_Union[_resection_pb2.AddResection, _Mapping]] = ..., add_trace: _Optional[_Union[_resection_pb2.AddTrace, _Mapping]] = ..., set_trace: _Optional[_Union[_resection_pb2.SetTrace, _Mapping]] = ..., remove_trace: _Optional[_Union[_resection_pb2.RemoveTrace, _Mapping]] = ..., add_deformation: _Optional[_Union[_resection_pb2.AddDeformation, _Mapping]] = ..., undo_deformation: _Optional[_Union[_resection_pb2.UndoDeformation, _Mapping]] = ...) -> None: ...
 
 class EditResponse(_message.Message):
     __slots__ = ("plan_version", "resections", "removed")

@@ -26,51 +26,67 @@ _sym_db = _symbol_database.Default()
 from . import common_pb2 as resecta_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1aresecta/v1/resection.proto\x12\nresecta.v1\x1a\x17resecta/v1/common.proto\":\n\x06Target\x12\x0e\n\x06labels\x18\x01 \x03(\r\x12 \n\x06points\x18\x02 \x03(\x0b\x32\x10.resecta.v1.Vec3\"\xc3\x01\n\tResection\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0e\n\x06grid_m\x18\x02 \x01(\r\x12\x0e\n\x06grid_n\x18\x03 \x01(\r\x12(\n\x0e\x63ontrol_points\x18\x04 \x03(\x0b\x32\x10.resecta.v1.Vec3\x12\x11\n\tmargin_mm\x18\x05 \x01(\x01\x12\x0f\n\x07\x62\x61nd_mm\x18\x06 \x01(\x01\x12\"\n\x06target\x18\x07 \x01(\x0b\x32\x12.resecta.v1.Target\x12\n\n\x02ru\x18\x08 \x01(\r\x12\n\n\x02rv\x18\t \x01(\r\"\xa4\x02\n\x07Verdict\x12\x1a\n\rmin_margin_mm\x18\x01 \x01(\x01H\x00\x88\x01\x01\x12\x1f\n\x05point\x18\x02 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x01u\x18\x03 \x01(\x01H\x01\x88\x01\x01\x12\x0e\n\x01v\x18\x04 \x01(\x01H\x02\x88\x01\x01\x12\x11\n\tviolation\x18\x05 \x01(\x08\x12\x1a\n\x12violating_area_mm2\x18\x06 \x01(\x01\x12\x18\n\x10warning_area_mm2\x18\x07 \x01(\x01\x12\x17\n\x0finside_area_mm2\x18\x08 \x01(\x01\x12\"\n\x15margin_uncertainty_mm\x18\t \x01(\x01H\x03\x88\x01\x01\x42\x10\n\x0e_min_margin_mmB\x04\n\x02_uB\x04\n\x02_vB\x18\n\x16_margin_uncertainty_mm\"a\n\x0fResectionStatus\x12(\n\tresection\x18\x01 \x01(\x0b\x32\x15.resecta.v1.Resection\x12$\n\x07verdict\x18\x02 \x01(\x0b\x32\x13.resecta.v1.Verdict\"\x89\x01\n\x10InitFromEndPoint\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\"\n\x06target\x18\x02 \x01(\x0b\x32\x12.resecta.v1.Target\x12#\n\tend_point\x18\x03 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x06grid_m\x18\x04 \x01(\r\x12\x0e\n\x06grid_n\x18\x05 \x01(\r\"\xb0\x01\n\rInitFromPlane\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\"\n\x06target\x18\x02 \x01(\x0b\x32\x12.resecta.v1.Target\x12%\n\x0bplane_point\x18\x03 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12&\n\x0cplane_normal\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x06grid_m\x18\x05 \x01(\r\x12\x0e\n\x06grid_n\x18\x06 \x01(\r\"V\n\x0fSetControlPoint\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\t\n\x01i\x18\x02 \x01(\r\x12\t\n\x01j\x18\x03 \x01(\r\x12\x1f\n\x05point\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\"B\n\x10SetControlPoints\x12\x0c\n\x04name\x18\x01 \x01(\t\x12 \n\x06points\x18\x02 \x03(\x0b\x32\x10.resecta.v1.Vec3\"\x82\x01\n\tMoveGroup\x12\x0c\n\x04name\x18\x01 \x01(\t\x12)\n\x05group\x18\x02 \x01(\x0e\x32\x18.resecta.v1.ControlGroupH\x00\x12\x0e\n\x04ring\x18\x03 \x01(\rH\x00\x12\x1f\n\x05\x64\x65lta\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3B\x0b\n\tselection\":\n\tTranslate\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1f\n\x05\x64\x65lta\x18\x02 \x01(\x0b\x32\x10.resecta.v1.Vec3\"k\n\x06Rotate\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1e\n\x04\x61xis\x18\x02 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x11\n\tangle_deg\x18\x03 \x01(\x01\x12 \n\x06\x63\x65ntre\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\",\n\tSetMargin\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x11\n\tmargin_mm\x18\x02 \x01(\x01\"(\n\x07SetBand\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0f\n\x07\x62\x61nd_mm\x18\x02 \x01(\x01\"5\n\rSetResolution\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\n\n\x02ru\x18\x02 \x01(\r\x12\n\n\x02rv\x18\x03 \x01(\r\"=\n\tSetTarget\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\"\n\x06target\x18\x02 \x01(\x0b\x32\x12.resecta.v1.Target\"\x1f\n\x0f\x44\x65leteResection\x12\x0c\n\x04name\x18\x01 \x01(\t\"8\n\x0c\x41\x64\x64Resection\x12(\n\tresection\x18\x01 \x01(\x0b\x32\x15.resecta.v1.Resection\"\x06\n\x04Undo\"\x06\n\x04Redo*v\n\x0c\x43ontrolGroup\x12\x1d\n\x19\x43ONTROL_GROUP_UNSPECIFIED\x10\x00\x12\x17\n\x13\x43ONTROL_GROUP_INNER\x10\x01\x12\x17\n\x13\x43ONTROL_GROUP_OUTER\x10\x02\x12\x15\n\x11\x43ONTROL_GROUP_ALL\x10\x03\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1aresecta/v1/resection.proto\x12\nresecta.v1\x1a\x17resecta/v1/common.proto\":\n\x06Target\x12\x0e\n\x06labels\x18\x01 \x03(\r\x12 \n\x06points\x18\x02 \x03(\x0b\x32\x10.resecta.v1.Vec3\")\n\x05Trace\x12 \n\x06points\x18\x01 \x03(\x0b\x32\x10.resecta.v1.Vec3\"T\n\x0b\x44\x65\x66ormation\x12\x1f\n\x05point\x18\x01 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x11\n\toffset_mm\x18\x02 \x01(\x01\x12\x11\n\tradius_mm\x18\x03 \x01(\x01\"\xbe\x02\n\tResection\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0e\n\x06grid_m\x18\x02 \x01(\r\x12\x0e\n\x06grid_n\x18\x03 \x01(\r\x12(\n\x0e\x63ontrol_points\x18\x04 \x03(\x0b\x32\x10.resecta.v1.Vec3\x12\x11\n\tmargin_mm\x18\x05 \x01(\x01\x12\x0f\n\x07\x62\x61nd_mm\x18\x06 \x01(\x01\x12\"\n\x06target\x18\x07 \x01(\x0b\x32\x12.resecta.v1.Target\x12\n\n\x02ru\x18\x08 \x01(\r\x12\n\n\x02rv\x18\t \x01(\r\x12\'\n\x04kind\x18\n \x01(\x0e\x32\x19.resecta.v1.ResectionKind\x12!\n\x06traces\x18\x0b \x03(\x0b\x32\x11.resecta.v1.Trace\x12-\n\x0c\x64\x65\x66ormations\x18\x0c \x03(\x0b\x32\x17.resecta.v1.Deformation\"\xa4\x02\n\x07Verdict\x12\x1a\n\rmin_margin_mm\x18\x01 \x01(\x01H\x00\x88\x01\x01\x12\x1f\n\x05point\x18\x02 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x01u\x18\x03 \x01(\x01H\x01\x88\x01\x01\x12\x0e\n\x01v\x18\x04 \x01(\x01H\x02\x88\x01\x01\x12\x11\n\tviolation\x18\x05 \x01(\x08\x12\x1a\n\x12violating_area_mm2\x18\x06 \x01(\x01\x12\x18\n\x10warning_area_mm2\x18\x07 \x01(\x01\x12\x17\n\x0finside_area_mm2\x18\x08 \x01(\x01\x12\"\n\x15margin_uncertainty_mm\x18\t \x01(\x01H\x03\x88\x01\x01\x42\x10\n\x0e_min_margin_mmB\x04\n\x02_uB\x04\n\x02_vB\x18\n\x16_margin_uncertainty_mm\"a\n\x0fResectionStatus\x12(\n\tresection\x18\x01 \x01(\x0b\x32\x15.resecta.v1.Resection\x12$\n\x07verdict\x18\x02 \x01(\x0b\x32\x13.resecta.v1.Verdict\"\x89\x01\n\x10InitFromEndPoint\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\"\n\x06target\x18\x02 \x01(\x0b\x32\x12.resecta.v1.Target\x12#\n\tend_point\x18\x03 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x06grid_m\x18\x04 \x01(\r\x12\x0e\n\x06grid_n\x18\x05 \x01(\r\"\xb0\x01\n\rInitFromPlane\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\"\n\x06target\x18\x02 \x01(\x0b\x32\x12.resecta.v1.Target\x12%\n\x0bplane_point\x18\x03 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12&\n\x0cplane_normal\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x0e\n\x06grid_m\x18\x05 \x01(\r\x12\x0e\n\x06grid_n\x18\x06 \x01(\r\"V\n\x0fSetControlPoint\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\t\n\x01i\x18\x02 \x01(\r\x12\t\n\x01j\x18\x03 \x01(\r\x12\x1f\n\x05point\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\"B\n\x10SetControlPoints\x12\x0c\n\x04name\x18\x01 \x01(\t\x12 \n\x06points\x18\x02 \x03(\x0b\x32\x10.resecta.v1.Vec3\"\x82\x01\n\tMoveGroup\x12\x0c\n\x04name\x18\x01 \x01(\t\x12)\n\x05group\x18\x02 \x01(\x0e\x32\x18.resecta.v1.ControlGroupH\x00\x12\x0e\n\x04ring\x18\x03 \x01(\rH\x00\x12\x1f\n\x05\x64\x65lta\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3B\x0b\n\tselection\":\n\tTranslate\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1f\n\x05\x64\x65lta\x18\x02 \x01(\x0b\x32\x10.resecta.v1.Vec3\"k\n\x06Rotate\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x1e\n\x04\x61xis\x18\x02 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12\x11\n\tangle_deg\x18\x03 \x01(\x01\x12 \n\x06\x63\x65ntre\x18\x04 \x01(\x0b\x32\x10.resecta.v1.Vec3\",\n\tSetMargin\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x11\n\tmargin_mm\x18\x02 \x01(\x01\"(\n\x07SetBand\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x0f\n\x07\x62\x61nd_mm\x18\x02 \x01(\x01\"5\n\rSetResolution\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\n\n\x02ru\x18\x02 \x01(\r\x12\n\n\x02rv\x18\x03 \x01(\r\"=\n\tSetTarget\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\"\n\x06target\x18\x02 \x01(\x0b\x32\x12.resecta.v1.Target\"\x1f\n\x0f\x44\x65leteResection\x12\x0c\n\x04name\x18\x01 \x01(\t\"8\n\x0c\x41\x64\x64Resection\x12(\n\tresection\x18\x01 \x01(\x0b\x32\x15.resecta.v1.Resection\":\n\x08\x41\x64\x64Trace\x12\x0c\n\x04name\x18\x01 \x01(\t\x12 \n\x05trace\x18\x02 \x01(\x0b\x32\x11.resecta.v1.Trace\"I\n\x08SetTrace\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\r\n\x05index\x18\x02 \x01(\r\x12 \n\x05trace\x18\x03 \x01(\x0b\x32\x11.resecta.v1.Trace\"*\n\x0bRemoveTrace\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\r\n\x05index\x18\x02 \x01(\r\"L\n\x0e\x41\x64\x64\x44\x65\x66ormation\x12\x0c\n\x04name\x18\x01 \x01(\t\x12,\n\x0b\x64\x65\x66ormation\x18\x02 \x01(\x0b\x32\x17.resecta.v1.Deformation\"\x1f\n\x0fUndoDeformation\x12\x0c\n\x04name\x18\x01 \x01(\t\"\x06\n\x04Undo\"\x06\n\x04Redo*X\n\rResectionKind\x12\x19\n\x15RESECTION_KIND_BEZIER\x10\x00\x12\x15\n\x11RESECTION_KIND_DS\x10\x01\x12\x15\n\x11RESECTION_KIND_CP\x10\x02*v\n\x0c\x43ontrolGroup\x12\x1d\n\x19\x43ONTROL_GROUP_UNSPECIFIED\x10\x00\x12\x17\n\x13\x43ONTROL_GROUP_INNER\x10\x01\x12\x17\n\x13\x43ONTROL_GROUP_OUTER\x10\x02\x12\x15\n\x11\x43ONTROL_GROUP_ALL\x10\x03\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'resecta.v1.resection_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_CONTROLGROUP']._serialized_start=1809
-  _globals['_CONTROLGROUP']._serialized_end=1927
+  _globals['_RESECTIONKIND']._serialized_start=2351
+  _globals['_RESECTIONKIND']._serialized_end=2439
+  _globals['_CONTROLGROUP']._serialized_start=2441
+  _globals['_CONTROLGROUP']._serialized_end=2559
   _globals['_TARGET']._serialized_start=67
   _globals['_TARGET']._serialized_end=125
-  _globals['_RESECTION']._serialized_start=128
-  _globals['_RESECTION']._serialized_end=323
-  _globals['_VERDICT']._serialized_start=326
-  _globals['_VERDICT']._serialized_end=618
-  _globals['_RESECTIONSTATUS']._serialized_start=620
-  _globals['_RESECTIONSTATUS']._serialized_end=717
-  _globals['_INITFROMENDPOINT']._serialized_start=720
-  _globals['_INITFROMENDPOINT']._serialized_end=857
-  _globals['_INITFROMPLANE']._serialized_start=860
-  _globals['_INITFROMPLANE']._serialized_end=1036
-  _globals['_SETCONTROLPOINT']._serialized_start=1038
-  _globals['_SETCONTROLPOINT']._serialized_end=1124
-  _globals['_SETCONTROLPOINTS']._serialized_start=1126
-  _globals['_SETCONTROLPOINTS']._serialized_end=1192
-  _globals['_MOVEGROUP']._serialized_start=1195
-  _globals['_MOVEGROUP']._serialized_end=1325
-  _globals['_TRANSLATE']._serialized_start=1327
-  _globals['_TRANSLATE']._serialized_end=1385
-  _globals['_ROTATE']._serialized_start=1387
-  _globals['_ROTATE']._serialized_end=1494
-  _globals['_SETMARGIN']._serialized_start=1496
-  _globals['_SETMARGIN']._serialized_end=1540
-  _globals['_SETBAND']._serialized_start=1542
-  _globals['_SETBAND']._serialized_end=1582
-  _globals['_SETRESOLUTION']._serialized_start=1584
-  _globals['_SETRESOLUTION']._serialized_end=1637
-  _globals['_SETTARGET']._serialized_start=1639
-  _globals['_SETTARGET']._serialized_end=1700
-  _globals['_DELETERESECTION']._serialized_start=1702
-  _globals['_DELETERESECTION']._serialized_end=1733
-  _globals['_ADDRESECTION']._serialized_start=1735
-  _globals['_ADDRESECTION']._serialized_end=1791
-  _globals['_UNDO']._serialized_start=1793
-  _globals['_UNDO']._serialized_end=1799
-  _globals['_REDO']._serialized_start=1801
-  _globals['_REDO']._serialized_end=1807
+  _globals['_TRACE']._serialized_start=127
+  _globals['_TRACE']._serialized_end=168
+  _globals['_DEFORMATION']._serialized_start=170
+  _globals['_DEFORMATION']._serialized_end=254
+  _globals['_RESECTION']._serialized_start=257
+  _globals['_RESECTION']._serialized_end=575
+  _globals['_VERDICT']._serialized_start=578
+  _globals['_VERDICT']._serialized_end=870
+  _globals['_RESECTIONSTATUS']._serialized_start=872
+  _globals['_RESECTIONSTATUS']._serialized_end=969
+  _globals['_INITFROMENDPOINT']._serialized_start=972
+  _globals['_INITFROMENDPOINT']._serialized_end=1109
+  _globals['_INITFROMPLANE']._serialized_start=1112
+  _globals['_INITFROMPLANE']._serialized_end=1288
+  _globals['_SETCONTROLPOINT']._serialized_start=1290
+  _globals['_SETCONTROLPOINT']._serialized_end=1376
+  _globals['_SETCONTROLPOINTS']._serialized_start=1378
+  _globals['_SETCONTROLPOINTS']._serialized_end=1444
+  _globals['_MOVEGROUP']._serialized_start=1447
+  _globals['_MOVEGROUP']._serialized_end=1577
+  _globals['_TRANSLATE']._serialized_start=1579
+  _globals['_TRANSLATE']._serialized_end=1637
+  _globals['_ROTATE']._serialized_start=1639
+  _globals['_ROTATE']._serialized_end=1746
+  _globals['_SETMARGIN']._serialized_start=1748
+  _globals['_SETMARGIN']._serialized_end=1792
+  _globals['_SETBAND']._serialized_start=1794
+  _globals['_SETBAND']._serialized_end=1834
+  _globals['_SETRESOLUTION']._serialized_start=1836
+  _globals['_SETRESOLUTION']._serialized_end=1889
+  _globals['_SETTARGET']._serialized_start=1891
+  _globals['_SETTARGET']._serialized_end=1952
+  _globals['_DELETERESECTION']._serialized_start=1954
+  _globals['_DELETERESECTION']._serialized_end=1985
+  _globals['_ADDRESECTION']._serialized_start=1987
+  _globals['_ADDRESECTION']._serialized_end=2043
+  _globals['_ADDTRACE']._serialized_start=2045
+  _globals['_ADDTRACE']._serialized_end=2103
+  _globals['_SETTRACE']._serialized_start=2105
+  _globals['_SETTRACE']._serialized_end=2178
+  _globals['_REMOVETRACE']._serialized_start=2180
+  _globals['_REMOVETRACE']._serialized_end=2222
+  _globals['_ADDDEFORMATION']._serialized_start=2224
+  _globals['_ADDDEFORMATION']._serialized_end=2300
+  _globals['_UNDODEFORMATION']._serialized_start=2302
+  _globals['_UNDODEFORMATION']._serialized_end=2333
+  _globals['_UNDO']._serialized_start=2335
+  _globals['_UNDO']._serialized_end=2341
+  _globals['_REDO']._serialized_start=2343
+  _globals['_REDO']._serialized_end=2349
 # @@protoc_insertion_point(module_scope)

@@ -9,12 +9,21 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
 
+class ResectionKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    RESECTION_KIND_BEZIER: _ClassVar[ResectionKind]
+    RESECTION_KIND_DS: _ClassVar[ResectionKind]
+    RESECTION_KIND_CP: _ClassVar[ResectionKind]
+
 class ControlGroup(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     CONTROL_GROUP_UNSPECIFIED: _ClassVar[ControlGroup]
     CONTROL_GROUP_INNER: _ClassVar[ControlGroup]
     CONTROL_GROUP_OUTER: _ClassVar[ControlGroup]
     CONTROL_GROUP_ALL: _ClassVar[ControlGroup]
+RESECTION_KIND_BEZIER: ResectionKind
+RESECTION_KIND_DS: ResectionKind
+RESECTION_KIND_CP: ResectionKind
 CONTROL_GROUP_UNSPECIFIED: ControlGroup
 CONTROL_GROUP_INNER: ControlGroup
 CONTROL_GROUP_OUTER: ControlGroup
@@ -28,8 +37,24 @@ class Target(_message.Message):
     points: _containers.RepeatedCompositeFieldContainer[_common_pb2.Vec3]
     def __init__(self, labels: _Optional[_Iterable[int]] = ..., points: _Optional[_Iterable[_Union[_common_pb2.Vec3, _Mapping]]] = ...) -> None: ...
 
+class Trace(_message.Message):
+    __slots__ = ("points",)
+    POINTS_FIELD_NUMBER: _ClassVar[int]
+    points: _containers.RepeatedCompositeFieldContainer[_common_pb2.Vec3]
+    def __init__(self, points: _Optional[_Iterable[_Union[_common_pb2.Vec3, _Mapping]]] = ...) -> None: ...
+
+class Deformation(_message.Message):
+    __slots__ = ("point", "offset_mm", "radius_mm")
+    POINT_FIELD_NUMBER: _ClassVar[int]
+    OFFSET_MM_FIELD_NUMBER: _ClassVar[int]
+    RADIUS_MM_FIELD_NUMBER: _ClassVar[int]
+    point: _common_pb2.Vec3
+    offset_mm: float
+    radius_mm: float
+    def __init__(self, point: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., offset_mm: _Optional[float] = ..., radius_mm: _Optional[float] = ...) -> None: ...
+
 class Resection(_message.Message):
-    __slots__ = ("name", "grid_m", "grid_n", "control_points", "margin_mm", "band_mm", "target", "ru", "rv")
+    __slots__ = ("name", "grid_m", "grid_n", "control_points", "margin_mm", "band_mm", "target", "ru", "rv", "kind", "traces", "deformations")
     NAME_FIELD_NUMBER: _ClassVar[int]
     GRID_M_FIELD_NUMBER: _ClassVar[int]
     GRID_N_FIELD_NUMBER: _ClassVar[int]
@@ -39,6 +64,9 @@ class Resection(_message.Message):
     TARGET_FIELD_NUMBER: _ClassVar[int]
     RU_FIELD_NUMBER: _ClassVar[int]
     RV_FIELD_NUMBER: _ClassVar[int]
+    KIND_FIELD_NUMBER: _ClassVar[int]
+    TRACES_FIELD_NUMBER: _ClassVar[int]
+    DEFORMATIONS_FIELD_NUMBER: _ClassVar[int]
     name: str
     grid_m: int
     grid_n: int
@@ -48,7 +76,10 @@ class Resection(_message.Message):
     target: Target
     ru: int
     rv: int
-    def __init__(self, name: _Optional[str] = ..., grid_m: _Optional[int] = ..., grid_n: _Optional[int] = ..., control_points: _Optional[_Iterable[_Union[_common_pb2.Vec3, _Mapping]]] = ..., margin_mm: _Optional[float] = ..., band_mm: _Optional[float] = ..., target: _Optional[_Union[Target, _Mapping]] = ..., ru: _Optional[int] = ..., rv: _Optional[int] = ...) -> None: ...
+    kind: ResectionKind
+    traces: _containers.RepeatedCompositeFieldContainer[Trace]
+    deformations: _containers.RepeatedCompositeFieldContainer[Deformation]
+    def __init__(self, name: _Optional[str] = ..., grid_m: _Optional[int] = ..., grid_n: _Optional[int] = ..., control_points: _Optional[_Iterable[_Union[_common_pb2.Vec3, _Mapping]]] = ..., margin_mm: _Optional[float] = ..., band_mm: _Optional[float] = ..., target: _Optional[_Union[Target, _Mapping]] = ..., ru: _Optional[int] = ..., rv: _Optional[int] = ..., kind: _Optional[_Union[ResectionKind, str]] = ..., traces: _Optional[_Iterable[_Union[Trace, _Mapping]]] = ..., deformations: _Optional[_Iterable[_Union[Deformation, _Mapping]]] = ...) -> None: ...
 
 class Verdict(_message.Message):
     __slots__ = ("min_margin_mm", "point", "u", "v", "violation", "violating_area_mm2", "warning_area_mm2", "inside_area_mm2", "margin_uncertainty_mm")
@@ -207,6 +238,46 @@ class AddResection(_message.Message):
     RESECTION_FIELD_NUMBER: _ClassVar[int]
     resection: Resection
     def __init__(self, resection: _Optional[_Union[Resection, _Mapping]] = ...) -> None: ...
+
+class AddTrace(_message.Message):
+    __slots__ = ("name", "trace")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    TRACE_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    trace: Trace
+    def __init__(self, name: _Optional[str] = ..., trace: _Optional[_Union[Trace, _Mapping]] = ...) -> None: ...
+
+class SetTrace(_message.Message):
+    __slots__ = ("name", "index", "trace")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    TRACE_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    index: int
+    trace: Trace
+    def __init__(self, name: _Optional[str] = ..., index: _Optional[int] = ..., trace: _Optional[_Union[Trace, _Mapping]] = ...) -> None: ...
+
+class RemoveTrace(_message.Message):
+    __slots__ = ("name", "index")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    INDEX_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    index: int
+    def __init__(self, name: _Optional[str] = ..., index: _Optional[int] = ...) -> None: ...
+
+class AddDeformation(_message.Message):
+    __slots__ = ("name", "deformation")
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    DEFORMATION_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    deformation: Deformation
+    def __init__(self, name: _Optional[str] = ..., deformation: _Optional[_Union[Deformation, _Mapping]] = ...) -> None: ...
+
+class UndoDeformation(_message.Message):
+    __slots__ = ("name",)
+    NAME_FIELD_NUMBER: _ClassVar[int]
+    name: str
+    def __init__(self, name: _Optional[str] = ...) -> None: ...
 
 class Undo(_message.Message):
     __slots__ = ()

@@ -26,7 +26,7 @@ _sym_db = _symbol_database.Default()
 from . import common_pb2 as resecta_dot_v1_dot_common__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18resecta/v1/volumes.proto\x12\nresecta.v1\x1a\x17resecta/v1/common.proto\"\xd2\x01\n\x0fResectionVolume\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x18\n\x0bresected_ml\x18\x02 \x01(\x01H\x00\x88\x01\x01\x12\x19\n\x0cresected_pct\x18\x03 \x01(\x01H\x01\x88\x01\x01\x12\x14\n\x0c\x63omplete_cut\x18\x04 \x01(\x08\x12\x19\n\x11incomplete_reason\x18\x05 \x01(\t\x12*\n\x10incomplete_point\x18\x06 \x01(\x0b\x32\x10.resecta.v1.Vec3B\x0e\n\x0c_resected_mlB\x0f\n\r_resected_pct\"\xa4\x02\n\x0cVolumeReport\x12\x10\n\x08total_ml\x18\x01 \x01(\x01\x12\x17\n\nremnant_ml\x18\x02 \x01(\x01H\x00\x88\x01\x01\x12\x18\n\x0bremnant_pct\x18\x03 \x01(\x01H\x01\x88\x01\x01\x12\x18\n\x0bresected_ml\x18\x04 \x01(\x01H\x02\x88\x01\x01\x12\x19\n\x11\x66lr_threshold_pct\x18\x05 \x01(\x01\x12\x18\n\x0b\x66lr_warning\x18\x06 \x01(\x08H\x03\x88\x01\x01\x12\x10\n\x08\x63omplete\x18\x07 \x01(\x08\x12/\n\nresections\x18\x08 \x03(\x0b\x32\x1b.resecta.v1.ResectionVolumeB\r\n\x0b_remnant_mlB\x0e\n\x0c_remnant_pctB\x0e\n\x0c_resected_mlB\x0e\n\x0c_flr_warningb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x18resecta/v1/volumes.proto\x12\nresecta.v1\x1a\x17resecta/v1/common.proto\"\x81\x02\n\x0fResectionVolume\x12\x0c\n\x04name\x18\x01 \x01(\t\x12\x18\n\x0bresected_ml\x18\x02 \x01(\x01H\x00\x88\x01\x01\x12\x19\n\x0cresected_pct\x18\x03 \x01(\x01H\x01\x88\x01\x01\x12\x14\n\x0c\x63omplete_cut\x18\x04 \x01(\x08\x12\x19\n\x11incomplete_reason\x18\x05 \x01(\t\x12*\n\x10incomplete_point\x18\x06 \x01(\x0b\x32\x10.resecta.v1.Vec3\x12-\n\x07metrics\x18\x07 \x01(\x0b\x32\x1c.resecta.v1.ResectionMetricsB\x0e\n\x0c_resected_mlB\x0f\n\r_resected_pct\"\xdc\x01\n\x10ResectionMetrics\x12 \n\x13margin_deviation_mm\x18\x01 \x01(\x01H\x00\x88\x01\x01\x12!\n\x14volume_deviation_pct\x18\x02 \x01(\x01H\x01\x88\x01\x01\x12-\n median_abs_mean_curvature_per_mm\x18\x03 \x01(\x01H\x02\x88\x01\x01\x42\x16\n\x14_margin_deviation_mmB\x17\n\x15_volume_deviation_pctB#\n!_median_abs_mean_curvature_per_mm\"\xa4\x02\n\x0cVolumeReport\x12\x10\n\x08total_ml\x18\x01 \x01(\x01\x12\x17\n\nremnant_ml\x18\x02 \x01(\x01H\x00\x88\x01\x01\x12\x18\n\x0bremnant_pct\x18\x03 \x01(\x01H\x01\x88\x01\x01\x12\x18\n\x0bresected_ml\x18\x04 \x01(\x01H\x02\x88\x01\x01\x12\x19\n\x11\x66lr_threshold_pct\x18\x05 \x01(\x01\x12\x18\n\x0b\x66lr_warning\x18\x06 \x01(\x08H\x03\x88\x01\x01\x12\x10\n\x08\x63omplete\x18\x07 \x01(\x08\x12/\n\nresections\x18\x08 \x03(\x0b\x32\x1b.resecta.v1.ResectionVolumeB\r\n\x0b_remnant_mlB\x0e\n\x0c_remnant_pctB\x0e\n\x0c_resected_mlB\x0e\n\x0c_flr_warningb\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -34,7 +34,9 @@ _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'resecta.v1.volumes_pb2', _g
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
   _globals['_RESECTIONVOLUME']._serialized_start=66
-  _globals['_RESECTIONVOLUME']._serialized_end=276
-  _globals['_VOLUMEREPORT']._serialized_start=279
-  _globals['_VOLUMEREPORT']._serialized_end=571
+  _globals['_RESECTIONVOLUME']._serialized_end=323
+  _globals['_RESECTIONMETRICS']._serialized_start=326
+  _globals['_RESECTIONMETRICS']._serialized_end=546
+  _globals['_VOLUMEREPORT']._serialized_start=549
+  _globals['_VOLUMEREPORT']._serialized_end=841
 # @@protoc_insertion_point(module_scope)

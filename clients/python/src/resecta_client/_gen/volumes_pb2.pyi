@@ -9,20 +9,32 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 DESCRIPTOR: _descriptor.FileDescriptor
 
 class ResectionVolume(_message.Message):
-    __slots__ = ("name", "resected_ml", "resected_pct", "complete_cut", "incomplete_reason", "incomplete_point")
+    __slots__ = ("name", "resected_ml", "resected_pct", "complete_cut", "incomplete_reason", "incomplete_point", "metrics")
     NAME_FIELD_NUMBER: _ClassVar[int]
     RESECTED_ML_FIELD_NUMBER: _ClassVar[int]
     RESECTED_PCT_FIELD_NUMBER: _ClassVar[int]
     COMPLETE_CUT_FIELD_NUMBER: _ClassVar[int]
     INCOMPLETE_REASON_FIELD_NUMBER: _ClassVar[int]
     INCOMPLETE_POINT_FIELD_NUMBER: _ClassVar[int]
+    METRICS_FIELD_NUMBER: _ClassVar[int]
     name: str
     resected_ml: float
     resected_pct: float
     complete_cut: bool
     incomplete_reason: str
     incomplete_point: _common_pb2.Vec3
-    def __init__(self, name: _Optional[str] = ..., resected_ml: _Optional[float] = ..., resected_pct: _Optional[float] = ..., complete_cut: _Optional[bool] = ..., incomplete_reason: _Optional[str] = ..., incomplete_point: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ...) -> None: ...
+    metrics: ResectionMetrics
+    def __init__(self, name: _Optional[str] = ..., resected_ml: _Optional[float] = ..., resected_pct: _Optional[float] = ..., complete_cut: _Optional[bool] = ..., incomplete_reason: _Optional[str] = ..., incomplete_point: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., metrics: _Optional[_Union[ResectionMetrics, _Mapping]] = ...) -> None: ...
+
+class ResectionMetrics(_message.Message):
+    __slots__ = ("margin_deviation_mm", "volume_deviation_pct", "median_abs_mean_curvature_per_mm")
+    MARGIN_DEVIATION_MM_FIELD_NUMBER: _ClassVar[int]
+    VOLUME_DEVIATION_PCT_FIELD_NUMBER: _ClassVar[int]
+    MEDIAN_ABS_MEAN_CURVATURE_PER_MM_FIELD_NUMBER: _ClassVar[int]
+    margin_deviation_mm: float
+    volume_deviation_pct: float
+    median_abs_mean_curvature_per_mm: float
+    def __init__(self, margin_deviation_mm: _Optional[float] = ..., volume_deviation_pct: _Optional[float] = ..., median_abs_mean_curvature_per_mm: _Optional[float] = ...) -> None: ...
 
 class VolumeReport(_message.Message):
     __slots__ = ("total_ml", "remnant_ml", "remnant_pct", "resected_ml", "flr_threshold_pct", "flr_warning", "complete", "resections")
