@@ -121,6 +121,76 @@ def planar(n=16, margin=10):
             "margin_mm": margin}
 
 
+def ds_plane(zs=(-80, -25, 30, 80)):
+    """Straight traces on the plane x = −20, on axial slices."""
+    return {"name": "r1", "kind": "ds", "margin_mm": 10,
+            "traces": [[[-20.0, y, z] for y in (-80, -30, 20, 80)] for z in zs]}
+
+
+def cp_ring(radius=80, n=24):
+    """A ring on the plane x = −20."""
+    ring = [[-20.0, radius * np.cos(2 * np.pi * k / n), radius * np.sin(2 * np.pi * k / n)]
+            for k in range(n + 1)]
+    return {"name": "r1", "kind": "cp", "margin_mm": 10, "traces": [ring]}
+
+
+def test_ds_and_cp_plans_cut_the_bezier_plane_s_volume(resecta, phantom, tmp_path):
+    """The same plane as Bézier, DS traces and a CP ring: volumes equal within 0.1 %, flat
+    (median |H| < 1e-6 mm⁻¹), the same margin deviation; a CP deformation bends it and the
+    plan file round-trips through --out-dir."""
+    labels = phantom["labels_file"]
+    runs = {}
+    for kind, r in [("bezier", planar()), ("ds", ds_plane()), ("cp", cp_ring())]:
+        f = tmp_path / f"{kind}.json"
+        f.write_text(json.dumps({"format": "resecta-plan/1",
+                                 "roles": {"parenchyma": [1], "tumor": [2], "portal": [3]},
+                                 "resections": [r]}))
+        runs[kind] = resecta("plan", labels, f, "--json", "--out-dir", tmp_path / kind).json()
+    want = runs["bezier"]["resections"][0]
+    for kind in ("ds", "cp"):
+        got = runs[kind]["resections"][0]
+        assert got["complete_cut"], got
+        assert got["resected_ml"] == pytest.approx(want["resected_ml"], rel=1e-3), kind
+        assert got["metrics"]["median_abs_mean_curvature_per_mm"] < 1e-6
+        assert got["metrics"]["margin_deviation_mm"] == pytest.approx(
+            want["metrics"]["margin_deviation_mm"], abs=0.05), kind
+        saved = json.loads((tmp_path / kind / "plan.json").read_text())["resections"][0]
+        assert saved["kind"] == kind and "control_points" not in saved
+    bent = dict(cp_ring(), deformations=[{"point": [-20, 0, 0], "offset_mm": 6, "radius_mm": 30}])
+    f = tmp_path / "bent.json"
+    f.write_text(json.dumps({"format": "resecta-plan/1",
+                             "roles": {"parenchyma": [1], "tumor": [2], "portal": [3]},
+                             "resections": [bent]}))
+    got = resecta("plan", labels, f, "--json").json()["resections"][0]
+    assert got["metrics"]["median_abs_mean_curvature_per_mm"] > 1e-4
+    assert got["resected_ml"] != pytest.approx(want["resected_ml"], rel=1e-3)
+
+
+@pytest.mark.parametrize("resection, needle", [
+    (ds_plane(zs=(-80, 80)), "2 traces"),
+    (dict(ds_plane(), traces=ds_plane()["traces"][:3] + [[[-20, 0, 0], [-10, 0, 9], [-15, 0, 2]]]),
+     "one orientation"),
+    (dict(ds_plane(), traces=ds_plane()["traces"][:3]
+          + [[[0, 0, 50], [10, 10, 50], [10, 0, 50], [0, 10, 50]]]), "intersects itself"),
+    (dict(ds_plane(), traces=ds_plane()["traces"] + [[[-20, y, 30] for y in (-80, 0, 80)]]),
+     "same axial slice"),
+    (dict(ds_plane(), grid=[4, 4]), "not a control grid"),
+    (dict(cp_ring(), traces=[[[-20, 0, z] for z in range(0, 50, 10)]]), "collinear"),
+    (dict(cp_ring(), deformations=[{"point": [-20, 500, 0], "offset_mm": 5, "radius_mm": 9}]),
+     "beyond the cutting plane"),
+    (dict(cp_ring(), deformations=[{"point": [-20, 0, 0], "offset_mm": 5, "radius_mm": 0}]),
+     "radius_mm"),
+    (dict(planar(), traces=ds_plane()["traces"]), "not traces"),
+])
+def test_bad_ds_and_cp_plans_exit_2_naming_the_problem(resecta, phantom, tmp_path, resection,
+                                                        needle):
+    f = write_plan(tmp_path, resection)
+    r = resecta("plan", phantom["labels_file"], f, "--json", check=False)
+    assert r.code == 2, r.stderr
+    assert r.stdout == ""
+    assert needle in r.stderr and '"r1"' in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("resection, needle", [
     (planar(n=15), "needs 16 control points, got 15"),
     (planar(margin=0), "margin_mm"),

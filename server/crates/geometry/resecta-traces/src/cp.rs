@@ -7,7 +7,8 @@
 //! - **Fit**: the traces, densified to h/2 steps, pull their nearest vertices along the plane
 //!   normal N onto them (a vertex several trace points reach takes their mean height); then
 //!   Laplacian smoothing moves every other vertex to the mean of its neighbours, iterated to
-//!   convergence (the discrete harmonic height field through the trace vertices).
+//!   convergence (the discrete harmonic height field through the trace vertices; over-relaxed
+//!   Gauss–Seidel until no vertex moves more than 1e-12 of the largest trace height).
 //! - **Deformations** (in order): the vertex nearest the point's projection moves by exactly
 //!   `offset_mm` along N, every vertex at in-plane distance d < R from it by
 //!   `offset·½(1 + cos(πd/R))`, nothing at d ≥ R.
@@ -30,9 +31,12 @@ pub const MAX_DEFORMATIONS: usize = 256;
 pub const MAX_RADIUS_MM: Real = 200.0;
 /// Largest deformation offset (mm, either way).
 pub const MAX_OFFSET_MM: Real = 100.0;
-/// Laplacian smoothing stops when no vertex moves more than this (mm) in a sweep.
-const SMOOTH_TOLERANCE_MM: Real = 1e-10;
-const MAX_SWEEPS: usize = 200_000;
+/// Laplacian smoothing stops when no vertex moves more than this times the largest trace
+/// height (at least 1 mm) in a sweep.
+const SMOOTH_TOLERANCE: Real = 1e-12;
+const MAX_SWEEPS: usize = 20_000;
+/// Most points the densified traces hold (longer traces are densified more coarsely).
+const MAX_DENSE_POINTS: Real = 200_000.0;
 
 /// A local deformation: a cosine bump of `offset_mm` along the plane normal, centred on the
 /// grid vertex nearest `point`, vanishing at `radius_mm`.
@@ -167,8 +171,14 @@ impl CpSurface {
         let mut sum = vec![0.0; nu * nv];
         let mut count = vec![0u32; nu * nv];
         let centre_height = self.origin.dot(&self.axes[2]);
+        let length: Real = traces
+            .iter()
+            .flat_map(|t| t.windows(2))
+            .map(|w| (vec3(w[1]) - vec3(w[0])).norm())
+            .sum();
+        let step = (self.h / 2.0).max(length / MAX_DENSE_POINTS);
         for trace in traces {
-            for p in densify(trace, self.h / 2.0) {
+            for p in densify(trace, step) {
                 let (a, b) = self.nearest_vertex(p);
                 sum[a * nv + b] += p.dot(&self.axes[2]) - centre_height;
                 count[a * nv + b] += 1;
@@ -180,6 +190,7 @@ impl CpSurface {
                 self.heights[k] = sum[k] / Real::from(count[k]);
             }
         }
+        let scale = self.heights.iter().fold(1.0, |m: Real, h| m.max(h.abs()));
         // Laplacian smoothing to convergence (Gauss–Seidel, over-relaxed).
         let omega = 2.0 / (1.0 + (std::f64::consts::PI / nu.max(nv) as Real).sin());
         let h = &mut self.heights;
@@ -213,7 +224,7 @@ impl CpSurface {
                     moved = moved.max(step.abs());
                 }
             }
-            if moved <= SMOOTH_TOLERANCE_MM {
+            if moved <= SMOOTH_TOLERANCE * scale {
                 break;
             }
         }

@@ -313,3 +313,38 @@ fn cp_refuses_collinear_traces_and_bad_deformations() {
         Err(TraceError::Deformation { index: 1, .. })
     ));
 }
+
+#[test]
+fn cp_fit_converges_quickly_on_a_long_plane() {
+    // The longest plane allowed (about ten times its width), a wavy ring: the smoothing still
+    // converges (no vertex moves in a further sweep beyond the tolerance) well within its cap.
+    let ring: Vec<[Real; 3]> = (0..=200)
+        .map(|k| {
+            let t = 2.0 * PI * Real::from(k) / 200.0;
+            [280.0 * t.cos(), 29.0 * t.sin(), 3.0 * (5.0 * t).sin()]
+        })
+        .collect();
+    let t0 = std::time::Instant::now();
+    let s = CpSurface::new(std::slice::from_ref(&ring), &[]).unwrap();
+    let [nu, nv] = s.dims();
+    assert_eq!(nu, 31);
+    assert!(nv > 250, "{nv}");
+    // Harmonic: every inner vertex away from the ring is the mean of its neighbours.
+    let h = |a: usize, b: usize| s.vertex(a, b).dot(&s.normal());
+    let off_ring = |a: usize, b: usize| {
+        let (p, q) = (s.vertex(a, b), s.normal());
+        ring.iter().all(|r| {
+            let d = Vec3::new(r[0], r[1], r[2]) - p;
+            (d - q * d.dot(&q)).norm() > 2.0 * s.quad_mm()
+        })
+    };
+    let worst = (1..nu - 1)
+        .flat_map(|a| (1..nv - 1).map(move |b| (a, b)))
+        .filter(|&(a, b)| off_ring(a, b))
+        .map(|(a, b)| {
+            (h(a, b) - 0.25 * (h(a - 1, b) + h(a + 1, b) + h(a, b - 1) + h(a, b + 1))).abs()
+        })
+        .fold(0.0, Real::max);
+    assert!(worst < 1e-6, "{worst}");
+    println!("long CP plane {nu}×{nv} in {:?}", t0.elapsed());
+}
