@@ -21,6 +21,7 @@ from .geometry import Axes, decompose, label_bytes
 from .scene import LiveScene, SceneUpdate
 from .types import (
     ControlGroup,
+    Deformation,
     EditResult,
     LabelMapSummary,
     LabelSlice,
@@ -29,6 +30,8 @@ from .types import (
     ModelInfo,
     Point,
     Reconstruction,
+    Resection,
+    ResectionKind,
     ServerInfo,
     SessionInfo,
     SliceAxis,
@@ -36,6 +39,7 @@ from .types import (
     Target,
     Volumes,
     role_map,
+    trace_pb,
     vec3,
 )
 
@@ -47,6 +51,12 @@ DEFAULT_RECEIVE_BYTES = 4 << 20  # gRPC's default, raised to the server's max_me
 
 ProgressCallback = Callable[[float, str], None]
 """Called with (fraction done in [0, 1], stage name) during a reconstruction."""
+Trace = Any
+"""An (n, 3) array-like of RAS mm points: one polyline drawn by the user."""
+DEFAULT_MARGIN_MM = 10.0
+DEFAULT_BAND_MM = 5.0
+DEFAULT_RESOLUTION = (40, 40)
+"""The server's defaults for a new resection (the thesis' 40×40 samples)."""
 Roles = Mapping[str, "Iterable[int] | int"]
 """Role → label value(s), e.g. ``{"parenchyma": [1], "tumor": [2], "portal": [3]}``."""
 TargetLike = Target | Iterable[int] | None
@@ -498,6 +508,107 @@ class Session:
     def delete_resection(self, name: str, *, base_version: int | None = None) -> EditResult:
         """Removes a resection from the plan."""
         return self._edit(base_version, delete_resection=resection_pb2.DeleteResection(name=name))
+
+    def add_resection(self, resection: Resection, *, base_version: int | None = None) -> EditResult:
+        """Adds `resection` exactly as given (any kind; e.g. one an earlier answer holds)."""
+        return self._edit(base_version, add_resection=resection_pb2.AddResection(resection=resection.to_pb()))
+
+    def _add_traced(
+        self,
+        kind: ResectionKind,
+        name: str,
+        traces: Iterable[Trace],
+        deformations: Iterable[Deformation],
+        target: TargetLike,
+        margin_mm: float,
+        band_mm: float,
+        resolution: tuple[int, int],
+        base_version: int | None,
+    ) -> EditResult:
+        op = resection_pb2.Resection(
+            name=name,
+            kind=kind.to_pb(),
+            traces=[trace_pb(t) for t in traces],
+            deformations=[d.to_pb() for d in deformations],
+            margin_mm=margin_mm,
+            band_mm=band_mm,
+            target=_target(target),
+            ru=resolution[0],
+            rv=resolution[1],
+        )
+        return self._edit(base_version, add_resection=resection_pb2.AddResection(resection=op))
+
+    def add_ds(
+        self,
+        name: str,
+        traces: Iterable[Trace],
+        *,
+        target: TargetLike = None,
+        margin_mm: float = DEFAULT_MARGIN_MM,
+        band_mm: float = DEFAULT_BAND_MM,
+        resolution: tuple[int, int] = DEFAULT_RESOLUTION,
+        base_version: int | None = None,
+    ) -> EditResult:
+        """Adds a resection drawn on slices (DS): 3..=32 traces of ≥ 3 points, each on its own
+        axial (constant S), coronal (constant A) or sagittal (constant R) slice, all of one
+        orientation; the surface spans the first to the last trace's slice."""
+        return self._add_traced(
+            ResectionKind.DS, name, traces, (), target, margin_mm, band_mm, resolution, base_version
+        )
+
+    def add_cp(
+        self,
+        name: str,
+        traces: Iterable[Trace],
+        deformations: Iterable[Deformation] = (),
+        *,
+        target: TargetLike = None,
+        margin_mm: float = DEFAULT_MARGIN_MM,
+        band_mm: float = DEFAULT_BAND_MM,
+        resolution: tuple[int, int] = DEFAULT_RESOLUTION,
+        base_version: int | None = None,
+    ) -> EditResult:
+        """Adds a deformable cutting plane (CP): the PCA plane of the traces (typically a ring
+        drawn on the liver surface) with a grid fitted to them, then `deformations` in order."""
+        return self._add_traced(
+            ResectionKind.CP, name, traces, deformations, target, margin_mm, band_mm, resolution, base_version
+        )
+
+    def add_trace(self, name: str, trace: Trace, *, base_version: int | None = None) -> EditResult:
+        """Appends a trace to a DS or CP resection."""
+        op = resection_pb2.AddTrace(name=name, trace=trace_pb(trace))
+        return self._edit(base_version, add_trace=op)
+
+    def set_trace(
+        self, name: str, index: int, trace: Trace, *, base_version: int | None = None
+    ) -> EditResult:
+        """Redraws trace `index` (0-based, in the resection's order) of a DS or CP resection."""
+        op = resection_pb2.SetTrace(name=name, index=index, trace=trace_pb(trace))
+        return self._edit(base_version, set_trace=op)
+
+    def remove_trace(self, name: str, index: int, *, base_version: int | None = None) -> EditResult:
+        """Removes trace `index` of a DS or CP resection (a DS resection keeps at least 3)."""
+        return self._edit(base_version, remove_trace=resection_pb2.RemoveTrace(name=name, index=index))
+
+    def add_deformation(
+        self,
+        name: str,
+        point: Point,
+        offset_mm: float,
+        radius_mm: float,
+        *,
+        base_version: int | None = None,
+    ) -> EditResult:
+        """Deforms a CP resection: the grid vertex nearest `point` moves `offset_mm` (±100)
+        along the plane normal, its neighbours within `radius_mm` (0, 200] with a cosine
+        falloff."""
+        d = resection_pb2.Deformation(point=vec3(point), offset_mm=offset_mm, radius_mm=radius_mm)
+        op = resection_pb2.AddDeformation(name=name, deformation=d)
+        return self._edit(base_version, add_deformation=op)
+
+    def undo_deformation(self, name: str, *, base_version: int | None = None) -> EditResult:
+        """Takes back the last deformation of a CP resection."""
+        return self._edit(base_version, undo_deformation=resection_pb2.UndoDeformation(name=name))
 
     def undo(self, *, base_version: int | None = None) -> EditResult:
         """Takes back the session's last edit (any resection's; `FailedPrecondition`

@@ -141,6 +141,20 @@ class SliceAxis(_Named):
         return planning_service_pb2.SliceAxis, "SLICE_AXIS"
 
 
+class ResectionKind(_Named):
+    """The kind of a resection's surface (thesis Table 7.1): a Bézier surface given by control
+    points, a surface drawn on slices (DS) or a deformable cutting plane (CP), both given by
+    traces."""
+
+    BEZIER = "bezier"
+    DS = "ds"
+    CP = "cp"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return resection_pb2.ResectionKind, "RESECTION_KIND"
+
+
 class MarginClass(enum.IntEnum):
     """Per-vertex margin class of a resection surface (`SurfaceState.classes`)."""
 
@@ -373,11 +387,45 @@ class Target:
         return cls(tuple(m.labels), tuple((p.x, p.y, p.z) for p in m.points))
 
 
+def trace_pb(points: Any) -> resection_pb2.Trace:
+    """A `Trace` from an (n, 3) array-like of RAS mm points."""
+    a = np.asarray(points, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise ValueError(f"a trace is an (n, 3) array of points, got shape {a.shape}")
+    return resection_pb2.Trace(points=[vec3(p) for p in a])
+
+
+def _points(m: Any) -> F64:
+    return np.array([(p.x, p.y, p.z) for p in m.points], dtype=np.float64).reshape(-1, 3)
+
+
+@dataclass(frozen=True)
+class Deformation:
+    """A local deformation of a CP resection: the grid vertex nearest `point` (projected onto
+    the plane) moves by `offset_mm` along the plane normal, the vertices within `radius_mm` by
+    ``offset·½(1 + cos(π·d/radius))``."""
+
+    point: tuple[float, float, float]
+    offset_mm: float
+    radius_mm: float
+
+    def to_pb(self) -> resection_pb2.Deformation:
+        return resection_pb2.Deformation(
+            point=vec3(self.point), offset_mm=float(self.offset_mm), radius_mm=float(self.radius_mm)
+        )
+
+    @classmethod
+    def from_pb(cls, m: resection_pb2.Deformation) -> Deformation:
+        return cls(_xyz(m.point), m.offset_mm, m.radius_mm)
+
+
 @dataclass(frozen=True, eq=False)
 class Resection:
-    """A virtual resection: a tensor-product Bézier surface. `control_points` has shape
-    (m, n, 3): entry [i, j] is P_ij (i along u); ``control_points.reshape(-1, 3)`` is the
-    row-major order of the plan file and of the wire (index i·n + j)."""
+    """A virtual resection of one `kind`. Bézier: `control_points` has shape (m, n, 3): entry
+    [i, j] is P_ij (i along u); ``control_points.reshape(-1, 3)`` is the row-major order of the
+    plan file and of the wire (index i·n + j). DS and CP: `control_points` is empty (shape
+    (0, 0, 3)) and `traces` holds the drawn polylines, each an (n, 3) array; CP also has its
+    `deformations`, applied in order."""
 
     name: str
     control_points: F64
@@ -385,11 +433,31 @@ class Resection:
     band_mm: float
     target: Target
     resolution: tuple[int, int]
+    kind: ResectionKind = ResectionKind.BEZIER
+    traces: tuple[F64, ...] = ()
+    deformations: tuple[Deformation, ...] = ()
 
     @property
     def grid(self) -> tuple[int, int]:
-        """(m, n): control points along u and v."""
+        """(m, n): control points along u and v ((0, 0) for DS and CP)."""
         return self.control_points.shape[0], self.control_points.shape[1]
+
+    def to_pb(self) -> resection_pb2.Resection:
+        m, n = self.grid
+        return resection_pb2.Resection(
+            name=self.name,
+            grid_m=m,
+            grid_n=n,
+            control_points=[vec3(p) for p in self.control_points.reshape(-1, 3)],
+            margin_mm=self.margin_mm,
+            band_mm=self.band_mm,
+            target=self.target.to_pb(),
+            ru=self.resolution[0],
+            rv=self.resolution[1],
+            kind=self.kind.to_pb(),
+            traces=[trace_pb(t) for t in self.traces],
+            deformations=[d.to_pb() for d in self.deformations],
+        )
 
     @classmethod
     def from_pb(cls, m: resection_pb2.Resection) -> Resection:
@@ -401,6 +469,9 @@ class Resection:
             band_mm=m.band_mm,
             target=Target.from_pb(m.target),
             resolution=(m.ru, m.rv),
+            kind=ResectionKind.from_pb(m.kind),
+            traces=tuple(_points(t) for t in m.traces),
+            deformations=tuple(Deformation.from_pb(d) for d in m.deformations),
         )
 
 
@@ -479,8 +550,25 @@ def _opt(m: Any, name: str) -> Any:
 
 
 @dataclass(frozen=True)
+class ResectionMetrics:
+    """A resection's plan quality metrics (thesis Sec. 7.4, Table 7.2), each None when absent:
+    the minimum tumour distance inside the liver minus the margin (mm; negative falls short),
+    the volume deviation against a reference plan (%; a server session has none, so always
+    None here) and the median |mean curvature| over the surface inside the liver (mm⁻¹)."""
+
+    margin_deviation_mm: float | None = None
+    volume_deviation_pct: float | None = None
+    median_abs_mean_curvature_per_mm: float | None = None
+
+    @classmethod
+    def from_pb(cls, m: volumes_pb2.ResectionMetrics) -> ResectionMetrics:
+        return cls(*(_opt(m, f) for f in cls.__dataclass_fields__))
+
+
+@dataclass(frozen=True)
 class ResectionVolume:
-    """One resection's share of the liver; volumes are None unless the cut is complete."""
+    """One resection's share of the liver; volumes are None unless the cut is complete.
+    `metrics` are its Sec. 7.4 metrics (None from a server that sends none)."""
 
     name: str
     resected_ml: float | None
@@ -488,6 +576,7 @@ class ResectionVolume:
     complete_cut: bool
     incomplete_reason: str
     incomplete_point: tuple[float, float, float] | None
+    metrics: ResectionMetrics | None = None
 
 
 @dataclass(frozen=True)
@@ -515,6 +604,7 @@ class Volumes:
                 complete_cut=r.complete_cut,
                 incomplete_reason=r.incomplete_reason,
                 incomplete_point=_xyz(r.incomplete_point) if r.HasField("incomplete_point") else None,
+                metrics=ResectionMetrics.from_pb(r.metrics) if r.HasField("metrics") else None,
             )
             for r in m.resections
         )
