@@ -450,6 +450,53 @@ mod tests {
     use super::*;
 
     #[test]
+    fn trace_and_deformation_events_round_trip_in_their_record_shape() {
+        let trace = vec![[1.0, 2.0, 3.0], [4.0, 5.0, 3.0], [7.0, 1.0, 3.0]];
+        let d = Deformation {
+            point: [1.0, 2.0, 3.0],
+            offset_mm: -4.5,
+            radius_mm: 20.0,
+        };
+        let events = [
+            PlanEvent::AddTrace {
+                name: "d".into(),
+                trace: trace.clone(),
+            },
+            PlanEvent::SetTrace {
+                name: "d".into(),
+                index: 2,
+                trace,
+            },
+            PlanEvent::RemoveTrace {
+                name: "d".into(),
+                index: 0,
+            },
+            PlanEvent::AddDeformation {
+                name: "c".into(),
+                deformation: d,
+            },
+            PlanEvent::UndoDeformation { name: "c".into() },
+        ];
+        for event in events {
+            let text = encode_entry(&LogEntry::Edit {
+                event: event.clone(),
+            })
+            .unwrap();
+            match decode(&text).unwrap() {
+                Step::Entry(LogEntry::Edit { event: back }) => assert_eq!(back, event),
+                other => panic!("{other:?}"),
+            }
+        }
+        let stored = r#"{"v":2,"kind":"edit","event":{"op":"add_deformation","name":"c","deformation":{"point":[1.0,2.0,3.0],"offset_mm":-4.5,"radius_mm":20.0}}}"#;
+        assert!(matches!(
+            decode(stored).unwrap(),
+            Step::Entry(LogEntry::Edit {
+                event: PlanEvent::AddDeformation { .. }
+            })
+        ));
+    }
+
+    #[test]
     fn a_summary_as_stored_by_version_1_reads_and_round_trips() {
         let stored = r#"{"dims":[3,4,5],"spacing":[0.8,0.8,2.5],"origin":[1.0,2.0,3.0],
             "direction":[1.0,0.0,0.0,0.0,1.0,0.0,0.0,0.0,1.0],"labels":{"1":40,"2":7},

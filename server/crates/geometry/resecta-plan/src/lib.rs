@@ -1,5 +1,6 @@
-//! Resection planning (thesis ch. 7, Paper II): plans of Bézier resections, their initialisation
-//! from a tumour and an end point, edits with undo/redo and replay, live safety margins, slice
+//! Resection planning (thesis ch. 7, Paper II): plans of Bézier, drawn-on-slices (DS) and
+//! deformable-cutting-plane (CP) resections, the Bézier initialisation from a tumour and an end
+//! point, edits with undo/redo and replay, live safety margins, slice
 //! projections, label-map slices and volumetry, and the `resecta-plan/1` file format.
 
 pub mod anatomy;
