@@ -26,7 +26,7 @@ from slicer.ScriptedLoadableModule import (
 )
 from slicer.util import VTKObservationMixin
 
-from ResectaLib import deps, margin, segmentation, volumetry
+from ResectaLib import deps, margin, segmentation, traces, volumetry
 from ResectaLib.edits import GROUPS
 from ResectaLib.logic import PlanningLogic
 
@@ -56,7 +56,8 @@ class Resecta(ScriptedLoadableModule):
         self.parent.dependencies = ["Segmentations", "Markups", "Models"]
         self.parent.contributors = ["resecta project"]
         self.parent.helpText = _(
-            "Plan liver resections with a deformable Bézier surface and live safety margins, "
+            "Plan liver resections with a deformable Bézier surface, curves drawn on slices "
+            "(DS) or a deformable cutting plane (CP), and live safety margins, "
             "computed by a resecta planning server (after R. Palomar, NTNU 2018). Requires 3D "
             "Slicer 5.10 or newer. The first Connect asks to install grpcio, protobuf and numpy "
             "(version ranges; packages other extensions share are never downgraded); the resecta "
@@ -82,6 +83,7 @@ class ResectaParameterNode:
     endPoint: vtkMRMLMarkupsFiducialNode
     marginMm: Annotated[float, WithinRange(0.5, 100.0)] = 10.0
     bandMm: Annotated[float, WithinRange(0.0, 100.0)] = 5.0
+    deformationRadiusMm: Annotated[float, WithinRange(1.0, 200.0)] = 20.0
     sessionId: str = ""
 
 
@@ -107,6 +109,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._editTimer = None
         self._observedSegmentation = None
         self._unsupported = None
+        self._drawingCurve = None
+        self._handle = None
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -125,6 +129,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             status=self._showStatus, error=self._showError, progress=self._showProgress,
             model_built=self._showModelBuilt, models=self._refreshTumours,
             resections=self._refreshResections, volumes=self._showVolumes,
+            metrics=self._showMetrics,
             margin=self._showMargin, session=self._sessionChanged)
 
         # Main-thread delivery of worker results (network calls never run on this thread).
@@ -150,10 +155,13 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self.ui.groupComboBox.addItem(label)
         for label in ("R", "A", "S", _("Surface normal")):
             self.ui.rotateAxisComboBox.addItem(label)
+        for label in (_("DS: drawn on slices"), _("CP: cutting plane")):
+            self.ui.drawnKindComboBox.addItem(label)
         for fmt in ("vtp", "vtk", "stl", "ply", "obj"):
             self.ui.exportFormatComboBox.addItem(fmt)
         self.ui.roleTable.horizontalHeader().setStretchLastSection(True)
         self.ui.volumeTable.horizontalHeader().setStretchLastSection(True)
+        self.ui.metricsTable.horizontalHeader().setStretchLastSection(True)
         # Only this module's end-point lists, never the control grids (also markups lists).
         self.ui.endPointSelector.addAttribute("vtkMRMLMarkupsFiducialNode", END_POINT_ATTRIBUTE, "1")
 
@@ -180,6 +188,10 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.undoButton.connect("clicked(bool)", self.onUndo)
         self.ui.redoButton.connect("clicked(bool)", self.onRedo)
         self.ui.deleteResectionButton.connect("clicked(bool)", self.onDeleteResection)
+        self.ui.drawTraceButton.connect("toggled(bool)", self.onDrawTrace)
+        self.ui.placeHandleButton.connect("clicked(bool)", self.onPlaceHandle)
+        self.ui.deformButton.connect("clicked(bool)", self.onDeform)
+        self.ui.undoDeformationButton.connect("clicked(bool)", self.onUndoDeformation)
         self.ui.savePlanButton.connect("clicked(bool)", self.onSavePlan)
         self.ui.loadPlanButton.connect("clicked(bool)", self.onLoadPlan)
         self.ui.exportModelsButton.connect("clicked(bool)", self.onExportModels)
@@ -191,7 +203,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         """The panel goes away (application exit or module reload): give everything back."""
         self._releaseShortcuts()
         self.removeObservers()
-        self._observedSegmentation = None
+        self._observedSegmentation = self._handle = self._drawingCurve = None
         for timer in (self._pollTimer, self._editTimer):
             if timer is not None:
                 timer.stop()
@@ -237,6 +249,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._lentShortcuts = []
 
     def onSceneStartClose(self, caller, event) -> None:
+        self._drawingCurve = None
+        self._observeHandle(None)
         self.setParameterNode(None)
         self._observeSegmentation(None)
         self.logic.forget_session()
@@ -471,6 +485,60 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             with slicer.util.tryWithErrorDisplay(_("Could not delete the resection.")):
                 self.logic.edits.delete(name)
 
+    # --- DS and CP resections -------------------------------------------------------------------
+
+    def _drawnKind(self) -> str:
+        return ("ds", "cp")[max(0, self.ui.drawnKindComboBox.currentIndex)]
+
+    def onDrawTrace(self, checked) -> None:
+        """Pressed: a new curve to click in a view; pressed again: the curve becomes a trace."""
+        markupsLogic = slicer.modules.markups.logic()
+        if checked:
+            with slicer.util.tryWithErrorDisplay(_("Could not start a trace.")):
+                name = self.ui.drawnNameLineEdit.text.strip()
+                self._drawingCurve = self.logic.new_trace_curve(name, self._drawnKind())
+                markupsLogic.SetActiveList(self._drawingCurve)
+                markupsLogic.StartPlaceMode(True)
+            if self._drawingCurve is None:
+                self.ui.drawTraceButton.checked = False
+            return
+        slicer.app.applicationLogic().GetInteractionNode().SwitchToViewTransformMode()
+        node, self._drawingCurve = self._drawingCurve, None
+        if node is None:
+            return
+        p = self._parameterNode
+        with slicer.util.tryWithErrorDisplay(_("Could not use the curve.")):
+            self.logic.use_curve(node, self.ui.tumorComboBox.currentText or None,
+                                 margin_mm=p.marginMm, band_mm=p.bandMm)
+        self._updateButtons()
+
+    def _observeHandle(self, node) -> None:
+        if self._handle is not None:
+            self.removeObserver(self._handle, slicer.vtkMRMLMarkupsNode.PointEndInteractionEvent,
+                                self.onHandleReleased)
+        self._handle = node
+        if node is not None:
+            self.addObserver(node, slicer.vtkMRMLMarkupsNode.PointEndInteractionEvent,
+                             self.onHandleReleased)
+
+    def onPlaceHandle(self) -> None:
+        with slicer.util.tryWithErrorDisplay(_("Could not show the deformation handle.")):
+            self._observeHandle(self.logic.deformation_handle(self._currentResection()))
+
+    def onHandleReleased(self, caller=None, event=None) -> None:
+        self.onDeform()
+
+    def onDeform(self) -> None:
+        name = self._currentResection()
+        with slicer.util.tryWithErrorDisplay(_("Could not deform the resection.")):
+            if self._handle is None or self._handle.GetAttribute(traces.DEFORMATION_ATTRIBUTE) != name:
+                self._observeHandle(self.logic.deformation_handle(name))
+            self.logic.deform(name, self._parameterNode.deformationRadiusMm, self._handle)
+
+    def onUndoDeformation(self) -> None:
+        with slicer.util.tryWithErrorDisplay(_("Could not undo the deformation.")):
+            self.logic.undo_deformation(self._currentResection())
+
     def onJumpToWorst(self) -> None:
         self.logic.jump_to_worst_point()
 
@@ -548,6 +616,13 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                 widget.setItem(row, col, item)
         self.ui.flrLabel.text = "\n".join(table.messages)
 
+    def _showMetrics(self, rows) -> None:
+        widget = self.ui.metricsTable
+        widget.setRowCount(len(rows))
+        for row, r in enumerate(rows):
+            for col, text in enumerate(r.cells()):
+                widget.setItem(row, col, qt.QTableWidgetItem(text))
+
     def _showMargin(self, state: margin.MarginIndicator) -> None:
         button = self.ui.marginIndicatorButton
         button.text = state.text
@@ -561,6 +636,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         ready = self.logic.models_ready
         hasSession = self.logic.has_session
         hasResection = bool(self._currentResection())
+        kind = self.logic.resection_kinds().get(self._currentResection(), "bezier")
         if self._unsupported:
             self.ui.connectionStatusLabel.text = self._unsupported
         elif not connected:
@@ -570,9 +646,14 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                                              and self.ui.segmentationSelector.currentNode() is not None)
         self.ui.cancelBuildButton.enabled = building
         self.ui.newResectionButton.enabled = ready and self.ui.tumorComboBox.count > 0
-        for button in (self.ui.moveGroupButton, self.ui.translateButton, self.ui.rotateButton,
-                       self.ui.deleteResectionButton, self.ui.exportModelsButton):
+        for button in (self.ui.deleteResectionButton, self.ui.exportModelsButton):
             button.enabled = hasSession and hasResection
+        for button in (self.ui.moveGroupButton, self.ui.translateButton, self.ui.rotateButton):
+            button.enabled = hasSession and hasResection and kind == "bezier"
+        for button in (self.ui.placeHandleButton, self.ui.deformButton,
+                       self.ui.undoDeformationButton):
+            button.enabled = hasSession and hasResection and kind == "cp"
+        self.ui.drawTraceButton.enabled = ready
         for button in (self.ui.undoButton, self.ui.redoButton, self.ui.savePlanButton,
                        self.ui.loadPlanButton):
             button.enabled = hasSession and ready

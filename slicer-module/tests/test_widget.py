@@ -8,6 +8,7 @@ import sys
 import threading
 import types
 
+import numpy as np
 import pytest
 
 import fake_gui
@@ -213,3 +214,61 @@ def test_a_failed_connection_says_not_connected(app):
         assert w.ui.statusLabel.text.startswith("Error")
     finally:
         w.cleanup()
+
+
+def test_panel_draws_ds_and_cp_resections(app, planning_server, phantom):
+    """The *Drawn resections* section: three curves drawn with *Draw trace* make a DS
+    resection, a ring a CP one; the kind and metrics table fills; grid edits are off for them
+    and the deformation buttons only for CP; the handle released deforms, *Undo deformation*
+    takes it back."""
+    import vtk
+
+    w = _widget(app)
+    w.enter()
+    _connect(app, w, planning_server)
+    _pick_phantom(app, w, phantom)
+    w.ui.buildModelsButton.emit("clicked", True)
+    app.wait(lambda: app.errors or (w.logic.models_ready and w.ui.tumorComboBox.count > 0), 120)
+    assert w.ui.drawTraceButton.enabled
+
+    def draw(points):
+        placing = app.markups.placing
+        w.ui.drawTraceButton.checked = True  # toggled(True)
+        curve = app.markups.active
+        assert app.markups.placing == placing + 1 and curve is w._drawingCurve
+        for p in points:
+            curve.AddControlPointWorld(vtk.vtkVector3d(*p))
+        w.ui.drawTraceButton.checked = False  # toggled(False): the curve is used
+        return curve
+
+    w.ui.drawnNameLineEdit.text = "ds1"
+    for z in (-30.0, 0.0, 30.0):
+        draw([(-10.0 + 0.02 * y, y, z) for y in (-50.0, 0.0, 50.0)])
+    app.wait(lambda: app.errors or w.ui.resectionComboBox.findText("ds1") >= 0, 30)
+    app.wait(lambda: w.ui.metricsTable.rowCount == 1, 30)
+    cells = [w.ui.metricsTable.item(0, c).text() for c in range(4)]
+    assert cells[:2] == ["ds1", "DS"] and cells[2].endswith("mm") and "mm⁻¹" in cells[3]
+    w.ui.resectionComboBox.setCurrentIndex(w.ui.resectionComboBox.findText("ds1"))
+    assert not w.ui.rotateButton.enabled and not w.ui.deformButton.enabled
+    assert w.ui.deleteResectionButton.enabled
+
+    w.ui.drawnKindComboBox.setCurrentIndex(1)
+    w.ui.drawnNameLineEdit.text = "cp1"
+    draw([(-10.0, 30.0 * np.cos(t), 22.0 * np.sin(t)) for t in np.linspace(0, 6.0, 10)])
+    app.wait(lambda: app.errors or w.ui.resectionComboBox.findText("cp1") >= 0, 30)
+    w.ui.resectionComboBox.setCurrentIndex(w.ui.resectionComboBox.findText("cp1"))
+    assert w.ui.deformButton.enabled and not w.ui.translateButton.enabled
+    w.ui.placeHandleButton.emit("clicked", True)
+    handle = w._handle
+    assert handle is not None and handle.GetNumberOfControlPoints() == 1
+    p = [0.0, 0.0, 0.0]
+    handle.GetNthControlPointPositionWorld(0, p)
+    handle.SetNthControlPointPositionWorld(0, p[0] - 4.0, p[1], p[2])
+    handle.InvokeEvent(handle.PointEndInteractionEvent)  # the user lets go
+    app.wait(lambda: app.errors or w.logic.resection("cp1").deformations, 30)
+    assert w.logic.resection("cp1").deformations[0].radius_mm == 20.0
+    w.ui.undoDeformationButton.emit("clicked", True)
+    app.wait(lambda: app.errors or not w.logic.resection("cp1").deformations, 30)
+    assert not app.errors and not app.dialogs
+    w.cleanup()
+    assert w.Observations == [], f"observers left: {w.Observations}"

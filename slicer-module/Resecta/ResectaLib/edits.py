@@ -160,6 +160,22 @@ class EditCommands:
         axis = tuple(float(x) for x in axis)
         self._edit(lambda s: s.rotate(name, axis, float(angle_deg), centre=centre), on_done)
 
+    def send(self, work: Callable[[Any], Any], on_done: Callable | None = None,
+             on_error: Callable | None = None) -> None:
+        """Runs `work(session)` (an edit returning an `EditResult`) in order with the others."""
+        self._edit(work, on_done, on_error)
+
+    def add_deformation(self, name: str, point, offset_mm: float, radius_mm: float,
+                        on_done: Callable | None = None) -> None:
+        """Deforms CP resection `name`: the grid vertex nearest `point` by `offset_mm` along
+        the plane normal, cosine falloff to `radius_mm`."""
+        point = tuple(float(x) for x in point)
+        self._edit(lambda s: s.add_deformation(name, point, float(offset_mm), float(radius_mm)),
+                   on_done)
+
+    def undo_deformation(self, name: str, on_done: Callable | None = None) -> None:
+        self._edit(lambda s: s.undo_deformation(name), on_done)
+
     def delete(self, name: str, on_done: Callable | None = None) -> None:
         self.coalescer.clear()
         self._edit(lambda s: s.delete_resection(name), on_done)

@@ -10,11 +10,13 @@ scene changes. The work is split into parts with one job each:
 - `sceneupdate.WatchApplier`: watch updates → model nodes, by the server's `changed`/`rebuilt`/
   `removed` lists;
 - `gridsync.GridSync`: control grids ↔ markups nodes (drags go to `edits.drag`);
-- `edits.EditCommands`: the edit commands (and the coalescing of drags).
+- `edits.EditCommands`: the edit commands (and the coalescing of drags);
+- `traces.TraceSync`: markups curves ↔ the traces of DS and CP resections.
 
 Callbacks (all optional, all on the main thread): `status(text)`, `error(exception)`,
 `progress(fraction, stage)`, `model_built(info)`, `models()` (model nodes added or removed),
-`resections()` (resections added or removed), `volumes(VolumeTable)`, `margin(MarginIndicator)`,
+`resections()` (resections added or removed), `volumes(VolumeTable)`, `metrics(rows)` (each
+resection's kind and Sec. 7.4 metrics, `volumetry.MetricRow`s), `margin(MarginIndicator)`,
 `session()` (the server session was opened or forgotten).
 """
 
@@ -27,7 +29,7 @@ from typing import Any, Callable
 import numpy as np
 import vtk
 
-from . import margin, models, planfile, preview, segmentation, volumetry
+from . import margin, models, planfile, preview, segmentation, traces, volumetry
 from .dispatch import ThreadDispatcher
 from .edits import EditCommands
 from .gridsync import GridSync
@@ -46,11 +48,13 @@ class PlanningLogic:
         self.session = None  # resecta_client.Session
         self.watch = None  # resecta_client.Watch
         self.grids: GridSync | None = None
+        self.traces: traces.TraceSync | None = None
         self.applier: WatchApplier | None = None
         self.edits = EditCommands(self.call, self._need_session, self.resection,
                                   self._edit_done, self._resync_grids)
         self.margin_state = margin.NONE
         self.volume_table = volumetry.EMPTY
+        self.metrics_table: tuple[volumetry.MetricRow, ...] = ()
         self.verdicts: dict[str, tuple[float, Any]] = {}
         self.model_infos: dict[str, Any] = {}
         self.label_map_summary = None
@@ -180,6 +184,10 @@ class PlanningLogic:
         self.grids = GridSync(self.scene, sess.id, self.edits.drag, self.edits.busy,
                               self._resync_grids)
         self.applier = WatchApplier(updater, self.grids)
+        self.traces = traces.TraceSync(
+            self.scene, lambda _name, work, on_error: self.edits.send(work, on_error=on_error),
+            self.resection)
+        self.traces.on_error = self._error
         self._emit("session")
 
     def _drop_session(self) -> bool:
@@ -188,13 +196,16 @@ class PlanningLogic:
         self.edits.coalescer.clear()
         if self.grids is not None:
             self.grids.close()
+        if self.traces is not None:
+            self.traces.close()
         had = self.session is not None
-        self.session = self.grids = self.applier = None
+        self.session = self.grids = self.applier = self.traces = None
         self.verdicts.clear()
         self._centroids.clear()
         self.model_infos = {}
         self.margin_state = margin.NONE
         self.volume_table = volumetry.EMPTY
+        self.metrics_table = ()
         return had
 
     def forget_session(self) -> None:
@@ -348,8 +359,13 @@ class PlanningLogic:
             self._emit("resections")
         self._update_margin()
         if applied.volumes is not None:
-            self.volume_table = volumetry.table(applied.volumes)
-            self._emit("volumes", self.volume_table)
+            self._set_volumes(applied.volumes)
+
+    def _set_volumes(self, volumes) -> None:
+        self.volume_table = volumetry.table(volumes)
+        self._emit("volumes", self.volume_table)
+        self.metrics_table = volumetry.metric_rows(volumes, self.resection_kinds())
+        self._emit("metrics", self.metrics_table)
 
     def _update_margin(self) -> None:
         state = margin.indicator(self.verdicts)
@@ -381,6 +397,11 @@ class PlanningLogic:
 
     def resection_names(self) -> list[str]:
         return sorted(n for n, s in self.surfaces().items() if s.is_resection)
+
+    def resection_kinds(self) -> dict[str, str]:
+        """Resection name → kind ("bezier", "ds", "cp")."""
+        return {n: str(getattr(s.resection, "kind", "bezier")) for n, s in self.surfaces().items()
+                if s.is_resection and s.resection is not None}
 
     def resection(self, name: str):
         """The resection's parameters (`resecta_client.Resection`) as last seen."""
@@ -420,6 +441,80 @@ class PlanningLogic:
                         points=(tuple(float(x) for x in centroid),))
         self.edits.new_resection(name, end_point, target, margin_mm, band_mm, grid, on_done)
 
+    # --- DS and CP resections -------------------------------------------------------------------
+
+    def _target(self, tumour: str | None):
+        """The `Target` of tumour model `tumour` (None: every tumour)."""
+        if not tumour:
+            return None
+        from resecta_client import Target
+
+        s = self.surfaces().get(tumour)
+        if s is None or models.kind_name(s.kind) != "tumor":
+            raise ValueError(f"{tumour!r} is not a tumour model")
+        centroid = self.tumour_centroid(tumour)
+        return Target(labels=(s.label,) if s.label else (),
+                      points=(tuple(float(x) for x in centroid),))
+
+    def new_trace_curve(self, name: str, kind: str):
+        """A new markups curve for a trace of resection `name` ("ds": an open curve to draw on
+        a slice view; "cp": a closed curve, the ring on the liver model)."""
+        self._need_session()
+        if not name:
+            raise ValueError("the resection needs a name")
+        existing = self.resection(name)
+        if existing is not None and str(existing.kind) != kind:
+            raise ValueError(f"{name!r} is a {volumetry.KIND_LABELS[str(existing.kind)]} "
+                             "resection: choose another name")
+        return traces.make_curve_node(self.scene, name, kind, self.session_id)
+
+    def use_curve(self, node, tumour: str | None = None, margin_mm: float | None = None,
+                  band_mm: float | None = None) -> str:
+        """A finished curve becomes a trace (`traces.TraceSync.use_curve`): "added", "held"
+        (a DS resection waits for 3 curves) or "created"."""
+        self._need_session()
+        outcome = self.traces.use_curve(node, margin_mm, band_mm, self._target(tumour))
+        name = node.GetAttribute(traces.TRACE_ATTRIBUTE)
+        if outcome == "held":
+            held = len(self.traces.held(name))
+            self._status(f"{name}: {held} of {traces.DS_MIN_TRACES} traces drawn")
+        return outcome
+
+    def deformation_handle(self, name: str, point=None):
+        """The deformation handle (one-point markups) of CP resection `name`, made when missing
+        (at `point`, or the surface's centre)."""
+        cls = "vtkMRMLMarkupsFiducialNode"
+        for i in range(self.scene.GetNumberOfNodesByClass(cls)):
+            node = self.scene.GetNthNodeByClass(i, cls)
+            if node.GetAttribute(traces.DEFORMATION_ATTRIBUTE) == name:
+                return node
+        s = self.surfaces().get(name)
+        if point is None and s is not None:
+            point = np.asarray(s.positions, float).mean(axis=0)
+        return traces.make_handle_node(self.scene, name, point)
+
+    def deform(self, name: str, radius_mm: float, handle=None,
+               on_done: Callable | None = None) -> float:
+        """Deforms CP resection `name` so that its surface reaches the handle's point, along the
+        plane normal, with `radius_mm` of influence; returns the offset sent (mm)."""
+        s = self.surfaces().get(name)
+        if s is None or s.resection is None or str(s.resection.kind) != "cp":
+            raise ValueError(f"{name!r} is not a CP resection")
+        handle = handle if handle is not None else self.deformation_handle(name)
+        point = traces.handle_point(handle)
+        if point is None:
+            raise ValueError("place the deformation handle first")
+        with self.watch.scene.lock:
+            positions = np.array(s.positions, dtype=float)
+            normals = np.array(s.normals, dtype=float)
+        normal = traces.plane_normal(s.resection.traces, normals)
+        offset, _vertex = traces.deformation_offset(point, positions, normal)
+        self.edits.add_deformation(name, point, offset, radius_mm, on_done)
+        return offset
+
+    def undo_deformation(self, name: str, on_done: Callable | None = None) -> None:
+        self.edits.undo_deformation(name, on_done)
+
     # --- preview ------------------------------------------------------------------------------
 
     def preview(self, tumour: str | None, end_point) -> Any:
@@ -454,11 +549,7 @@ class PlanningLogic:
     def refresh_volumes(self, on_done: Callable | None = None) -> None:
         sess = self._need_session()
 
-        def done(v):
-            self.volume_table = volumetry.table(v)
-            self._emit("volumes", self.volume_table)
-
-        self.call(sess.volumes, done, on_done)
+        self.call(sess.volumes, self._set_volumes, on_done)
 
     def save_plan(self, path, on_done: Callable | None = None) -> None:
         sess = self._need_session()

@@ -17,6 +17,11 @@ from . import models
 from .gridsync import GridSync
 
 
+def is_bezier(resection) -> bool:
+    """Whether a resection has a control grid (DS and CP resections have traces instead)."""
+    return getattr(resection, "kind", "bezier") == "bezier"
+
+
 @dataclasses.dataclass
 class _Pending:
     changed: set = dataclasses.field(default_factory=set)
@@ -93,7 +98,8 @@ class WatchApplier:
                     out.resections_added_or_removed |= is_new
                     if s.resection is not None:
                         out.verdicts[name] = (s.resection.margin_mm, s.verdict)
-                        self.grids.sync(name, s.resection)
+                        if is_bezier(s.resection):
+                            self.grids.sync(name, s.resection)
                 else:
                     out.models_added_or_removed |= is_new
                     out.remeshed.add(name)
@@ -116,6 +122,6 @@ class WatchApplier:
         """Brings every grid in line with the server (after drags are answered)."""
         with live.lock:
             resections = [(n, s.resection) for n, s in live.surfaces.items()
-                          if s.is_resection and s.resection is not None]
+                          if s.is_resection and s.resection is not None and is_bezier(s.resection)]
         for name, resection in resections:
             self.grids.sync(name, resection)

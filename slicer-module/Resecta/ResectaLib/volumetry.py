@@ -68,3 +68,38 @@ def table(volumes) -> VolumeTable:
                         f"{volumes.flr_threshold_pct:g} % of the liver")
     return VolumeTable(tuple(rows), int(getattr(volumes, "plan_version", 0)), flr,
                        tuple(messages))
+
+
+# --- plan metrics (thesis Sec. 7.4) ----------------------------------------------------------
+
+KIND_LABELS = {"bezier": "Bézier", "ds": "DS", "cp": "CP"}
+
+
+@dataclasses.dataclass(frozen=True)
+class MetricRow:
+    """One resection's kind and metrics: margin deviation (mm; negative falls short of the
+    margin) and median |mean curvature| (mm⁻¹); None when the server has none."""
+
+    name: str
+    kind: str
+    margin_deviation_mm: float | None
+    median_abs_curvature_per_mm: float | None
+
+    def cells(self) -> tuple[str, str, str, str]:
+        dev = DASH if self.margin_deviation_mm is None else f"{self.margin_deviation_mm:+.1f} mm"
+        h = self.median_abs_curvature_per_mm
+        return self.name, KIND_LABELS.get(self.kind, self.kind), dev, \
+            DASH if h is None else f"{h:.4f} mm⁻¹"
+
+
+def metric_rows(volumes, kinds: dict[str, str]) -> tuple[MetricRow, ...]:
+    """From the client's `Volumes` (each `ResectionVolume.metrics`) and resection name → kind
+    ("bezier", "ds", "cp")."""
+    rows = []
+    for r in volumes.resections if volumes is not None else ():
+        m = getattr(r, "metrics", None)
+        rows.append(MetricRow(
+            r.name, str(kinds.get(r.name, "bezier")),
+            None if m is None else m.margin_deviation_mm,
+            None if m is None else m.median_abs_mean_curvature_per_mm))
+    return tuple(rows)
