@@ -37,6 +37,9 @@ EXAMPLE = {
     "rotateAxisComboBox": "S",
     "rotateAngleSpinBox": "5.0°",
     "exportFormatComboBox": "vtp",
+    "drawnKindComboBox": "DS: drawn on slices",
+    "drawnNameLineEdit": "ds1",
+    "deformationRadiusSpinBox": "20.0 mm",
     "caFilePathLineEdit": "",
     "flrLabel": "",
     "statusLabel": "Exported 1 resection(s) to /data/plans",
@@ -45,6 +48,9 @@ ROLE_ROWS = [("Liver", "parenchyma"), ("Tumour", "tumor"), ("Portal vein", "port
              ("Hepatic veins", "hepatic")]
 VOLUME_ROWS = [("Total liver", "1523.4", "100.0"), ("Resected by r1", "412.8", "27.1"),
                ("Remnant (FLR)", "1110.6", "72.9")]
+METRIC_ROWS = [("r1", "Bézier", "+1.4 mm", "0.0031 mm⁻¹")]
+TABLES = {"roleTable": (("Segment", "Role"), ROLE_ROWS), "volumeTable": (("", "ml", "%"), VOLUME_ROWS),
+          "metricsTable": (("", "kind", "margin dev.", "median |H|"), METRIC_ROWS)}
 
 
 def _text(w, prop):
@@ -152,17 +158,17 @@ def _widget(ax, cls, name, w, x, y, width):
 
 
 def _table(ax, x, y, width, name):
-    rows = ROLE_ROWS if name == "roleTable" else VOLUME_ROWS
-    header = ("Segment", "Role") if name == "roleTable" else ("", "ml", "%")
+    header, rows = TABLES[name]
     cols = len(header)
-    cw = [width * 0.5] + [width * 0.5 / (cols - 1)] * (cols - 1)
+    first = 0.5 if cols <= 3 else 0.16
+    cw = [width * first] + [width * (1 - first) / (cols - 1)] * (cols - 1)
     h = 16 * (len(rows) + 1)
     ax.add_patch(Rectangle((x, y), width, h, facecolor="white", edgecolor="#999"))
     for r, cells in enumerate([header, *rows]):
         cx = x
         for c, cell in enumerate(cells):
             ax.text(cx + 4, y + 12 + 16 * r, cell, fontsize=7.2, weight="bold" if r == 0 else None,
-                    color="#c62828" if name == "volumeTable" and False else "#222")
+                    color="#222")
             cx += cw[c]
         if r:
             ax.plot([x, x + width], [y + 16 * r, y + 16 * r], color="#e0e0e0", lw=0.6)
