@@ -9,7 +9,7 @@ use std::sync::{Arc, OnceLock};
 use resecta_geom::{Real, RoleMap};
 use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
 use resecta_plan::{
-    Anatomy, Deformation, History, IncompleteCut, Plan, PlanEvent, Planner, Resection,
+    Anatomy, Deformation, History, IncompleteCut, LogEntry, Plan, PlanEvent, Planner, Resection,
     ResectionKind, resection_metrics,
 };
 
@@ -371,4 +371,27 @@ fn plan_files_carry_the_kinds() {
       "resections":[{"name":"d1","kind":"ds","traces":[[[0,-70,-50],[0,0,-50],[0,70,-50]],[[0,-70,0],[0,0,0],[0,70,0]]]}]}"#;
     let e = Plan::from_json(two).unwrap_err().to_string();
     assert!(e.contains("\"d1\"") && e.contains("2 traces"), "{e}");
+}
+
+#[test]
+fn the_fuzz_seed_of_ds_and_cp_plans_and_edits_replays() {
+    let text = include_str!("../../../../../fuzz/seeds/plan_json/ds_cp_with_log.txt");
+    let (plan, log) = text.split_once('\u{c}').unwrap();
+    let plan = Plan::from_json(plan).unwrap();
+    let log: Vec<serde_json::Value> = serde_json::from_str(log).unwrap();
+    let log: Vec<LogEntry> = log
+        .into_iter()
+        .map(|e| match e["kind"].as_str().unwrap() {
+            "edit" => LogEntry::Edit {
+                event: serde_json::from_value(e["event"].clone()).unwrap(),
+            },
+            "undo" => LogEntry::Undo,
+            _ => LogEntry::Redo,
+        })
+        .collect();
+    let h = History::replay(plan, &log).unwrap();
+    let r = h.plan().resection("d1").unwrap();
+    assert_eq!(r.traces.len(), 3);
+    assert_eq!(r.traces[0][1], [6.0, 0.0, 0.0]);
+    assert!(h.plan().resection("c1").unwrap().deformations.len() == 1);
 }
