@@ -347,3 +347,68 @@ def test_phantom_truth_matches_its_voxels():
     voxel_ml = abs(np.linalg.det(ijk[:3, :3])) / 1000
     assert (labels > 0).sum() * voxel_ml == pytest.approx(truth["liver_ml"], rel=0.03)
     assert (labels == 2).sum() * voxel_ml == pytest.approx(4 / 3 * np.pi * 8 ** 3 / 1000, rel=0.1)
+
+
+# --- DS / CP traces (ResectaLib.traces), metrics rows ----------------------------------------
+
+
+def test_trace_slices_and_snapping():
+    from ResectaLib import traces
+
+    axial = [(0.0, 0.0, 5.0), (10.0, 3.0, 5.004), (20.0, -2.0, 4.998)]
+    assert traces.slice_orientation(axial) == "axial"
+    assert np.all(traces.ds_trace(axial)[:, 2] == 5.0)  # set to the median exactly
+    assert traces.slice_orientation([(1.0, 0.0, 0.0), (1.0, 5.0, 3.0), (1.0, 9.0, -2.0)]) == "sagittal"
+    assert traces.slice_orientation([(0.0, 7.0, 0.0), (5.0, 7.0, 3.0), (9.0, 7.0, -2.0)]) == "coronal"
+    with pytest.raises(ValueError, match="not on one axial"):
+        traces.ds_trace([(0.0, 0.0, 0.0), (1.0, 1.0, 0.02), (2.0, 0.0, 0.04)])
+    with pytest.raises(ValueError, match="at least 3 points"):
+        traces.to_trace("cp", [(0.0, 0.0, 0.0), (1.0, 0.0, 0.0)])
+    t = [np.zeros((3, 3)), np.ones((4, 3))]
+    assert traces.trace_index(t, np.ones((4, 3))) == 1 and traces.trace_index(t, np.ones((3, 3))) is None
+
+
+def test_plane_normal_against_the_vertex_normals_and_the_offset():
+    from ResectaLib import traces
+
+    ring = [(2.0, 10 * np.cos(a), 10 * np.sin(a)) for a in np.linspace(0, 6, 12)]
+    for sign in (1.0, -1.0):
+        n = traces.plane_normal([ring], np.tile((sign, 0.0, 0.0), (5, 1)))
+        assert np.allclose(n, (-sign, 0.0, 0.0))
+    grid = np.array([(2.0, y, z) for y in range(-10, 11) for z in range(-10, 11)], float)
+    offset, vertex = traces.deformation_offset((7.0, 3.2, -4.1), grid, np.array((-1.0, 0.0, 0.0)))
+    assert offset == pytest.approx(-5.0) and np.allclose(vertex, (2.0, 3.0, -4.0))
+    offset, _ = traces.deformation_offset((500.0, 0.0, 0.0), grid, np.array((1.0, 0.0, 0.0)))
+    assert offset == traces.MAX_OFFSET_MM
+
+
+def test_curve_and_handle_nodes(scene):
+    from ResectaLib import traces
+
+    ds = traces.make_curve_node(scene, "d1", "ds", "s1")
+    cp = traces.make_curve_node(scene, "c1", "cp")
+    assert ds.IsA("vtkMRMLMarkupsCurveNode") and not ds.IsA("vtkMRMLMarkupsClosedCurveNode")
+    assert cp.IsA("vtkMRMLMarkupsClosedCurveNode") and traces.is_trace(cp)
+    assert (ds.GetAttribute(traces.TRACE_ATTRIBUTE), ds.GetAttribute(traces.TRACE_KIND_ATTRIBUTE),
+            ds.GetAttribute(traces.SESSION_ATTRIBUTE)) == ("d1", "ds", "s1")
+    for p in [(0.0, 0.0, 1.0), (10.0, 5.0, 1.0), (20.0, 0.0, 1.0)]:
+        ds.AddControlPointWorld(vtk.vtkVector3d(*p))
+    pts = traces.curve_points(ds)
+    assert len(pts) > 3 and np.allclose(pts[:, 2], 1.0) and np.allclose(pts[[0, -1]], [(0, 0, 1), (20, 0, 1)])
+    with pytest.raises(ValueError):
+        traces.make_curve_node(scene, "x", "bezier")
+    handle = traces.make_handle_node(scene, "c1", (1.0, 2.0, 3.0))
+    assert np.allclose(traces.handle_point(handle), (1, 2, 3))
+    assert traces.handle_point(traces.make_handle_node(scene, "c2")) is None
+
+
+def test_metric_rows():
+    from types import SimpleNamespace as NS
+
+    metrics = NS(margin_deviation_mm=-1.25, volume_deviation_pct=None,
+                 median_abs_mean_curvature_per_mm=0.00312)
+    volumes = NS(resections=[NS(name="d", metrics=metrics), NS(name="r", metrics=None)])
+    rows = volumetry.metric_rows(volumes, {"d": "ds"})
+    assert rows[0].cells() == ("d", "DS", "-1.2 mm", "0.0031 mm⁻¹")
+    assert rows[1].cells() == ("r", "Bézier", "—", "—")
+    assert volumetry.metric_rows(None, {}) == ()

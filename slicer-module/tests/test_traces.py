@@ -97,11 +97,21 @@ def test_ds_from_curves_held_until_three(logic, scene, dispatcher):
     wait(lambda: len(logic.resection("ds").traces) == 3, 30)
     assert not any(np.allclose(t[:, 2], -30.0) for t in logic.resection("ds").traces)
 
-    # Undo brings the removed trace back (server side); redo removes it again.
+    # Undo brings the removed trace back (server side); redo removes it again, undo once more.
     logic.edits.undo()
     wait(lambda: len(logic.resection("ds").traces) == 4, 30)
     logic.edits.redo()
     wait(lambda: len(logic.resection("ds").traces) == 3, 30)
+    logic.edits.undo()
+    # A curve edited right after (before the watch may have said so) redraws its own trace,
+    # found among the traces the undo answered, not those before it.
+    b.SetNthControlPointPositionWorld(2, X + 2.0, 0.0, 0.0)
+    b.InvokeEvent(b.PointEndInteractionEvent)
+    wait(lambda: any(t.shape == traces.curve_points(b).shape
+                     and np.allclose(t, traces.curve_points(b), atol=1e-6)
+                     for t in logic.resection("ds").traces), 30)
+    zs = sorted(float(t[0, 2]) for t in logic.resection("ds").traces)
+    assert zs == [-30.0, 0.0, 15.0, 30.0]  # a's trace (z = −30) untouched
     assert not logic.errors
 
 

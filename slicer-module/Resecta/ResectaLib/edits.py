@@ -51,11 +51,21 @@ class EditCommands:
         #: edits the server acknowledged, and the last answer (tests, status line)
         self.acknowledged = 0
         self.last = None
+        #: called on the worker with each answer in the order the server gave them (the trace
+        #: sync's view of the traces), with None after a plan import
+        self.on_answer: Callable[[Any], None] | None = None
 
     def _edit(self, work: Callable[[Any], Any], on_done: Callable | None = None,
               on_error: Callable | None = None) -> None:
         sess = self._session()
-        self._call(lambda: work(sess), self._done, on_done, on_error)
+
+        def run():
+            result = work(sess)
+            if self.on_answer is not None and result is not None:
+                self.on_answer(result)
+            return result
+
+        self._call(run, self._done, on_done, on_error)
 
     def _done(self, result) -> None:
         if result is None:
@@ -192,4 +202,11 @@ class EditCommands:
         """Replaces the plan (one undoable step); `on_done(plan_version)`."""
         self.coalescer.clear()
         sess = self._session()
-        self._call(lambda: sess.import_plan(plan_json), None, on_done)
+
+        def run():
+            version = sess.import_plan(plan_json)
+            if self.on_answer is not None:
+                self.on_answer(None)
+            return version
+
+        self._call(run, None, on_done)

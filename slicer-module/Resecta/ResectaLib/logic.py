@@ -188,6 +188,7 @@ class PlanningLogic:
             self.scene, lambda _name, work, on_error: self.edits.send(work, on_error=on_error),
             self.resection)
         self.traces.on_error = self._error
+        self.edits.on_answer = self.traces.answer
         self._emit("session")
 
     def _drop_session(self) -> bool:
@@ -198,6 +199,7 @@ class PlanningLogic:
             self.grids.close()
         if self.traces is not None:
             self.traces.close()
+        self.edits.on_answer = None
         had = self.session is not None
         self.session = self.grids = self.applier = self.traces = None
         self.verdicts.clear()

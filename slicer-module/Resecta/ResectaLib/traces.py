@@ -185,7 +185,7 @@ class TraceSync:
         self._send = send
         self._resection = resection
         self.curves: dict[str, dict] = {}  # node id → {"name", "kind", "sent", "node", "pending"}
-        #: resection name → its traces as the last edit of this sync answered (worker thread)
+        #: resection name → its traces as the last edit answered (worker thread, `answer`)
         self._answered: dict[str, tuple] = {}
         self._options: dict[str, dict] = {}  # resection name → margin_mm, band_mm, target
         self._creating: set[str] = set()  # names whose creation was sent
@@ -285,18 +285,19 @@ class TraceSync:
         self._edit(name, lambda s: s.remove_trace(name, self._index(name, old)))
 
     def _edit(self, name: str, fn: Callable, on_error: Callable | None = None) -> None:
-        """Sends `fn(session)`; on the worker, remembers the traces its answer holds (the next
-        edit may run before the watch brings them)."""
+        self._send(name, fn, on_error)
 
-        def work(session):
-            result = fn(session)
-            for status in result.resections:
-                self._answered[status.resection.name] = status.resection.traces
-            for gone in result.removed:
-                self._answered.pop(gone, None)
-            return result
-
-        self._send(name, work, on_error)
+    def answer(self, result) -> None:
+        """Worker thread, every edit's answer in the server's order (`EditCommands.on_answer`):
+        the traces it holds (the next edit may run before the watch brings them); None
+        (a plan import) forgets them all."""
+        if result is None:
+            self._answered.clear()
+            return
+        for status in result.resections:
+            self._answered[status.resection.name] = status.resection.traces
+        for gone in result.removed:
+            self._answered.pop(gone, None)
 
     def _index(self, name: str, sent: np.ndarray) -> int:
         """Where `sent` is among the traces of `name`: in the last answer, else as watched."""
