@@ -3,51 +3,18 @@
 //! undo/redo/replay, plan files and bad input.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use std::f64::consts::PI;
-use std::sync::{Arc, OnceLock};
-
 use resecta_geom::{Real, RoleMap};
-use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
 use resecta_plan::{
-    Anatomy, Deformation, History, IncompleteCut, LogEntry, Plan, PlanEvent, Planner, Resection,
+    Deformation, History, IncompleteCut, LogEntry, Plan, PlanEvent, Planner, Resection,
     ResectionKind, resection_metrics,
 };
+use std::f64::consts::PI;
 
-const RADII: [Real; 3] = [60.0, 45.0, 40.0];
-const TUMOUR: [Real; 3] = [25.0, 0.0, 0.0];
-const TUMOUR_R: Real = 10.0;
+mod common;
+
+use common::{RADII, TUMOUR, TUMOUR_R, anatomy};
 /// The cut plane x = X0.
 const X0: Real = 2.0;
-
-fn anatomy() -> Arc<Anatomy> {
-    static A: OnceLock<Arc<Anatomy>> = OnceLock::new();
-    A.get_or_init(|| {
-        let spec = PhantomSpec {
-            grid: GridSpec::centred(
-                [132, 100, 66],
-                [1.0, 1.0, 1.3],
-                [0.0, 0.0, 0.0],
-                Orientation::EulerDeg([4.0, -3.0, 7.0]),
-            ),
-            liver: vec![EllipsoidSpec {
-                center: [0.0, 0.0, 0.0],
-                radii: RADII,
-                rotation: Orientation::default(),
-            }],
-            tumors: vec![SphereSpec {
-                center: TUMOUR,
-                radius: TUMOUR_R,
-            }],
-            vessels: vec![],
-            roles: RoleMap::default(),
-            max_voxels: None,
-            truth_tolerance_mm: 0.05,
-        };
-        let p = generate(&spec).unwrap();
-        Arc::new(Anatomy::new(&p.labels, &spec.roles).unwrap())
-    })
-    .clone()
-}
 
 fn planner_with(r: Resection) -> Planner {
     let mut plan = Plan::new(RoleMap::default());

@@ -3,52 +3,19 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use std::f64::consts::PI;
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 
 use resecta_geom::{Real, Role, RoleMap, Vec3};
 use resecta_margin::{FAR_TOLERANCE_MM, MarginClass, Verdict};
-use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
+use resecta_phantom::{PhantomSpec, SphereSpec, generate};
 use resecta_plan::{
     Anatomy, Group, Plan, PlanError, PlanEvent, Planner, Resection, SlicePositions, Target,
     slice_projections,
 };
 
-const RADII: [Real; 3] = [60.0, 45.0, 40.0];
-const TUMOUR: [Real; 3] = [25.0, 0.0, 0.0];
-const TUMOUR_R: Real = 10.0;
+mod common;
 
-fn spec() -> PhantomSpec {
-    PhantomSpec {
-        grid: GridSpec::centred(
-            [132, 100, 66],
-            [1.0, 1.0, 1.3],
-            [0.0, 0.0, 0.0],
-            Orientation::EulerDeg([4.0, -3.0, 7.0]),
-        ),
-        liver: vec![EllipsoidSpec {
-            center: [0.0, 0.0, 0.0],
-            radii: RADII,
-            rotation: Orientation::default(),
-        }],
-        tumors: vec![SphereSpec {
-            center: TUMOUR,
-            radius: TUMOUR_R,
-        }],
-        vessels: vec![],
-        roles: RoleMap::default(),
-        max_voxels: None,
-        truth_tolerance_mm: 0.05,
-    }
-}
-
-fn anatomy() -> Arc<Anatomy> {
-    static A: OnceLock<Arc<Anatomy>> = OnceLock::new();
-    A.get_or_init(|| {
-        let p = generate(&spec()).unwrap();
-        Arc::new(Anatomy::new(&p.labels, &spec().roles).unwrap())
-    })
-    .clone()
-}
+use common::{RADII, TUMOUR, TUMOUR_R, anatomy, spec};
 
 /// The test phantom's tumour voxel centres (RAS) and its voxel edge vectors (columns).
 fn tumour_voxels() -> (Vec<Vec3>, resecta_geom::Mat3) {
