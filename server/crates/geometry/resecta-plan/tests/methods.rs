@@ -362,3 +362,23 @@ fn the_fuzz_seed_of_ds_and_cp_plans_and_edits_replays() {
     assert_eq!(r.traces[0][1], [6.0, 0.0, 0.0]);
     assert!(h.plan().resection("c1").unwrap().deformations.len() == 1);
 }
+
+/// Found by fuzzing plan_json: serde_json's default float parser can land one ulp off, so a
+/// plan re-read from its own file differed (925.2441295442369 came back …368).
+#[test]
+fn plan_files_round_trip_every_coordinate_bit_exactly() {
+    let mut r = Resection::cp("c1", cp_ring(), Vec::new());
+    r.traces[0][4][2] = 925.244_129_544_236_9;
+    let mut plan = Plan::new(RoleMap::default());
+    plan.apply(&PlanEvent::AddResection { resection: r })
+        .unwrap();
+    let again = Plan::from_json(&plan.to_json().unwrap()).unwrap();
+    assert_eq!(again, plan);
+    let text = r#"[925.2441295442369, 0.1, 1e-300, 2.2250738585072014e-308]"#;
+    let v: Vec<Real> = serde_json::from_str(text).unwrap();
+    assert_eq!(
+        serde_json::from_str::<Vec<Real>>(&serde_json::to_string(&v).unwrap()).unwrap(),
+        v
+    );
+    assert_eq!(v[0].to_bits(), 925.244_129_544_236_9_f64.to_bits());
+}
