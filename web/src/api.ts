@@ -86,7 +86,19 @@ export interface Resection {
   bandMm?: number;
   ru?: number;
   rv?: number;
+  kind?: ResectionKind; // absent: Bézier
+  traces?: Trace[]; // DS and CP
+  deformations?: Deformation[]; // CP
+  target?: { labels?: number[]; points?: Vec3[] };
 }
+
+export type ResectionKind = "RESECTION_KIND_BEZIER" | "RESECTION_KIND_DS" | "RESECTION_KIND_CP";
+
+/** A polyline drawn by the person (RAS mm). */
+export interface Trace { points: Vec3[] }
+
+/** A CP resection's local cosine bump along its plane's normal. */
+export interface Deformation { point: Vec3; offsetMm?: number; radiusMm?: number }
 
 export interface Verdict {
   minMarginMm?: number;
@@ -104,6 +116,15 @@ export interface ResectionVolume {
   resectedPct?: number;
   completeCut?: boolean;
   incompleteReason?: string;
+  incompletePoint?: Partial<Vec3>;
+  metrics?: ResectionMetrics;
+}
+
+/** Plan quality metrics of one resection (thesis Sec. 7.4). */
+export interface ResectionMetrics {
+  marginDeviationMm?: number;
+  volumeDeviationPct?: number;
+  medianAbsMeanCurvaturePerMm?: number;
 }
 
 export interface VolumeReport {

@@ -6,6 +6,9 @@ import { Api, ApiError } from "./api";
 import type { Edit, Vec3 } from "./api";
 import { GridEditor } from "./editor";
 import { Intake } from "./intake";
+import { Methods } from "./methods";
+import type { DrawingState } from "./methods";
+import { nearestVertex } from "./traces";
 import { askToken, Panel } from "./panel";
 import { Plan } from "./plan";
 import type { Change, PublicState } from "./plan";
@@ -38,6 +41,12 @@ declare global {
       models(): string[];
       /** The slice view's plane, raster size, contours drawn and last picked point. */
       slice(): SliceState | null;
+      /** The DS or CP resection being drawn, not yet sent. */
+      drawing(): DrawingState | null;
+      /** The vertex of surface `name` nearest the point of it drawn at page position (x, y). */
+      probe(name: string, x: number, y: number): { vertex: number; point: Vec3 } | null;
+      /** Where vertex `k` of surface `name` is drawn. */
+      vertexScreen(name: string, k: number): ScreenPoint | null;
     };
   }
 }
@@ -193,11 +202,28 @@ const tools = new Tools({
     await done;
   },
   report: (text, kind) => panel.setStatus(text, kind),
+  startTracing: (method, name, target) => methods.start(method, name, target),
 });
 tools.onCreated = (name) => {
   if (plan?.resections.has(name)) panel.onSelect(name);
   else selectWhenShown = name; // the stream has not shown it yet
 };
+const methods = new Methods(
+  {
+    edit: (e) => send(e),
+    report: (text, kind) => panel.setStatus(text, kind),
+    created: (name) => tools.onCreated(name),
+    liver: () => {
+      const names = plan ? [...plan.models.values()].filter((m) => m.kind === "parenchyma").map((m) => m.name) : [];
+      return names.length ? names : scene.names();
+    },
+    render: () => requestRender(),
+  },
+  scene,
+  sliceView,
+  view,
+);
+tools.slot(methods.root);
 panel.root.append(tools.root);
 
 view.addEventListener(
@@ -237,6 +263,15 @@ window.resecta = {
   look: (name) => scene.look(name),
   models: () => [...(plan?.models.keys() ?? [])],
   slice: () => sliceView.state(),
+  drawing: () => methods.drawingState(),
+  probe(name, x, y) {
+    const p = scene.pickSurface(x, y, [name]), mesh = scene.mesh(name);
+    return p && mesh ? { vertex: nearestVertex(mesh, p), point: p } : null;
+  },
+  vertexScreen(name, k) {
+    const q = scene.mesh(name)?.positions;
+    return q && 3 * k + 2 < q.length ? scene.toScreen({ x: q[3 * k]!, y: q[3 * k + 1]!, z: q[3 * k + 2]! }) : null;
+  },
 };
 
 panel.setActions(() => void history("undo"), () => void history("redo"));
@@ -284,6 +319,7 @@ function redraw(p: Plan, change: Change): void {
   panel.selected = editor?.selected ?? null;
   panel.show(p);
   tools.update(p, panel.selected);
+  methods.update(p, panel.selected);
   if (marked) showClosest(marked, false);
   sliceView.planChanged([...p.resections.keys()], editor?.selected ?? null);
   requestRender();
@@ -309,6 +345,7 @@ async function main(): Promise<void> {
     panel.selected = name;
     panel.show(p);
     tools.update(p, name);
+    methods.update(p, name);
   };
   panel.setStatus("Loading the session…", "busy");
   let lost = false;
@@ -345,6 +382,7 @@ async function main(): Promise<void> {
     volumes(v, msg) {
       p.applyVolumes(v, msg);
       panel.show(p);
+      methods.update(p, panel.selected);
     },
     status(s, e) {
       if (s === "live" && lost) panel.setStatus("Live again: reconnected to the server");

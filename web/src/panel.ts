@@ -4,6 +4,7 @@
 import { problemText } from "./api";
 import type { Session, VolumeReport } from "./api";
 import type { Plan } from "./plan";
+import { methodOf } from "./traces";
 
 type Child = Node | string;
 
@@ -17,6 +18,10 @@ export function h(tag: string, attrs: Record<string, string> = {}, ...children: 
 const mm = (x: number | undefined | null) => (x == null ? "–" : `${x.toFixed(1)} mm`);
 const ml = (x: number | undefined) => (x == null ? "–" : `${x.toFixed(0)} ml`);
 const pct = (x: number | undefined) => (x == null ? "–" : `${x.toFixed(1)} %`);
+const signedMm = (x: number | undefined) => (x == null ? "–" : `${x >= 0 ? "+" : ""}${x.toFixed(1)} mm`);
+const perMm = (x: number | undefined) => (x == null ? "–" : `${x.toFixed(4)} mm⁻¹`);
+const signedPct = (x: number | undefined) => (x == null ? "–" : `${x >= 0 ? "+" : ""}${x.toFixed(1)} %`);
+const KIND_LABEL = { bezier: "Bézier", ds: "DS", cp: "CP" } as const;
 
 function table(head: string[], rows: Child[][]): HTMLElement {
   return h(
@@ -62,13 +67,13 @@ export class Panel {
       const verdict = h("span", { class: v.violation ? "bad" : "good" }, v.violation ? "violation" : "ok");
       const pick = h("button", { type: "button", class: "link", "aria-pressed": String(name === this.selected), title: "Edit its control points" }, name);
       pick.onclick = () => this.onSelect(name);
-      return [pick, mm(v.minMarginMm), mm(r.resection.marginMm), verdict];
+      return [pick, KIND_LABEL[methodOf(r.resection)], mm(v.minMarginMm), mm(r.resection.marginMm), verdict];
     });
     this.body.replaceChildren(
       h("p", { class: "session" }, plan.session?.displayName ?? plan.sessionId),
       h("p", {}, `Plan version ${plan.planVersion}`),
       h("h2", {}, "Resections"),
-      rows.length ? table(["name", "min margin", "margin", "verdict"], rows) : h("p", { class: "muted" }, "none"),
+      rows.length ? table(["name", "kind", "min margin", "margin", "verdict"], rows) : h("p", { class: "muted" }, "none"),
       h("h2", {}, "Volumes"),
       plan.volumes ? volumesTable(plan.volumes, plan.volumesVersion !== plan.planVersion) : h("p", { class: "muted" }, "not computed yet"),
     );
@@ -131,7 +136,17 @@ function volumesTable(v: VolumeReport, stale: boolean): HTMLElement {
   if (v.flrWarning) {
     out.append(h("p", { class: "bad flr", role: "alert" }, `⚠ Future liver remnant ${pct(v.remnantPct)} is below ${pct(v.flrThresholdPct)}`));
   }
+  for (const r of v.resections ?? []) {
+    if (!r.completeCut && r.incompleteReason) out.append(h("p", { class: "bad incomplete" }, `${r.name}: ${r.incompleteReason}`));
+  }
   if (v.complete === false) out.append(h("p", { class: "muted" }, "Some cut is incomplete."));
+  const metrics = (v.resections ?? []).map((r) => [r.name, signedMm(r.metrics?.marginDeviationMm), perMm(r.metrics?.medianAbsMeanCurvaturePerMm), signedPct(r.metrics?.volumeDeviationPct)]);
+  if (metrics.length) {
+    const t = table(["metrics", "margin dev.", "median |H|", "volume dev."], metrics);
+    t.className = "metrics";
+    t.title = "Thesis Sec. 7.4: minimum tumour distance minus the margin; median |mean curvature| inside the liver; volume against a reference plan";
+    out.append(t);
+  }
   if (stale) out.append(h("p", { class: "muted" }, "Recomputing…"));
   return out;
 }

@@ -2,7 +2,7 @@
 // verdicts, the volumes; kept up to date by the watch stream's events. No DOM: testable in Node.
 
 import { base64Bytes } from "./api";
-import type { PlanDelta, Resection, Session, Snapshot, Vec3, Verdict, VolumeReport, WatchResponse } from "./api";
+import type { Deformation, PlanDelta, Resection, ResectionKind, Session, Snapshot, Vec3, Verdict, VolumeReport, WatchResponse } from "./api";
 import { applyDelta, decodeMesh } from "./wire";
 import type { Mesh } from "./wire";
 
@@ -34,7 +34,17 @@ export interface PublicState {
   planVersion: number;
   resections: Record<
     string,
-    { minMarginMm: number | null; violation: boolean; closestPoint: Vec3 | null; marginMm: number | null; bandMm: number | null; controlPoints: Resection["controlPoints"] }
+    {
+      kind: ResectionKind;
+      minMarginMm: number | null;
+      violation: boolean;
+      closestPoint: Vec3 | null;
+      marginMm: number | null;
+      bandMm: number | null;
+      controlPoints: Resection["controlPoints"];
+      traces: Vec3[][];
+      deformations: Deformation[];
+    }
   >;
   volumes: VolumeReport | null;
 }
@@ -120,6 +130,9 @@ export class Plan {
         marginMm: r.resection.marginMm ?? null,
         bandMm: r.resection.bandMm ?? null,
         controlPoints: r.resection.controlPoints ?? [],
+        kind: r.resection.kind ?? "RESECTION_KIND_BEZIER",
+        traces: (r.resection.traces ?? []).map((t) => t.points),
+        deformations: r.resection.deformations ?? [],
       };
     }
     return { sessionId: this.sessionId, planVersion: Number(this.planVersion), resections, volumes: this.volumes };
@@ -139,8 +152,13 @@ export function kindName(kind: string | undefined): string {
 /** A point of the proto JSON, whose zero coordinates are left out. */
 export const vec3 = (p: Partial<Vec3>): Vec3 => ({ x: p.x ?? 0, y: p.y ?? 0, z: p.z ?? 0 });
 
-function resectionOf(r: Resection): Resection {
-  return r.controlPoints ? { ...r, controlPoints: r.controlPoints.map(vec3) } : r;
+/** A resection of the proto JSON with its points' left-out zero coordinates back. */
+export function resectionOf(r: Resection): Resection {
+  const out = { ...r };
+  if (r.controlPoints) out.controlPoints = r.controlPoints.map(vec3);
+  if (r.traces) out.traces = r.traces.map((t) => ({ points: (t.points ?? []).map(vec3) }));
+  if (r.deformations) out.deformations = r.deformations.map((d) => ({ ...d, point: vec3(d.point ?? {}) }));
+  return out;
 }
 
 function verdictOf(v: Verdict): Verdict {

@@ -48,6 +48,8 @@ export interface SurfaceStyle {
 const GRID_RGB: Rgb = [1.0, 0.78, 0.1];
 /** The closest point's marker. */
 const MARKER_RGB: Rgb = [1.0, 0.1, 0.6];
+/** Traces of DS and CP resections (the slice view's trace colour). */
+const TRACE_RGB: Rgb = [0.29, 0.85, 1.0];
 
 /** A point on the page: client (CSS) pixels, and the normalised depth there (0 near, 1 far). */
 export interface ScreenPoint {
@@ -74,6 +76,8 @@ export class Scene {
   private readonly spheres = gridActor(2);
   private readonly lines = gridActor(2);
   private readonly marker = gridActor(1, MARKER_RGB);
+  private readonly traceLines = gridActor(3, TRACE_RGB);
+  private readonly tracePoints = gridActor(1, TRACE_RGB);
   private readonly picker = vtkCellPicker.newInstance({ tolerance: 0 });
   /** Opacity and visibility the person set per surface name; kept across snapshots. */
   private readonly looks = new Map<string, { opacity?: number; visible?: boolean }>();
@@ -244,6 +248,37 @@ export class Scene {
     if (!show) return;
     setSpheres(this.spheres.polyData, points, sphereRadius(points));
     setGridLines(this.lines.polyData, points, m, n);
+  }
+
+  /** Shows `traces` as polylines (`closed`: rings) with a small sphere at each point, or
+   * hides them (none). */
+  showTraces(traces: readonly Vec3[][], closed: boolean): void {
+    const points = traces.flat();
+    const show = points.length > 0;
+    for (const g of [this.traceLines, this.tracePoints]) {
+      if (show && !this.renderer.hasViewProp(g.actor)) this.renderer.addActor(g.actor);
+      if (!show && this.renderer.hasViewProp(g.actor)) this.renderer.removeActor(g.actor);
+    }
+    if (!show) return;
+    setSpheres(this.tracePoints.polyData, points, 1);
+    const xyz = new Float32Array(3 * points.length);
+    points.forEach((p, k) => xyz.set([p.x, p.y, p.z], 3 * k));
+    const cells: number[] = [];
+    let first = 0;
+    for (const t of traces) {
+      const ids = t.map((_, k) => first + k);
+      if (closed && t.length > 2) ids.push(first);
+      cells.push(ids.length, ...ids);
+      first += t.length;
+    }
+    this.traceLines.polyData.getPoints().setData(xyz, 3);
+    this.traceLines.polyData.getLines().setData(Uint32Array.from(cells));
+    this.traceLines.polyData.modified();
+  }
+
+  /** The mesh shown as `name`. */
+  mesh(name: string): Mesh | null {
+    return this.entries.get(name)?.mesh ?? null;
   }
 
   /** Where world point `p` is drawn on the page. */

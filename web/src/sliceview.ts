@@ -24,6 +24,14 @@ export const EDGE_LETTERS: Record<Axis, [string, string, string, string]> = {
 /** Colour of labels of no role, and of the orientation letters. */
 const OTHER: Rgba = [128, 128, 128, 255];
 const LETTER_COLOUR = "#ffd24a";
+/** Colour of DS traces: committed, and held here until the resection is made (dashed). */
+const TRACE_COLOUR = "#4ad8ff";
+/** How near (canvas pixels) a click must be to a trace to select it; a stroke shorter than
+ * this (raster pixels) is a click. */
+const TRACE_PX = 8;
+
+/** A trace to draw on the slice it lies on. */
+export interface ShownTrace { points: Vec3[]; pending: boolean; selected: boolean }
 
 /** A decoded label slice. */
 export interface Raster {
@@ -163,11 +171,20 @@ export interface SliceState {
   height: number;
   contours: number;
   picked: Vec3 | null;
+  /** DS traces drawn on this slice. */
+  traces: number;
 }
 
 export class SliceView {
   /** Called with the RAS point under a click on the slice. */
   onPick: ((p: Vec3) => void) | null = null;
+  /** While set, a drag on the slice draws a trace, handed over here (RAS, on the slice). */
+  onTrace: ((points: Vec3[]) => void) | null = null;
+  /** Called with the index (in `setTraces`' list) of a trace clicked on. */
+  onTraceClick: ((index: number) => void) | null = null;
+  private traces: ShownTrace[] = [];
+  private stroke: { pointerId: number; points: Vec3[]; px: number } | null = null;
+  private drew = false;
   private sessionId = "";
   private axis: Axis = "axial";
   private focus: Vec3 = { x: 0, y: 0, z: 0 };
@@ -209,7 +226,14 @@ export class SliceView {
     this.readout = el("span", "slice-mm");
     bar.append(this.slider, this.readout);
     this.canvas = el("canvas", "slice-canvas");
+    this.canvas.addEventListener("pointerdown", (e) => this.strokeStart(e));
+    this.canvas.addEventListener("pointermove", (e) => this.strokeMove(e));
+    this.canvas.addEventListener("pointerup", (e) => this.strokeEnd(e));
+    this.canvas.addEventListener("pointercancel", () => (this.stroke = null));
     this.canvas.addEventListener("click", (e) => {
+      if (this.drew) return void (this.drew = false);
+      const k = this.traceNear(e.clientX, e.clientY);
+      if (k !== null && this.onTraceClick) return this.onTraceClick(k);
       const p = this.pointAt(e.clientX, e.clientY);
       if (!p) return;
       this.picked = p;
@@ -252,6 +276,19 @@ export class SliceView {
     this.paint();
   }
 
+  /** The DS traces to draw (each on its own slice). */
+  setTraces(traces: ShownTrace[]): void {
+    this.traces = traces;
+    this.paint();
+  }
+
+  /** Shows the plane `axis` at `mm`. */
+  goTo(axis: Axis, mm: number): void {
+    this.axis = axis;
+    this.markAxis();
+    this.setPosition(mm);
+  }
+
   setAxis(axis: Axis): void {
     this.axis = axis;
     this.markAxis();
@@ -281,7 +318,65 @@ export class SliceView {
     if (!r) return null;
     const lines = this.shownContours();
     const contours = lines ? [...lines.values()].reduce((n, ls) => n + ls.length, 0) : 0;
-    return { axis: r.axis, positionMm: r.positionMm, width: r.width, height: r.height, contours, picked: this.picked };
+    const traces = this.tracesShown(r).length;
+    return { axis: r.axis, positionMm: r.positionMm, width: r.width, height: r.height, contours, picked: this.picked, traces };
+  }
+
+  /** The traces lying on the raster's plane, with their indices. */
+  private tracesShown(r: Raster): [number, ShownTrace][] {
+    const k = NORMAL[r.axis];
+    return [...this.traces.entries()].filter(([, t]) => t.points.length > 0 && t.points.every((p) => Math.abs(p[k] - r.positionMm) <= 0.01));
+  }
+
+  /** The trace drawn within TRACE_PX of a client position, or null. */
+  private traceNear(clientX: number, clientY: number): number | null {
+    const r = this.raster;
+    if (!r) return null;
+    const rect = this.canvas.getBoundingClientRect();
+    const dpr = this.canvas.width / Math.max(1, rect.width);
+    const x = (clientX - rect.left) * dpr, y = (clientY - rect.top) * dpr;
+    const f = fit(r.width, r.height, this.canvas.width, this.canvas.height);
+    let best: number | null = null, bestD = TRACE_PX * dpr;
+    for (const [k, t] of this.tracesShown(r)) {
+      const xy = t.points.map((p) => toCanvas(r, f, p));
+      for (let i = 0; i + 1 < xy.length; i++) {
+        const d = segmentDistance([x, y], xy[i]!, xy[i + 1]!);
+        if (d <= bestD) (best = k), (bestD = d);
+      }
+    }
+    return best;
+  }
+
+  private strokeStart(e: PointerEvent): void {
+    if (!this.onTrace || e.button !== 0) return;
+    const p = this.pointAt(e.clientX, e.clientY);
+    if (!p) return;
+    this.canvas.setPointerCapture?.(e.pointerId);
+    this.stroke = { pointerId: e.pointerId, points: [p], px: 0 };
+  }
+
+  private strokeMove(e: PointerEvent): void {
+    const s = this.stroke;
+    if (!s || e.pointerId !== s.pointerId) return;
+    const p = this.pointAt(e.clientX, e.clientY);
+    if (!p) return;
+    const r = this.raster!;
+    s.px += Math.hypot(...(["x", "y", "z"] as const).map((k) => p[k] - s.points[s.points.length - 1]![k])) / r.pixelMm;
+    s.points.push(p);
+    if (s.px > TRACE_PX) this.paint();
+  }
+
+  private strokeEnd(e: PointerEvent): void {
+    const s = this.stroke, r = this.raster;
+    if (!s || e.pointerId !== s.pointerId || !r) return;
+    this.stroke = null;
+    this.canvas.releasePointerCapture?.(e.pointerId);
+    if (s.px <= TRACE_PX) return; // a click
+    this.drew = true;
+    setTimeout(() => (this.drew = false), 0); // no click follows a drag that left the canvas
+    const k = NORMAL[r.axis];
+    this.onTrace?.(s.points.map((p) => ({ ...p, [k]: r.positionMm })));
+    this.paint();
   }
 
   private plane(): Plane {
@@ -361,6 +456,20 @@ export class SliceView {
         g.stroke();
       }
     }
+    g.strokeStyle = TRACE_COLOUR;
+    const stroke = this.stroke && this.stroke.px > TRACE_PX ? [[-1, { points: this.stroke.points, pending: true, selected: false }] as const] : [];
+    for (const [, t] of [...this.tracesShown(r), ...stroke]) {
+      g.lineWidth = (t.selected ? 3.5 : 2) * dpr;
+      g.setLineDash(t.pending ? [6 * dpr, 4 * dpr] : []);
+      g.beginPath();
+      t.points.forEach((p, i) => {
+        const [x, y] = toCanvas(r, f, p);
+        if (i === 0) g.moveTo(x, y);
+        else g.lineTo(x, y);
+      });
+      g.stroke();
+    }
+    g.setLineDash([]);
     const [left, right, top, bottom] = EDGE_LETTERS[r.axis];
     const m = 6 * dpr;
     g.fillStyle = LETTER_COLOUR;
@@ -376,6 +485,14 @@ export class SliceView {
     g.textBaseline = "bottom";
     g.fillText(bottom, c.width / 2, c.height - m);
   }
+}
+
+/** Distance from `p` to the segment `a`–`b` (2D). */
+export function segmentDistance(p: readonly number[], a: readonly number[], b: readonly number[]): number {
+  const [dx, dy] = [b[0]! - a[0]!, b[1]! - a[1]!];
+  const l2 = dx * dx + dy * dy;
+  const t = l2 > 0 ? Math.max(0, Math.min(1, ((p[0]! - a[0]!) * dx + (p[1]! - a[1]!) * dy) / l2)) : 0;
+  return Math.hypot(p[0]! - a[0]! - t * dx, p[1]! - a[1]! - t * dy);
 }
 
 /** RAS of a label map's central voxel position. */

@@ -5,11 +5,13 @@
 // values refreshed (never while being typed in), so the keyboard focus survives live updates;
 // every action is a button or a form field.
 
-import type { Edit, Vec3 } from "./api";
+import type { Edit, Resection, Vec3 } from "./api";
 import { freshName, moveEdit, parseNumber, rotateEdit, tumourTarget } from "./edits";
 import type { Axis, Selection } from "./edits";
 import { h } from "./panel";
 import type { Plan } from "./plan";
+import { methodOf } from "./traces";
+import type { Method } from "./traces";
 
 /** What the tools ask of the page. */
 export interface ToolActions {
@@ -20,6 +22,8 @@ export interface ToolActions {
   showClosest(name: string): void;
   /** Arms the 3D view: its next click on the liver gives the new resection's end point. */
   pickEndPoint(): void;
+  /** Starts drawing a new DS or CP resection. */
+  startTracing(method: "ds" | "cp", name: string, target: Resection["target"]): void;
   setLook(name: string, look: { opacity?: number; visible?: boolean }): void;
   look(name: string): { opacity: number; visible: boolean } | null;
   exportModel(name: string, format: string): Promise<void>;
@@ -101,9 +105,19 @@ export class Tools {
   ]);
   private readonly angle = input({ type: "number", step: "any", min: "0.1", max: "180", value: "5", required: "", "aria-label": "Rotate by (degrees)" });
   private readonly resectionTools = h("section", { "aria-label": "selected resection", hidden: "" });
+  /** The moves and rotations: Bézier resections only. */
+  private readonly bezierTools = h("div", {});
+  private readonly resectionKind = h("p", { class: "muted" });
   // A new resection.
   private readonly newName = input({ type: "text", required: "", maxlength: "128", autocomplete: "off" });
+  private readonly method = select("Resection kind", [
+    ["bezier", "Bézier surface"],
+    ["ds", "DS: drawn on slices"],
+    ["cp", "CP: deformable plane"],
+  ]);
   private readonly tumour = select("Tumour to remove", []);
+  private readonly endRow = h("div", { class: "row" });
+  private readonly createButton = h("button", { type: "submit" }, "Create") as HTMLButtonElement;
   private readonly end = [0, 1, 2].map((k) => input({ type: "number", step: "any", required: "", "aria-label": `end point ${"RAS"[k]}` }));
   private readonly creator = h("details", { class: "new" });
   // Structures and files.
@@ -153,6 +167,8 @@ export class Tools {
     this.resectionTools.hidden = !r;
     if (r) {
       this.resectionTitle.textContent = `Resection ${r.name}`;
+      this.bezierTools.hidden = methodOf(r) !== "bezier";
+      this.resectionKind.textContent = { bezier: "Bézier surface", ds: "DS: drawn on slices", cp: "CP: deformable cutting plane" }[methodOf(r)];
       refill(this.margin, fmt(r.marginMm ?? 10));
       refill(this.band, fmt(r.bandMm ?? 0));
       this.pointI.max = String((r.gridM ?? 1) - 1);
@@ -168,6 +184,11 @@ export class Tools {
       this.structureNames = names;
       this.structures.replaceChildren(...[...plan.models.keys()].map((n) => this.structureRow(n)));
     }
+  }
+
+  /** Puts `section` below the selected resection's tools. */
+  slot(section: HTMLElement): void {
+    this.resectionTools.after(section);
   }
 
   /** Puts `p` in the new resection's end point fields and opens the form. */
@@ -188,13 +209,17 @@ export class Tools {
       button(label, `Move towards the patient's ${towards} (${axis === "x" ? "R–L" : axis === "y" ? "A–P" : "S–I"})`, () =>
         void this.move(axis, sign)));
     const turn = (sign: number, text: string) => button(text, `Rotate ${sign > 0 ? "counter-clockwise" : "clockwise"} about the axis through the control points' centroid`, () => void this.rotate(sign));
-    this.resectionTools.append(
-      this.resectionTitle,
-      settings,
+    this.bezierTools.append(
       h("div", { class: "row" }, h("span", {}, "Move"), this.what, this.pointPicker),
       h("div", { class: "row moves", role: "group", "aria-label": "move" }, ...moves, labelled("by", this.step, "mm")),
       h("div", { class: "row", role: "group", "aria-label": "rotate" }, h("span", {}, "Rotate"), this.axis, turn(1, "⟲"), turn(-1, "⟳"),
         labelled("by", this.angle, "°")),
+    );
+    this.resectionTools.append(
+      this.resectionTitle,
+      this.resectionKind,
+      settings,
+      this.bezierTools,
       h("div", { class: "row" },
         button("Show closest point", "Turn the view to where the surface comes closest to the tumour", () => {
           if (this.selected) this.act.showClosest(this.selected);
@@ -207,9 +232,14 @@ export class Tools {
 
   private buildCreator(): void {
     const pick = button("Pick on a view", "Click the liver in the 3D view or the slice view where the resection should end", () => this.act.pickEndPoint());
-    const form = h("form", { novalidate: "" }, labelled("Name", this.newName), labelled("Tumour", this.tumour),
-      h("div", { class: "row" }, h("span", {}, "End point"), ...this.end, h("span", { class: "unit" }, "mm")),
-      h("div", { class: "row" }, pick, h("button", { type: "submit" }, "Create")));
+    this.endRow.append(h("span", {}, "End point"), ...this.end, h("span", { class: "unit" }, "mm"), pick);
+    this.method.onchange = () => {
+      const m = this.method.value as Method;
+      this.endRow.hidden = m !== "bezier";
+      this.createButton.textContent = m === "ds" ? "Draw on slices" : m === "cp" ? "Draw on the liver" : "Create";
+    };
+    const form = h("form", { novalidate: "" }, labelled("Name", this.newName), labelled("Kind", this.method), labelled("Tumour", this.tumour),
+      this.endRow, h("div", { class: "row" }, this.createButton));
     form.onsubmit = (e) => {
       e.preventDefault();
       void this.create();
@@ -277,6 +307,18 @@ export class Tools {
 
   private async create(): Promise<void> {
     const name = this.newName.value.trim();
+    const method = this.method.value as Method;
+    if (method !== "bezier") {
+      await this.attempt(() => {
+        if (!name) throw new Error("Name the new resection");
+        if (this.plan?.resections.has(name)) throw new Error(`A resection named ${name} exists already`);
+        const model = this.plan?.models.get(this.tumour.value);
+        this.act.startTracing(method, name, model?.label === undefined ? undefined : tumourTarget(model.label, model.mesh));
+        this.creator.removeAttribute("open");
+        return [];
+      });
+      return;
+    }
     const made = await this.attempt(() => {
       if (!name) throw new Error("Name the new resection");
       if (this.plan?.resections.has(name)) throw new Error(`A resection named ${name} exists already`);

@@ -3,7 +3,7 @@
 
 import assert from "node:assert/strict";
 import { test } from "node:test";
-import { EDGE_LETTERS, Latest, centre, decodeRaster, fit, labelColours, rasterRgba, toCanvas, toRas } from "../src/sliceview";
+import { EDGE_LETTERS, Latest, centre, decodeRaster, fit, labelColours, rasterRgba, segmentDistance, toCanvas, toRas } from "../src/sliceview";
 import type { Raster, Rgb } from "../src/sliceview";
 
 const PALETTE: Record<string, [Rgb, number]> = { parenchyma: [[1, 0.5, 0], 0.35], tumor: [[0, 1, 0], 1] };
@@ -95,4 +95,10 @@ test("one call in flight; asks made meanwhile become one call with the newest", 
   assert.deepEqual(done, [10, 30]);
   l.ask(4);
   assert.deepEqual(calls, [1, 3, 4]);
+});
+
+test("a click's distance to a trace's segment: to the segment, not its line", () => {
+  assert.equal(segmentDistance([5, 3], [0, 0], [10, 0]), 3);
+  assert.equal(segmentDistance([13, 4], [0, 0], [10, 0]), 5);
+  assert.equal(segmentDistance([1, 1], [2, 2], [2, 2]), Math.SQRT2);
 });
