@@ -32,7 +32,7 @@ class GetServerInfoRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class ServerLimits(_message.Message):
-    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm", "max_label_slice_side", "max_label_slice_pixel_mm")
+    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm", "max_label_slice_side", "max_label_slice_pixel_mm", "max_traces", "min_trace_points", "max_trace_points", "min_ds_traces", "slice_tolerance_mm", "max_deformations", "max_deformation_radius_mm", "max_deformation_offset_mm")
     MAX_VOXELS_FIELD_NUMBER: _ClassVar[int]
     MAX_SESSIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_UPLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
@@ -60,6 +60,14 @@ class ServerLimits(_message.Message):
     MAX_ORIGIN_MM_FIELD_NUMBER: _ClassVar[int]
     MAX_LABEL_SLICE_SIDE_FIELD_NUMBER: _ClassVar[int]
     MAX_LABEL_SLICE_PIXEL_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_TRACES_FIELD_NUMBER: _ClassVar[int]
+    MIN_TRACE_POINTS_FIELD_NUMBER: _ClassVar[int]
+    MAX_TRACE_POINTS_FIELD_NUMBER: _ClassVar[int]
+    MIN_DS_TRACES_FIELD_NUMBER: _ClassVar[int]
+    SLICE_TOLERANCE_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_DEFORMATIONS_FIELD_NUMBER: _ClassVar[int]
+    MAX_DEFORMATION_RADIUS_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_DEFORMATION_OFFSET_MM_FIELD_NUMBER: _ClassVar[int]
     max_voxels: int
     max_sessions: int
     max_upload_bytes: int
@@ -87,7 +95,15 @@ class ServerLimits(_message.Message):
     max_origin_mm: float
     max_label_slice_side: int
     max_label_slice_pixel_mm: float
-    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ...) -> None: ...
+    max_traces: int
+    min_trace_points: int
+    max_trace_points: int
+    min_ds_traces: int
+    slice_tolerance_mm: float
+    max_deformations: int
+    max_deformation_radius_mm: float
+    max_deformation_offset_mm: float
+    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ..., max_traces: _Optional[int] = ..., min_trace_points: _Optional[int] = ..., max_trace_points: _Optional[int] = ..., min_ds_traces: _Optional[int] = ..., slice_tolerance_mm: _Optional[float] = ..., max_deformations: _Optional[int] = ..., max_deformation_radius_mm: _Optional[float] = ..., max_deformation_offset_mm: _Optional[float] = ...) -> None: ...
 
 class GetServerInfoResponse(_message.Message):
     __slots__ = ("server_version", "api_version", "capabilities", "limits", "compute")

@@ -19,6 +19,11 @@ pub mod limits {
         MAX_ANGLE_DEG, MAX_COORDINATE_MM, MAX_MARGIN_MM, MAX_NAME_LEN, MAX_RESOLUTION,
         MAX_TARGET_LABELS, MAX_TARGET_POINTS, MIN_CONTROL_POINTS, MIN_RESOLUTION,
     };
+    pub use resecta_plan::traces::cp::{MAX_OFFSET_MM, MAX_RADIUS_MM};
+    pub use resecta_plan::traces::{
+        MAX_DEFORMATIONS, MAX_TRACE_POINTS, MAX_TRACES, MIN_TRACE_POINTS, MIN_TRACES,
+        SLICE_TOLERANCE_MM,
+    };
     pub use resecta_session::api::{
         DEFAULT_GRID, MAX_DISPLAY_NAME, MAX_EXTENT_MM, MAX_ORIGIN_MM, SPACING_MM,
     };
@@ -76,6 +81,14 @@ pub fn server_info(service: &Service) -> pb::GetServerInfoResponse {
             max_origin_mm: MAX_ORIGIN_MM,
             max_label_slice_side: saturating_u32(MAX_LABEL_SLICE_SIDE),
             max_label_slice_pixel_mm: MAX_LABEL_SLICE_PIXEL_MM,
+            max_traces: saturating_u32(MAX_TRACES),
+            min_trace_points: saturating_u32(MIN_TRACE_POINTS),
+            max_trace_points: saturating_u32(MAX_TRACE_POINTS),
+            min_ds_traces: saturating_u32(MIN_TRACES),
+            slice_tolerance_mm: SLICE_TOLERANCE_MM,
+            max_deformations: saturating_u32(MAX_DEFORMATIONS),
+            max_deformation_radius_mm: MAX_RADIUS_MM,
+            max_deformation_offset_mm: MAX_OFFSET_MM,
         }),
     }
 }

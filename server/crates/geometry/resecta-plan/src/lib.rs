@@ -34,6 +34,7 @@ pub use metrics::{
 pub use plan::{FORMAT, MAX_RESECTIONS, Plan, PlanEvent};
 pub use probe::{ComputeEngine, ProbeEngine, SampleProbe};
 pub use resecta_margin::{MarginClass, Verdict};
+pub use resecta_traces as traces;
 pub use resecta_traces::{Deformation, SliceOrientation};
 pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};
