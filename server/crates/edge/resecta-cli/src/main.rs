@@ -17,6 +17,7 @@ mod phantom;
 mod plan;
 mod recon;
 mod serve;
+mod study;
 
 use std::process::ExitCode;
 
@@ -52,6 +53,9 @@ enum Command {
     Bezier(bezier::Command),
     /// The planning server: gRPC and HTTP faces over patient sessions (docs/server.md).
     Serve(resecta_server::ServeArgs),
+    /// Studies: `study methods` compares Bézier, DS and CP resections (Paper II, in silico).
+    #[command(subcommand)]
+    Study(study::Command),
     /// Benchmarks, with their anchors in the same run.
     #[command(subcommand)]
     Bench(bench::Command),
@@ -71,6 +75,7 @@ fn main() -> ExitCode {
         Command::Plan(a) => plan::run(&a),
         Command::Bezier(c) => bezier::run(&c),
         Command::Serve(a) => serve::serve(&a),
+        Command::Study(c) => study::run(&c),
         Command::Bench(c) => bench::run(&c),
     };
     match result {
