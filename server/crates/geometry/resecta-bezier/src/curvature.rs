@@ -51,17 +51,21 @@ impl CutSurface for ControlNet<f64> {
         }
     }
 
-    /// The control polygon's longest row and column: they bound the iso-curves' lengths.
-    fn lengths(&self) -> [Real; 2] {
+    /// The hodograph bound: |∂S/∂u| ≤ (m−1)·max|P₍ᵢ₊₁₎ⱼ − Pᵢⱼ| (and likewise along v), since
+    /// ∂S/∂u is a Bernstein combination (weights summing to 1) of the scaled differences.
+    fn speeds(&self) -> [Real; 2] {
         let (m, n) = self.dims();
         let p = |i: usize, j: usize| v3(self.points()[i * n + j]);
-        let lu = (0..n)
-            .map(|j| (1..m).map(|i| (p(i, j) - p(i - 1, j)).norm()).sum::<Real>())
+        let su = (0..(m - 1) * n)
+            .map(|k| (p(k / n + 1, k % n) - p(k / n, k % n)).norm())
             .fold(0.0, Real::max);
-        let lv = (0..m)
-            .map(|i| (1..n).map(|j| (p(i, j) - p(i, j - 1)).norm()).sum::<Real>())
+        let sv = (0..m * (n - 1))
+            .map(|k| {
+                let (i, j) = (k / (n - 1), k % (n - 1));
+                (p(i, j + 1) - p(i, j)).norm()
+            })
             .fold(0.0, Real::max);
-        [lu, lv]
+        [(m - 1) as Real * su, (n - 1) as Real * sv]
     }
 
     /// By the multi-level evaluator, degenerate normals repaired as it does.

@@ -45,9 +45,10 @@ pub trait CutSurface: Send + Sync + std::fmt::Debug {
     /// S and its derivatives at (u, v).
     fn at(&self, u: Real, v: Real) -> SurfacePoint;
 
-    /// Upper estimates of the lengths of the iso-curves along u and along v (mm): how densely
-    /// to sample for a given spacing.
-    fn lengths(&self) -> [Real; 2];
+    /// Upper bounds of the parametric speeds |∂S/∂u| and |∂S/∂v| over [0, 1]² (mm per unit
+    /// parameter): samples `⌈speed/δ⌉ + 1` per direction are at most δ apart everywhere, however
+    /// unevenly the surface is parametrised.
+    fn speeds(&self) -> [Real; 2];
 
     /// Points and unit normals on a ru×rv grid (index `a·rv + b` at `(a/(ru−1), b/(rv−1))`);
     /// a sample without a tangent plane gets the zero normal.
@@ -98,7 +99,7 @@ mod tests {
                 dvv: Vec3::zeros(),
             }
         }
-        fn lengths(&self) -> [Real; 2] {
+        fn speeds(&self) -> [Real; 2] {
             [self.0 * std::f64::consts::FRAC_PI_2, 1.0]
         }
     }

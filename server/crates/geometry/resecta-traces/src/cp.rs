@@ -86,7 +86,7 @@ pub struct CpSurface {
     heights: Vec<Real>,
     /// Per-vertex ∂H/∂a, ∂H/∂b, ∂²H/∂a², ∂²H/∂a∂b, ∂²H/∂b² (grid steps).
     diffs: Vec<[Real; 5]>,
-    lengths: [Real; 2],
+    speeds: [Real; 2],
 }
 
 /// Points every `step` along a polyline (its vertices included).
@@ -144,7 +144,7 @@ impl CpSurface {
             nv,
             heights: vec![0.0; nu * nv],
             diffs: Vec::new(),
-            lengths: [0.0; 2],
+            speeds: [0.0; 2],
         };
         s.fit(traces);
         for (k, d) in deformations.iter().enumerate() {
@@ -254,7 +254,7 @@ impl CpSurface {
         Ok(())
     }
 
-    /// Per-vertex differences and iso-curve lengths.
+    /// Per-vertex differences and speed bounds.
     fn finish(&mut self) {
         let (nu, nv) = (self.nu, self.nv);
         let h = |a: usize, b: usize| self.heights[a * nv + b];
@@ -289,7 +289,7 @@ impl CpSurface {
             }
         }
         self.diffs = diffs;
-        self.lengths = crate::ds::iso_lengths(self, nu, nv);
+        self.speeds = crate::ds::sampled_speeds(self, nu, nv);
     }
 
     /// Vertices along u (short axis) and v (long axis): the grid the planner samples.
@@ -353,7 +353,7 @@ impl CutSurface for CpSurface {
         }
     }
 
-    fn lengths(&self) -> [Real; 2] {
-        self.lengths
+    fn speeds(&self) -> [Real; 2] {
+        self.speeds
     }
 }

@@ -83,7 +83,7 @@ pub struct DsSurface {
     v_knots: Vec<Real>,
     /// Slice positions (mm) of the traces, ascending.
     slices: Vec<Real>,
-    lengths: [Real; 2],
+    speeds: [Real; 2],
 }
 
 fn spread(trace: &[[Real; 3]], axis: usize) -> Real {
@@ -283,9 +283,9 @@ impl DsSurface {
             u_knots,
             v_knots,
             slices,
-            lengths: [0.0; 2],
+            speeds: [0.0; 2],
         };
-        surface.lengths = iso_lengths(&surface, 4 * DS_POINTS_PER_TRACE, 4 * k);
+        surface.speeds = sampled_speeds(&surface, 4 * DS_POINTS_PER_TRACE, 4 * k);
         Ok(surface)
     }
 
@@ -308,9 +308,10 @@ impl DsSurface {
     }
 }
 
-/// The longest u- and v-iso-polylines of a surface sampled nu×nv, grown by 1 % (the polylines
-/// are chords of the curves).
-pub(crate) fn iso_lengths(s: &dyn CutSurface, nu: usize, nv: usize) -> [Real; 2] {
+/// Speed bounds of a surface from its nu×nv samples: the longest step along u (v) times the
+/// steps per unit parameter, grown by 5 % (steps are chords). Exact for a bilinear grid sampled
+/// at its vertices.
+pub(crate) fn sampled_speeds(s: &dyn CutSurface, nu: usize, nv: usize) -> [Real; 2] {
     let p = |a: usize, b: usize| {
         s.at(
             resecta_geom::grid_param(a, nu),
@@ -318,21 +319,15 @@ pub(crate) fn iso_lengths(s: &dyn CutSurface, nu: usize, nv: usize) -> [Real; 2]
         )
         .p
     };
-    let lu = (0..nv)
-        .map(|b| {
-            (1..nu)
-                .map(|a| (p(a, b) - p(a - 1, b)).norm())
-                .sum::<Real>()
-        })
+    let pts: Vec<Vec3> = (0..nu * nv).map(|k| p(k / nv, k % nv)).collect();
+    let su = (0..(nu - 1) * nv)
+        .map(|k| (pts[k + nv] - pts[k]).norm())
         .fold(0.0, Real::max);
-    let lv = (0..nu)
-        .map(|a| {
-            (1..nv)
-                .map(|b| (p(a, b) - p(a, b - 1)).norm())
-                .sum::<Real>()
-        })
+    let sv = (0..nu * nv)
+        .filter(|k| k % nv + 1 < nv)
+        .map(|k| (pts[k + 1] - pts[k]).norm())
         .fold(0.0, Real::max);
-    [lu * 1.01, lv * 1.01]
+    [1.05 * su * (nu - 1) as Real, 1.05 * sv * (nv - 1) as Real]
 }
 
 impl CutSurface for DsSurface {
@@ -360,7 +355,7 @@ impl CutSurface for DsSurface {
         s
     }
 
-    fn lengths(&self) -> [Real; 2] {
-        self.lengths
+    fn speeds(&self) -> [Real; 2] {
+        self.speeds
     }
 }

@@ -35,7 +35,7 @@ fn check(s: &dyn CutSurface) {
     s.sample(9, 7, &mut p, &mut n);
     assert!(p.iter().all(|q| q.iter().all(|c| c.is_finite())));
     assert!(n.iter().all(|q| q.iter().all(|c| c.is_finite())));
-    assert!(s.lengths().iter().all(|l| l.is_finite() && *l >= 0.0));
+    assert!(s.speeds().iter().all(|l| l.is_finite() && *l >= 0.0));
 }
 
 proptest! {

@@ -2,7 +2,9 @@
 //! deformable cutting plane).
 //!
 //! 1. The surface is sampled with spacing δ ≤ the smallest voxel spacing (points and unit
-//!    normals), estimated from the control polygon's lengths.
+//!    normals): per direction ⌈speed/δ⌉ + 1 samples from the surface's bound on its parametric
+//!    speed ([`CutSurface::speeds`]), so neighbouring samples are at most δ apart everywhere,
+//!    however unevenly the surface is parametrised.
 //! 2. **Band**: every liver voxel in a sample's slab-disc (within `hs` of its tangent plane, hs
 //!    above half the voxel's largest extent w_max and above its longest edge, and within 0.75 δ of
 //!    it laterally) keeps its nearest such sample. Its signed offset
@@ -616,12 +618,12 @@ impl Samples {
     fn new(surface: &dyn CutSurface, liver: &LiverVoxels) -> Self {
         let spacing = liver.grid().spacing();
         let delta = spacing.iter().copied().fold(Real::INFINITY, Real::min);
-        let [lu, lv] = surface.lengths();
-        let count = |l: Real| ((l / delta).ceil() as usize + 1).clamp(2, MAX_SAMPLES_PER_AXIS);
-        let (ru, rv) = (count(lu), count(lv));
-        // The achieved spacing (may exceed the voxel size when clamped).
-        let delta = (lu / (ru - 1) as Real)
-            .max(lv / (rv - 1) as Real)
+        let [su, sv] = surface.speeds();
+        let count = |s: Real| ((s / delta).ceil() as usize + 1).clamp(2, MAX_SAMPLES_PER_AXIS);
+        let (ru, rv) = (count(su), count(sv));
+        // The achieved spacing bound (may exceed the voxel size when clamped).
+        let delta = (su / (ru - 1) as Real)
+            .max(sv / (rv - 1) as Real)
             .max(delta);
         let (mut points, mut normals) = (Vec::new(), Vec::new());
         surface.sample(ru, rv, &mut points, &mut normals);

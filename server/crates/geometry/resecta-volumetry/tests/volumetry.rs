@@ -127,6 +127,44 @@ fn planar_cuts_of_an_ellipsoid_match_the_analytic_cap() {
     }
 }
 
+/// A planar net whose control points bunch towards one edge (the parametrisation is uneven:
+/// most of the surface lies in the last control interval) still cuts completely and resects
+/// what the evenly spaced net does — the samples follow the speed, not the polygon's length.
+#[test]
+fn an_unevenly_parametrised_net_cuts_as_the_even_one() {
+    let grid = oblique_grid([0.8, 0.9, 2.5], 56.0);
+    let m = mask(&grid, in_ellipsoid);
+    let mut vol = Volumetry::new(LiverVoxels::new(&m).unwrap());
+    let (n, t) = (Vec3::x(), 10.0);
+    let even = plane_net(n, t, 90.0);
+    let p = even.points();
+    // u-steps of 2 %, 3 % and 95 % of the side instead of thirds, in both directions.
+    let f = [0.0, 0.02, 0.05, 1.0];
+    let (o, eu, ev) = (
+        Vec3::from(p[0]),
+        Vec3::from(p[12]) - Vec3::from(p[0]),
+        Vec3::from(p[3]) - Vec3::from(p[0]),
+    );
+    let bunched = ControlNet::new(
+        4,
+        4,
+        (0..16)
+            .map(|k| (o + eu * f[k / 4] + ev * f[k % 4]).into())
+            .collect(),
+    )
+    .unwrap();
+    let tumour = [n * (t + 3.0)];
+    let a = vol.cut(&even, &tumour).unwrap();
+    let b = vol.cut(&bunched, &tumour).unwrap();
+    assert!(b.complete, "{b:?}");
+    assert!(
+        (a.resected_mm3 - b.resected_mm3).abs() < 1e-3 * a.resected_mm3,
+        "{} vs {}",
+        a.resected_mm3,
+        b.resected_mm3
+    );
+}
+
 #[test]
 fn a_tumour_hole_is_not_liver() {
     let grid = oblique_grid([1.0, 1.0, 1.5], 56.0);
