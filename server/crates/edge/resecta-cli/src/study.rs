@@ -53,6 +53,11 @@ pub struct MethodsArgs {
     /// equally spaced with the outer ones (`regular`).
     #[arg(long, value_enum, default_value_t = Layout::Tumour)]
     pub layout: Layout,
+    /// Rounds of margin feedback after the placement (round 0): while a plan's margin deviation
+    /// is below −0.01 mm the scripted user pulls back the lifted inputs near the minimum; 0 =
+    /// placement only.
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(0..=50))]
+    pub feedback_rounds: u32,
     /// Only the first phantom (for tests).
     #[arg(long)]
     pub quick: bool,
@@ -177,6 +182,35 @@ struct MethodRecord {
     median_abs_mean_curvature_per_mm: Option<Real>,
     /// Margin deviation below −0.01 mm.
     violation: bool,
+    /// The margin feedback that led to this plan (after-feedback records only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    feedback: Option<Feedback>,
+}
+
+/// The scripted user's margin feedback on one plan.
+#[derive(Debug, Clone, Default, Serialize)]
+struct Feedback {
+    /// Feedback rounds in which inputs were moved.
+    rounds: usize,
+    /// Inputs moved over those rounds (an input moved in two rounds counts twice).
+    edits: usize,
+    /// Why the user stopped.
+    stop: String,
+    /// The plan at round 0 (placement) and after each round: the planner's verdict.
+    history: Vec<RoundRecord>,
+}
+
+/// The plan after one round (round 0: the placement).
+#[derive(Debug, Clone, Serialize)]
+struct RoundRecord {
+    round: usize,
+    /// Inputs moved in this round (round 0: the inputs the placement pushed).
+    inputs_moved: usize,
+    /// The largest pull-back of an input in this round (mm; 0 at round 0).
+    largest_pull_mm: Real,
+    /// The planner's verdict: minimum margin − m, and where the minimum is.
+    margin_deviation_mm: Option<Real>,
+    min_point: Option<[Real; 3]>,
 }
 
 /// One case: a liver, one target tumour, one margin.
@@ -196,6 +230,9 @@ struct CaseRecord {
     /// CP deformations whose layout point lay beyond the cutting plane, moved to its edge.
     cp_deformations_moved_onto_plane: usize,
     liver_ml: Real,
+    /// Round 0: the placement alone (volume deviation against the Bézier placement).
+    placement: Vec<MethodRecord>,
+    /// After margin feedback (volume deviation against the Bézier plan after feedback).
     methods: Vec<MethodRecord>,
 }
 
@@ -252,6 +289,11 @@ struct MethodSummary {
     margin_deviation_mm: Option<Quantiles>,
     volume_deviation_pct: Option<Quantiles>,
     median_abs_mean_curvature_per_mm: Option<Quantiles>,
+    /// Feedback rounds and edits (inputs moved) per plan; `None` for the placement.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    feedback_rounds: Option<Quantiles>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    feedback_edits: Option<Quantiles>,
 }
 
 #[derive(Debug, Serialize)]
@@ -263,10 +305,16 @@ struct Report {
     inputs_per_method: usize,
     sources: Vec<String>,
     cases: usize,
+    /// The most feedback rounds per plan (0: placement only).
+    feedback_rounds: u32,
+    /// After feedback: all cases, the phantoms alone, the label maps alone.
     summary: Vec<MethodSummary>,
-    /// Summaries of the phantoms alone and of the label maps alone.
     summary_phantoms: Vec<MethodSummary>,
     summary_labelmaps: Vec<MethodSummary>,
+    /// Placement only (round 0): all cases, the phantoms alone, the label maps alone.
+    summary_placement: Vec<MethodSummary>,
+    summary_placement_phantoms: Vec<MethodSummary>,
+    summary_placement_labelmaps: Vec<MethodSummary>,
     records: Vec<CaseRecord>,
     skipped: Vec<Skipped>,
     thesis_table_7_2: [ThesisRow; 3],
@@ -287,7 +335,12 @@ the initial grid's axes as control points; DS: 4 traces of 4 points on 4 axis-al
 meets the liver surface plus 4 deformations at the inner layout points, radius 2a. Inner inputs \
 are pushed towards the tumour (along d; DS: within the slice) until their distance to the \
 tumour equals m, unless the ray misses the margin shell before the tumour centroid's depth. \
-Volume deviation is against the Bezier plan of the same case.";
+Feedback (up to --feedback-rounds rounds after this placement, round 0): while the planner's \
+minimum margin is below m - 0.01 mm, every lifted input (one the placement pushed) moves back \
+along its push direction by the violation (m - minimum) times w, w = 1 for the still-lifted \
+input(s) nearest the minimum's point (distance across d) and a cosine falloff over the inner \
+input spacing for the others (0 beyond); never past P0. Volume deviation is against the Bezier \
+plan of the same case at the same stage (placement, after feedback).";
 
 fn ms(since: Instant) -> Real {
     since.elapsed().as_secs_f64() * 1e3
@@ -564,11 +617,98 @@ fn liver_centroid(anatomy: &Anatomy) -> Option<Vec3> {
     (n > 0).then(|| sum / n as Real)
 }
 
+/// Where a lifted input lives in its resection.
+#[derive(Debug, Clone, Copy)]
+enum Slot {
+    /// Bézier control point `i·n + j`.
+    Control(usize),
+    /// DS trace `i`, point `j`, kept on its slice (coordinate `axis` = `at`).
+    Trace {
+        i: usize,
+        j: usize,
+        axis: usize,
+        at: Real,
+    },
+    /// CP deformation `k`; its offset is `sign` × the lift.
+    Deformation { k: usize, sign: Real },
+}
+
+/// An input the placement pushed off P0: its point on P0, its push direction and how far it
+/// is lifted now.
+#[derive(Debug, Clone, Copy)]
+struct Lifted {
+    slot: Slot,
+    base: Vec3,
+    dir: Vec3,
+    lift: Real,
+}
+
+impl Lifted {
+    /// Writes the input's current position into the resection.
+    fn apply(&self, r: &mut Resection) {
+        let p = self.base + self.dir * self.lift;
+        match self.slot {
+            Slot::Control(x) => r.control_points[x] = arr(p),
+            Slot::Trace { i, j, axis, at } => {
+                let mut p = p;
+                p[axis] = at;
+                r.traces[i][j] = arr(p);
+            }
+            Slot::Deformation { k, sign } => r.deformations[k].offset_mm = sign * self.lift,
+        }
+    }
+}
+
+/// One feedback round: every still-lifted input moves back along its push direction by
+/// `violation` × w, w = 1 for the still-lifted input(s) nearest `at` (distance across `d`),
+/// else a cosine falloff over `spacing` beyond the nearest one's distance (0 past it); never
+/// past P0. Returns how many inputs moved and the largest pull-back.
+fn pull_back(
+    lifted: &mut [Lifted],
+    d: Vec3,
+    at: Vec3,
+    violation: Real,
+    spacing: Real,
+) -> (usize, Real) {
+    let across = |l: &Lifted| {
+        let x = at - l.base;
+        (x - d * x.dot(&d)).norm()
+    };
+    let nearest = lifted
+        .iter()
+        .filter(|l| l.lift > PUSH_TOLERANCE_MM)
+        .map(across)
+        .fold(Real::INFINITY, Real::min);
+    if !nearest.is_finite() {
+        return (0, 0.0);
+    }
+    let (mut moved, mut largest) = (0, 0.0);
+    for l in lifted.iter_mut() {
+        let x = ((across(l) - nearest) / spacing.max(1e-6)).max(0.0);
+        let w = if x >= 1.0 {
+            0.0
+        } else {
+            0.5 * (1.0 + (std::f64::consts::PI * x).cos())
+        };
+        let lift = (l.lift - w * violation).max(0.0);
+        let pull = l.lift - lift;
+        if pull > PUSH_TOLERANCE_MM {
+            moved += 1;
+            largest = Real::max(largest, pull);
+            l.lift = lift;
+        }
+    }
+    (moved, largest)
+}
+
 struct Inputs {
     bezier: Resection,
     ds: Resection,
     cp: Resection,
     pushed: [usize; 3],
+    /// Per method: the inputs the placement lifted, and the inner input spacing (mm).
+    lifted: [Vec<Lifted>; 3],
+    spacing: [Real; 3],
     /// CP deformations moved onto the cutting plane's extent.
     cp_clamped: usize,
     plane_point: Vec3,
@@ -663,6 +803,18 @@ fn script(
         .collect();
     bezier.margin_mm = margin;
     let moved = |p: &[Real]| p.iter().filter(|&&s| s > PUSH_TOLERANCE_MM).count();
+    let bezier_lifted: Vec<Lifted> = layout
+        .iter()
+        .zip(&pushes)
+        .enumerate()
+        .filter(|(_, (_, s))| **s > PUSH_TOLERANCE_MM)
+        .map(|(x, (&base, &lift))| Lifted {
+            slot: Slot::Control(x),
+            base,
+            dir: d,
+            lift,
+        })
+        .collect();
 
     // DS: 4 traces of 4 points on the slices whose normal is most perpendicular to d.
     let axis = (0..3)
@@ -687,6 +839,7 @@ fn script(
     };
     let cap_slice = cap / in_slice.dot(&d).max(1e-6);
     let mut ds_pushes = Vec::with_capacity(INPUTS);
+    let mut ds_lifted = Vec::new();
     let traces: Vec<Vec<[Real; 3]>> = slices
         .iter()
         .enumerate()
@@ -703,6 +856,14 @@ fn script(
                     };
                     let mut p = q + in_slice * t;
                     ds_pushes.push((p - q).norm());
+                    if t > PUSH_TOLERANCE_MM {
+                        ds_lifted.push(Lifted {
+                            slot: Slot::Trace { i, j, axis, at: s },
+                            base: q,
+                            dir: in_slice,
+                            lift: t,
+                        });
+                    }
                     // Exactly on the slice.
                     p[axis] = s;
                     arr(p)
@@ -761,6 +922,17 @@ fn script(
         })
         .collect();
     let cp_pushed = moved(&inner.iter().map(|&x| pushes[x]).collect::<Vec<_>>());
+    let cp_lifted: Vec<Lifted> = inner
+        .iter()
+        .enumerate()
+        .filter(|&(_, &x)| pushes[x] > PUSH_TOLERANCE_MM)
+        .map(|(k, &x)| Lifted {
+            slot: Slot::Deformation { k, sign },
+            base: layout[x],
+            dir: d,
+            lift: pushes[x],
+        })
+        .collect();
     let mut cp = Resection::cp("cp", ring, deformations);
     cp.margin_mm = margin;
     cp.target = target.clone();
@@ -770,6 +942,9 @@ fn script(
             ds,
             cp,
             pushed: [moved(&pushes), moved(&ds_pushes), cp_pushed],
+            lifted: [bezier_lifted, ds_lifted, cp_lifted],
+            // DS: the inner slices lie ±a from p0 in P0, the inner points ±rw[2] along them.
+            spacing: [radius, (2.0 * a + (rw[2] - rw[1])) / 2.0, radius],
             cp_clamped: clamped,
             plane_point: p0,
         },
@@ -801,6 +976,7 @@ fn target_of(anatomy: &Anatomy, k: usize) -> Result<Target, String> {
     }
 }
 
+#[allow(clippy::too_many_arguments)]
 fn run_case(
     anatomy: &Arc<Anatomy>,
     roles: &RoleMap,
@@ -809,6 +985,7 @@ fn run_case(
     liver_c: Vec3,
     margin: Real,
     layout: Layout,
+    feedback_rounds: usize,
     plans_dir: Option<&Path>,
 ) -> Result<CaseRecord, String> {
     let target = target_of(anatomy, k)?;
@@ -817,52 +994,145 @@ fn run_case(
     let (mut inputs, d) = script(&mut planner, anatomy, k, &target, liver_c, margin, layout)?;
     inputs.bezier.target = target.clone();
     let mut errors: [Option<String>; 3] = [None, None, None];
-    for (m, r) in [inputs.bezier, inputs.ds, inputs.cp]
-        .into_iter()
-        .enumerate()
-    {
-        if let Err(e) = planner.edit(PlanEvent::AddResection { resection: r }) {
+    let mut resections = [inputs.bezier, inputs.ds, inputs.cp];
+    for (m, r) in resections.iter().enumerate() {
+        if let Err(e) = planner.edit(PlanEvent::AddResection {
+            resection: r.clone(),
+        }) {
             errors[m] = Some(e.to_string());
         }
     }
     if let Some(e) = &errors[0] {
         return Err(format!("the Bézier plan failed: {e}"));
     }
-    if let Some(dir) = plans_dir {
-        let file = dir.join(format!("{source}-tumour{k}-m{margin}.json"));
-        let text = planner.plan().to_json().map_err(|e| e.to_string())?;
-        std::fs::write(&file, text).map_err(|e| format!("{}: {e}", file.display()))?;
-    }
-    let report = planner.volumes().map_err(|e| e.to_string())?;
-    let find = |name: &str| report.resections.iter().find(|r| r.name == name);
-    let reference = find("bezier").and_then(|r| r.resected_ml);
-    let methods = METHODS
-        .iter()
-        .enumerate()
-        .map(|(m, &name)| {
-            let v = find(name);
-            let state = planner.state(name).ok();
-            let dev = v.and_then(|v| v.metrics.margin_deviation_mm);
-            MethodRecord {
-                method: name,
-                inputs: INPUTS,
-                pushed_inputs: inputs.pushed[m],
-                error: errors[m].clone(),
-                complete_cut: v.is_some_and(|v| v.complete_cut),
-                incomplete: v.and_then(|v| v.incomplete.as_ref().map(ToString::to_string)),
-                resected_ml: v.and_then(|v| v.resected_ml),
-                min_margin_mm: state.and_then(|s| s.verdict.min_margin_mm),
+    let write_plan = |planner: &Planner, suffix: &str| -> Result<(), String> {
+        if let Some(dir) = plans_dir {
+            let file = dir.join(format!("{source}-tumour{k}-m{margin}{suffix}.json"));
+            let text = planner.plan().to_json().map_err(|e| e.to_string())?;
+            std::fs::write(&file, text).map_err(|e| format!("{}: {e}", file.display()))?;
+        }
+        Ok(())
+    };
+    write_plan(&planner, "")?;
+    let measure = |planner: &mut Planner,
+                   feedback: &[Option<Feedback>; 3]|
+     -> Result<(Vec<MethodRecord>, Real), String> {
+        let report = planner.volumes().map_err(|e| e.to_string())?;
+        let find = |name: &str| report.resections.iter().find(|r| r.name == name);
+        let reference = find("bezier").and_then(|r| r.resected_ml);
+        let records = METHODS
+            .iter()
+            .enumerate()
+            .map(|(m, &name)| {
+                let v = find(name);
+                let state = planner.state(name).ok();
+                let dev = v.and_then(|v| v.metrics.margin_deviation_mm);
+                MethodRecord {
+                    method: name,
+                    inputs: INPUTS,
+                    pushed_inputs: inputs.pushed[m],
+                    error: errors[m].clone(),
+                    complete_cut: v.is_some_and(|v| v.complete_cut),
+                    incomplete: v.and_then(|v| v.incomplete.as_ref().map(ToString::to_string)),
+                    resected_ml: v.and_then(|v| v.resected_ml),
+                    min_margin_mm: state.and_then(|s| s.verdict.min_margin_mm),
+                    margin_deviation_mm: dev,
+                    volume_deviation_pct: volume_deviation_pct(
+                        v.and_then(|v| v.resected_ml),
+                        reference,
+                    ),
+                    median_abs_mean_curvature_per_mm: v
+                        .and_then(|v| v.metrics.median_abs_mean_curvature_per_mm),
+                    violation: dev.is_some_and(|x| x < VIOLATION_DEVIATION_MM),
+                    feedback: feedback[m].clone(),
+                }
+            })
+            .collect();
+        Ok((records, report.total_ml))
+    };
+    let (placement, liver_ml) = measure(&mut planner, &[None, None, None])?;
+
+    // Margin feedback: the user reads the live verdict and pulls back the lifted inputs near
+    // its minimum, round by round.
+    let mut feedback: [Option<Feedback>; 3] = [None, None, None];
+    for (m, &name) in METHODS.iter().enumerate() {
+        if errors[m].is_some() {
+            continue;
+        }
+        let mut fb = Feedback::default();
+        let (mut moved, mut largest) = (inputs.pushed[m], 0.0);
+        loop {
+            let verdict = &planner.state(name).map_err(|e| e.to_string())?.verdict;
+            let dev = verdict.min_margin_mm.map(|x| x - margin);
+            let point = verdict.point;
+            fb.history.push(RoundRecord {
+                round: fb.rounds,
+                inputs_moved: moved,
+                largest_pull_mm: largest,
                 margin_deviation_mm: dev,
-                volume_deviation_pct: volume_deviation_pct(
-                    v.and_then(|v| v.resected_ml),
-                    reference,
-                ),
-                median_abs_mean_curvature_per_mm: v
-                    .and_then(|v| v.metrics.median_abs_mean_curvature_per_mm),
-                violation: dev.is_some_and(|x| x < VIOLATION_DEVIATION_MM),
+                min_point: point.map(arr),
+            });
+            let (Some(dev), Some(point)) = (dev, point) else {
+                fb.stop = "no surface inside the liver".into();
+                break;
+            };
+            if dev >= VIOLATION_DEVIATION_MM {
+                fb.stop = if fb.rounds == 0 {
+                    "margin met at placement".into()
+                } else {
+                    "margin met".into()
+                };
+                break;
             }
-        })
-        .collect();
+            if fb.rounds >= feedback_rounds {
+                fb.stop = "round limit".into();
+                break;
+            }
+            let before = inputs.lifted[m].clone();
+            (moved, largest) = pull_back(&mut inputs.lifted[m], d, point, -dev, inputs.spacing[m]);
+            if moved == 0 {
+                fb.stop = "no lifted input left to pull back".into();
+                break;
+            }
+            let previous = resections[m].clone();
+            for l in &inputs.lifted[m] {
+                l.apply(&mut resections[m]);
+            }
+            planner
+                .edit(PlanEvent::DeleteResection { name: name.into() })
+                .map_err(|e| e.to_string())?;
+            if let Err(e) = planner.edit(PlanEvent::AddResection {
+                resection: resections[m].clone(),
+            }) {
+                // Keep the last plan that could be built.
+                resections[m] = previous;
+                inputs.lifted[m] = before;
+                planner
+                    .edit(PlanEvent::AddResection {
+                        resection: resections[m].clone(),
+                    })
+                    .map_err(|e| e.to_string())?;
+                fb.stop = format!("the pulled-back inputs give no surface: {e}");
+                break;
+            }
+            fb.rounds += 1;
+            fb.edits += moved;
+        }
+        feedback[m] = Some(fb);
+    }
+    let methods = if feedback.iter().flatten().any(|f| f.rounds > 0) {
+        write_plan(&planner, "-feedback")?;
+        measure(&mut planner, &feedback)?.0
+    } else {
+        placement
+            .iter()
+            .zip(&feedback)
+            .map(|(r, f)| MethodRecord {
+                feedback: f.clone(),
+                ..r.clone()
+            })
+            .collect()
+    };
     let t = &anatomy.tumours()[k];
     let (lo, hi) = t.mesh.vertices().iter().fold(
         (
@@ -881,17 +1151,27 @@ fn run_case(
         direction: arr(d),
         plane_point: arr(inputs.plane_point),
         cp_deformations_moved_onto_plane: inputs.cp_clamped,
-        liver_ml: report.total_ml,
+        liver_ml,
+        placement,
         methods,
     })
 }
 
-fn summarise(records: &[&CaseRecord]) -> Vec<MethodSummary> {
+fn summarise(records: &[&CaseRecord], placement: bool) -> Vec<MethodSummary> {
     METHODS
         .iter()
         .enumerate()
         .map(|(m, &name)| {
-            let rows: Vec<&MethodRecord> = records.iter().map(|r| &r.methods[m]).collect();
+            let rows: Vec<&MethodRecord> = records
+                .iter()
+                .map(|r| {
+                    if placement {
+                        &r.placement[m]
+                    } else {
+                        &r.methods[m]
+                    }
+                })
+                .collect();
             let col = |f: &dyn Fn(&MethodRecord) -> Option<Real>| -> Vec<Real> {
                 rows.iter().filter_map(|r| f(r)).collect()
             };
@@ -906,6 +1186,16 @@ fn summarise(records: &[&CaseRecord]) -> Vec<MethodSummary> {
                 median_abs_mean_curvature_per_mm: quantiles(&col(&|r| {
                     r.median_abs_mean_curvature_per_mm
                 })),
+                feedback_rounds: if placement {
+                    None
+                } else {
+                    quantiles(&col(&|r| r.feedback.as_ref().map(|f| f.rounds as Real)))
+                },
+                feedback_edits: if placement {
+                    None
+                } else {
+                    quantiles(&col(&|r| r.feedback.as_ref().map(|f| f.edits as Real)))
+                },
             }
         })
         .collect()
@@ -982,6 +1272,7 @@ pub fn methods(args: &MethodsArgs) -> Result<(), CliError> {
                     liver_c,
                     m,
                     args.layout,
+                    args.feedback_rounds as usize,
                     args.plans_dir.as_deref(),
                 ) {
                     Ok(r) => records.push(r),
@@ -1006,9 +1297,13 @@ pub fn methods(args: &MethodsArgs) -> Result<(), CliError> {
         inputs_per_method: INPUTS,
         sources: names,
         cases: records.len(),
-        summary: summarise(&all),
-        summary_phantoms: summarise(&ph),
-        summary_labelmaps: summarise(&lm),
+        feedback_rounds: args.feedback_rounds,
+        summary: summarise(&all, false),
+        summary_phantoms: summarise(&ph, false),
+        summary_labelmaps: summarise(&lm, false),
+        summary_placement: summarise(&all, true),
+        summary_placement_phantoms: summarise(&ph, true),
+        summary_placement_labelmaps: summarise(&lm, true),
         records: Vec::new(),
         skipped,
         thesis_table_7_2: THESIS,
@@ -1054,9 +1349,14 @@ pub fn methods(args: &MethodsArgs) -> Result<(), CliError> {
     if args.json {
         return print_json(&report);
     }
-    for s in &report.summary {
+    for (stage, s) in report
+        .summary_placement
+        .iter()
+        .map(|s| ("round 0", s))
+        .chain(report.summary.iter().map(|s| ("feedback", s)))
+    {
         println!(
-            "{:6} n {:3} · margin deviation median {} mm · volume deviation median {} % · median |H| {}·10⁻³ mm⁻¹ · violations {}/{} · complete {}/{}",
+            "{stage:8} {:6} n {:3} · margin deviation median {} mm · volume deviation median {} % · median |H| {}·10⁻³ mm⁻¹ · violations {}/{} · complete {}/{}",
             method_title(s.method),
             s.n,
             fmt_q(s.margin_deviation_mm, |q| q.median, 2),
@@ -1114,12 +1414,30 @@ fn med_iqr(q: Option<Quantiles>, scale: Real, digits: usize) -> String {
 }
 
 fn summary_table(out: &mut String, rows: &[MethodSummary]) {
+    let feedback = rows.iter().any(|s| s.feedback_edits.is_some());
     out.push_str(
-        "| method | plans | margin deviation (mm), median [25 %, 75 %] | volume deviation (%) | median \\|H\\| (10⁻³ mm⁻¹) | violations | complete cuts | inputs |\n|---|---|---|---|---|---|---|---|\n",
+        "| method | plans | margin deviation (mm), median [25 %, 75 %] | volume deviation (%) | median \\|H\\| (10⁻³ mm⁻¹) | violations | complete cuts | inputs |",
     );
+    out.push_str(if feedback {
+        " feedback rounds, median [max] | feedback edits (inputs moved), median [max] |\n|---|---|---|---|---|---|---|---|---|---|\n"
+    } else {
+        "\n|---|---|---|---|---|---|---|---|\n"
+    });
+    let med_max = |q: Option<Quantiles>| {
+        q.map_or_else(|| "—".to_owned(), |q| format!("{} [{}]", q.median, q.max))
+    };
     for s in rows {
+        let extra = if feedback {
+            format!(
+                " {} | {} |",
+                med_max(s.feedback_rounds),
+                med_max(s.feedback_edits)
+            )
+        } else {
+            String::new()
+        };
         out.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} / {} | {} / {} | {} |\n",
+            "| {} | {} | {} | {} | {} | {} / {} | {} / {} | {} |{extra}\n",
             method_title(s.method),
             s.n,
             med_iqr(s.margin_deviation_mm, 1.0, 2),
@@ -1148,7 +1466,12 @@ expert's reference plans, and timed them. Here one deterministic rule gives ever
 same 16 inputs per case; there is no person, no planning time and no expert reference (the \
 Bézier plan of the same case is the reference volume, so its volume deviation is 0 by \
 construction). What it measures is what each method's *surface* does with the same intent: \
-where it falls short of the margin, how much it resects, how curved it is.\n\n",
+where it falls short of the margin, how much it resects, how curved it is — first as placed \
+(round 0), then after a few rounds of *margin feedback*: resecta shows the live margin for every \
+method, so the scripted user reads the planner's verdict and pulls back the inputs near the \
+violation, the same rule for all three methods. (The thesis' DS and CP had no margin feedback, \
+Table 7.1, one reason their margins were worse; its Bézier method had it.) Edits — inputs moved \
+during feedback — stand in for the thesis' planning time.\n\n",
     );
     o.push_str("## The scripted user\n\nFor each case — a liver, one tumour component as the target, a margin m:\n\n");
     o.push_str(
@@ -1181,16 +1504,32 @@ meets the parenchyma surface (one closed trace per contour loop that gets points
 deformations at the 4 inner points of the Bézier layout, each with that point's push as its \
 offset (towards the tumour) and the inner spacing 2a as its radius (an inner point beyond the \
 fitted plane's extent moves onto its edge, counted per case).\n\
+- **Feedback** (rounds 1 … K, `--feedback-rounds K`, default 5; 0 = placement only): the \
+planner's verdict gives the minimum tumour distance over the surface inside the liver and its \
+point. While it is below m − 0.01 mm, every *lifted* input (one the placement pushed: Bézier \
+control points, DS trace points, CP deformation offsets) moves back along its push direction \
+by the violation v = m − minimum times w: w = 1 for the still-lifted input(s) nearest the \
+minimum's point (distance measured across d, from the input's point on P0), and for the others \
+w = ½(1 + cos(π·(r − r_nearest)/s)), 0 beyond s, s the inner input spacing (2a; DS: the mean \
+of its inner slice and point spacings). No input goes past P0. A round's edits are the inputs \
+that moved (by more than 10⁻³ mm); the user stops when the margin is met, after K rounds, or \
+when no lifted input is left.\n\
 - **Measured** per plan (`resecta_plan::resection_metrics`, Sec. 7.4): margin deviation (the \
 minimum tumour distance over the surface inside the liver − m; a violation below −0.01 mm), \
 volume deviation against the Bézier plan of the same case, median |H| (Eq. 7.10) over the \
-samples inside the liver in mm⁻¹, whether the cut is complete, and the inputs.\n\n\
-*What the rule implies.* P0 touches the margin shell under the tumour, and the inner inputs sit \
-on the shell's near side above P0; any surface through or near them passes above P0 between them, \
-i.e. inside the shell right under the tumour. So every method is expected to fall short of the \
-margin there; how far is what differs: a Bézier surface only approaches its control points \
-(the inner ones weigh (3/4)² ≈ 0.56 at the centre), DS interpolates its traces, CP adds a \
-cosine bump of full height at each deformation.\n\n\
+samples inside the liver in mm⁻¹, whether the cut is complete, and the inputs; after feedback \
+also the rounds and edits.\n\n\
+*What the placement implies.* P0 touches the margin shell under the tumour, and the inner inputs \
+sit on the shell's near side above P0; any surface through or near them passes above P0 between \
+them, i.e. inside the shell right under the tumour. So every method falls short of the margin at \
+round 0; how far is what differs: a Bézier surface only approaches its control points (the \
+inner 2×2 weigh (3/8)² each, 0.56 together, at the centre), DS interpolates its traces, CP adds \
+a cosine bump of full height at each deformation.\n\n\
+*What the feedback implies.* Pulling back by the violation is a proportional correction: where \
+the surface moves less than its inputs (Bézier at the centre: 0.56 of the pull), each round \
+removes only part of the shortfall, so the deviation shrinks geometrically towards 0 but need \
+not cross −0.01 mm within K rounds; the violation count is then a matter of hundredths of a \
+millimetre and the median deviation says more.\n\n\
 *Why not an equally spaced layout.* With the 4×4 inputs equally spaced over the liver's cross-\
 section (the thesis' initial grid), the inner inputs sit a third of the way out from the \
 centre, 20–50 mm from the tumour's axis: on the phantoms none of them reaches the margin shell \
@@ -1233,14 +1572,43 @@ P0 itself and the comparison is empty.\n\n",
         r.sources.join(", "),
         r.cases
     ));
-    o.push_str("## Results (Table 7.2's columns)\n\nAll cases:\n\n");
-    summary_table(&mut o, &r.summary);
-    if r.summary_phantoms.iter().any(|s| s.n > 0) && r.summary_labelmaps.iter().any(|s| s.n > 0) {
-        o.push_str("\nPhantoms only:\n\n");
-        summary_table(&mut o, &r.summary_phantoms);
-        o.push_str("\nLabel maps only:\n\n");
-        summary_table(&mut o, &r.summary_labelmaps);
-    }
+    o.push_str("## Results (Table 7.2's columns)\n\n");
+    let both =
+        r.summary_phantoms.iter().any(|s| s.n > 0) && r.summary_labelmaps.iter().any(|s| s.n > 0);
+    let tables =
+        |o: &mut String, all: &[MethodSummary], ph: &[MethodSummary], lm: &[MethodSummary]| {
+            o.push_str("All cases:\n\n");
+            summary_table(o, all);
+            if both {
+                o.push_str("\nPhantoms only:\n\n");
+                summary_table(o, ph);
+                o.push_str("\nLabel maps only:\n\n");
+                summary_table(o, lm);
+            }
+        };
+    o.push_str(
+        "### Placement only (round 0)\n\nThe scripted placement, no feedback; volume deviation \
+against the Bézier placement of the same case.\n\n",
+    );
+    tables(
+        &mut o,
+        &r.summary_placement,
+        &r.summary_placement_phantoms,
+        &r.summary_placement_labelmaps,
+    );
+    o.push_str(&format!(
+        "\n### After feedback (at most {} round(s))\n\nThe same plans after the user's margin \
+feedback; volume deviation against the Bézier plan of the same case *after feedback*. Edits are \
+inputs moved over the feedback rounds (the placement's 16 inputs not counted) — our proxy for \
+the thesis' planning time.\n\n",
+        r.feedback_rounds
+    ));
+    tables(
+        &mut o,
+        &r.summary,
+        &r.summary_phantoms,
+        &r.summary_labelmaps,
+    );
     o.push_str(
         "\n## The thesis' Table 7.2, for context\n\n5 surgeons × 8 resections = 40 plans per \
 method on 5 Oslo-CoMet patients, against an expert's reference plans; figures as printed, \
@@ -1262,11 +1630,12 @@ printed values as most likely mm⁻¹ but show them as printed.\n\n\
             t.time_s[2]
         ));
     }
-    o.push_str("\n## Every case\n\n| source | tumour | tumour (ml) | m (mm) | method | pushed | complete | resected (ml, % of liver) | margin dev. (mm) | volume dev. (%) | median \\|H\\| (10⁻³ mm⁻¹) | violation |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n");
+    o.push_str("\n## Every case\n\nRound 0 = the placement; the other columns are the plan after feedback. Every round's verdict is in `methods.json` (`records[].methods[].feedback.history`).\n\n| source | tumour | tumour (ml) | m (mm) | method | pushed | round 0: margin dev. (mm) | round 0: volume dev. (%) | rounds | edits | stopped | complete | resected (ml, % of liver) | margin dev. (mm) | volume dev. (%) | median \\|H\\| (10⁻³ mm⁻¹) | violation |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n");
     for c in &r.records {
-        for m in &c.methods {
+        for (m, p) in c.methods.iter().zip(&c.placement) {
+            let fb = m.feedback.as_ref();
             o.push_str(&format!(
-                "| {} | {} | {:.1} | {} | {} | {} / {} | {} | {} | {} | {} | {} | {} |\n",
+                "| {} | {} | {:.1} | {} | {} | {} / {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n",
                 c.source,
                 c.tumour,
                 c.tumour_ml,
@@ -1274,6 +1643,11 @@ printed values as most likely mm⁻¹ but show them as printed.\n\n\
                 method_title(m.method),
                 m.pushed_inputs,
                 m.inputs,
+                opt(p.margin_deviation_mm, 2),
+                opt(p.volume_deviation_pct, 2),
+                fb.map_or_else(|| "—".to_owned(), |f| f.rounds.to_string()),
+                fb.map_or_else(|| "—".to_owned(), |f| f.edits.to_string()),
+                fb.map_or("—", |f| f.stop.as_str()),
                 match (&m.error, &m.incomplete, m.complete_cut) {
                     (Some(e), _, _) => format!("error: {e}"),
                     (_, _, true) => "yes".to_owned(),
@@ -1326,21 +1700,19 @@ a tumour resection, and are kept apart from the phantoms' above.\n\n"
     }
     o.push_str(
         "\n## Caveats\n\n\
-- *Volumetry of non-uniform Bézier nets.* `resecta-volumetry` samples a cut surface uniformly \
-in its parameters, at a spacing taken from the surface's iso-curve lengths. A Bézier net whose \
-inner rows are much closer together than its outer ones (this layout on a large liver around a \
-small target) is parametrised non-uniformly, its samples near the border are sparser than the \
-band needs, and a complete cut can come out as a *leak*. Seen on MSD case 002 (m = 10 mm): the \
-flat 4×4 net of this layout leaks, the same rectangle with equally spaced control points cuts \
-completely. Such plans are counted as the planner reports them (incomplete, no volume).\n\
+- *Volumetry of non-uniform Bézier nets.* `resecta-volumetry` used to sample a cut uniformly \
+in its parameters at a spacing from its iso-curve lengths, so that a net with close inner rows \
+(this layout on a large liver) could be reported as a *leak* (MSD 002, m = 10 mm, before \
+commit fc0337c); it now samples by the surface's speed and that plan cuts completely. Plans the \
+planner reports incomplete are counted as such (no volume).\n\
 - *CP's plane* is the ring's PCA plane with extents 4·√eᵢ: on a concave cross-section it may not \
 reach every part of the liver, and the cut ends inside it (as CP does in commercial tools).\n\
 - Volume deviation is only defined where both the plan and its Bézier reference cut completely.\n",
     );
     o.push_str(
         "\n## Figure\n\n![margin deviation against curvature](methods.png)\n\n\
-`methods.svg`/`methods.png`: one marker per plan — x the median |H| inside the liver, y the \
-margin deviation; the red line is the violation threshold (−0.01 mm).\n\n## Reproduce\n\n",
+`methods.svg`/`methods.png`: one marker per plan after feedback — x the median |H| inside the \
+liver, y the margin deviation; the red line is the violation threshold (−0.01 mm).\n\n## Reproduce\n\n",
     );
     if let Some(m) = &r.machine {
         o.push_str(&format!("Machine: {m}. "));
@@ -1395,8 +1767,8 @@ fn figure(r: &Report) -> Figure {
     ));
     Figure {
         title: format!(
-            "Bézier, DS and CP with a scripted user (in silico, {} plans each)",
-            r.cases
+            "Bézier, DS and CP, scripted user after ≤ {} feedback rounds (in silico, {} plans each)",
+            r.feedback_rounds, r.cases
         ),
         x_label: "median |H| inside the liver (10⁻³ mm⁻¹)".into(),
         y_label: "margin deviation (mm)".into(),
