@@ -92,7 +92,8 @@ export interface Resection {
   target?: { labels?: number[]; points?: Vec3[] };
 }
 
-export type ResectionKind = "RESECTION_KIND_BEZIER" | "RESECTION_KIND_DS" | "RESECTION_KIND_CP";
+/** UNSPECIFIED is read as Bézier (the server never sends it). */
+export type ResectionKind = "RESECTION_KIND_UNSPECIFIED" | "RESECTION_KIND_BEZIER" | "RESECTION_KIND_DS" | "RESECTION_KIND_CP";
 
 /** A polyline drawn by the person (RAS mm). */
 export interface Trace { points: Vec3[] }

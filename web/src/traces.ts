@@ -8,6 +8,7 @@ import type { Mesh } from "./wire";
 export type Method = "bezier" | "ds" | "cp";
 export const KIND: Record<Method, ResectionKind> = { bezier: "RESECTION_KIND_BEZIER", ds: "RESECTION_KIND_DS", cp: "RESECTION_KIND_CP" };
 export const METHOD_NAME: Record<ResectionKind, string> = {
+  RESECTION_KIND_UNSPECIFIED: "Bézier",
   RESECTION_KIND_BEZIER: "Bézier",
   RESECTION_KIND_DS: "DS (drawn on slices)",
   RESECTION_KIND_CP: "CP (deformable plane)",

@@ -154,6 +154,11 @@ class ResectionKind(_Named):
     def _pb(cls) -> tuple[Any, str]:
         return resection_pb2.ResectionKind, "RESECTION_KIND"
 
+    @classmethod
+    def from_pb(cls, number: int) -> Any:
+        # UNSPECIFIED (never sent by the server) means a Bézier resection, as the server reads it.
+        return cls.BEZIER if number == 0 else super().from_pb(number)
+
 
 class MarginClass(enum.IntEnum):
     """Per-vertex margin class of a resection surface (`SurfaceState.classes`)."""

@@ -11,6 +11,7 @@ DESCRIPTOR: _descriptor.FileDescriptor
 
 class ResectionKind(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
+    RESECTION_KIND_UNSPECIFIED: _ClassVar[ResectionKind]
     RESECTION_KIND_BEZIER: _ClassVar[ResectionKind]
     RESECTION_KIND_DS: _ClassVar[ResectionKind]
     RESECTION_KIND_CP: _ClassVar[ResectionKind]
@@ -21,6 +22,7 @@ class ControlGroup(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     CONTROL_GROUP_INNER: _ClassVar[ControlGroup]
     CONTROL_GROUP_OUTER: _ClassVar[ControlGroup]
     CONTROL_GROUP_ALL: _ClassVar[ControlGroup]
+RESECTION_KIND_UNSPECIFIED: ResectionKind
 RESECTION_KIND_BEZIER: ResectionKind
 RESECTION_KIND_DS: ResectionKind
 RESECTION_KIND_CP: ResectionKind

@@ -141,11 +141,11 @@ fn resection_in(field: &str, r: Option<&pb::Resection>) -> Wire<Resection> {
     let r = r.ok_or_else(|| WireError::invalid(field, "is required"))?;
     Ok(Resection {
         name: r.name.clone(),
-        // 0 is BEZIER (the default: resections of older clients).
+        // UNSPECIFIED is BEZIER: resections of clients that predate the kinds.
         kind: match pb::ResectionKind::try_from(r.kind).map_err(|_| {
             WireError::invalid(format!("{field}.kind"), format!("unknown value {}", r.kind))
         })? {
-            pb::ResectionKind::Bezier => ResectionKind::Bezier,
+            pb::ResectionKind::Unspecified | pb::ResectionKind::Bezier => ResectionKind::Bezier,
             pb::ResectionKind::Ds => ResectionKind::Ds,
             pb::ResectionKind::Cp => ResectionKind::Cp,
         },
