@@ -482,10 +482,10 @@ mod tests {
                 event: event.clone(),
             })
             .unwrap();
-            match decode(&text).unwrap() {
-                Step::Entry(LogEntry::Edit { event: back }) => assert_eq!(back, event),
-                other => panic!("{other:?}"),
-            }
+            let Step::Entry(LogEntry::Edit { event: back }) = decode(&text).unwrap() else {
+                panic!("not an edit: {text}");
+            };
+            assert_eq!(back, event);
         }
         let stored = r#"{"v":2,"kind":"edit","event":{"op":"add_deformation","name":"c","deformation":{"point":[1.0,2.0,3.0],"offset_mm":-4.5,"radius_mm":20.0}}}"#;
         assert!(matches!(
