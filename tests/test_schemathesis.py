@@ -89,6 +89,16 @@ DOCUMENTED = [
      "a name of multi-byte characters is refused sooner"),
     ("ImportPlan", "INVALID_ARGUMENT", r"name must be 1\.\.=\d+ bytes",
      "a name of multi-byte characters is refused sooner"),
+    *((op, "INVALID_ARGUMENT", r"(DS|CP): |not a control grid|not traces or deformations|grid 0×0"
+           r"|deformations apply to CP", phrase) for op, phrase in (
+        ("Edit", "DS and CP resections are given by `traces` and refuse a control grid"),
+        ("ImportPlan", "a `ds` or `cp` resection is given by `traces`"))),
+    ("Edit", "INVALID_ARGUMENT", r"grid \d+×\d+: each side must be",
+     "needs `gridM`, `gridN` and `controlPoints`"),
+    ("Edit", "INVALID_ARGUMENT", r"does not apply to a (Bézier|DS|CP) resection|sampled at its grid",
+     "another pairing is refused (400)"),
+    ("Edit", "INVALID_ARGUMENT", r"trace \d+ does not exist", "a trace index must exist"),
+    ("Edit", "INVALID_ARGUMENT", r"no deformation to undo", "undoing a deformation needs one"),
     ("GetLabelSlice", "INVALID_ARGUMENT", r"position_mm \S+ is outside the label map's extent",
      "`positionMm` must lie within the label map's extent along the axis"),
 ]
@@ -288,7 +298,9 @@ request-timeout = 3
 
 
 EDITS_OF_A_RESECTION = ("setControlPoint", "setControlPoints", "moveGroup", "translate", "rotate",
-                        "setMargin", "setBand", "setResolution", "setTarget", "deleteResection")
+                        "setMargin", "setBand", "setResolution", "setTarget", "deleteResection",
+                        "addTrace", "setTrace", "removeTrace", "addDeformation",
+                        "undoDeformation")
 
 
 def _demo_session(url: str) -> str:

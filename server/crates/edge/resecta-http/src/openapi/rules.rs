@@ -118,6 +118,13 @@ pub fn field(message: &str, field: &str) -> Option<Value> {
         ("Resection", "name") => new_name(),
         ("Resection", "gridM" | "gridN") => side(),
         ("Resection", "controlPoints") => control_points(),
+        ("Resection", "traces") => json!({"maxItems": MAX_TRACES}),
+        ("Resection", "deformations") => json!({"maxItems": MAX_DEFORMATIONS}),
+        ("Trace", "points") => json!({"minItems": MIN_TRACE_POINTS, "maxItems": MAX_TRACE_POINTS}),
+        ("Deformation", "offsetMm") => {
+            json!({"minimum": -MAX_OFFSET_MM, "maximum": MAX_OFFSET_MM})
+        }
+        ("Deformation", "radiusMm") => json!({"exclusiveMinimum": 0, "maximum": MAX_RADIUS_MM}),
         ("GetLabelSliceRequest", "positionMm") => finite(),
         ("GetLabelSliceRequest", "pixelMm") => {
             json!({"exclusiveMinimum": 0, "maximum": MAX_LABEL_SLICE_PIXEL_MM})
@@ -147,15 +154,11 @@ pub fn required(message: &str) -> &'static [&'static str] {
         "SetMargin" => &["marginMm"],
         "SetResolution" => &["ru", "rv"],
         "AddResection" => &["resection"],
-        "Resection" => &[
-            "name",
-            "gridM",
-            "gridN",
-            "controlPoints",
-            "marginMm",
-            "ru",
-            "rv",
-        ],
+        "Resection" => &["name", "marginMm", "ru", "rv"],
+        "AddTrace" | "SetTrace" => &["trace"],
+        "Trace" => &["points"],
+        "AddDeformation" => &["deformation"],
+        "Deformation" => &["point", "radiusMm"],
         "ImportPlanRequest" => &["planJson"],
         "ExportModelRequest" => &["format"],
         "GetSlicesRequest" => &["resection"],
@@ -197,9 +200,10 @@ pub fn note(message: &str) -> Option<String> {
         "MoveGroup" => "The group must hold some point of the resection's grid (a ring beyond its middle is refused), and the moved points must stay within the coordinate range.".to_owned(),
         "Translate" => "The moved points must stay within the coordinate range.".to_owned(),
         "Rotate" => "`axis` must be non-zero, and the rotated points must stay within the coordinate range.".to_owned(),
-        "Resection" => "In a request, `controlPoints` holds exactly gridM·gridN points.".to_owned(),
+        "Resection" => format!("By `kind`: a Bézier resection (BEZIER, or UNSPECIFIED as older clients send) needs `gridM`, `gridN` and `controlPoints`, and refuses traces and deformations. In a request, `controlPoints` holds exactly gridM·gridN points. DS and CP resections are given by `traces` and refuse a control grid; a DS resection needs {MIN_TRACES} or more traces on axis-aligned slices of one orientation (points within {SLICE_TOLERANCE_MM} mm of their slice), one trace per slice, none crossing itself; a CP resection's traces must span a plane, and only CP resections take `deformations`, each of whose point must project onto the plane (all refused with 400 otherwise)."),
+        "Trace" => "A trace with no length (all points equal) is refused.".to_owned(),
         "GetLabelSliceRequest" => format!("`positionMm` must lie within the label map's extent along the axis (the answer's `minPositionMm`..=`maxPositionMm`; 400 otherwise). The pixel size is raised so that neither side of the raster exceeds {MAX_LABEL_SLICE_SIDE} pixels. 409 `NO_LABEL_MAP` before a label map is loaded."),
-        "EditRequest" => "Every edit but init and add names an existing resection (404 otherwise); undo and redo need something to undo or redo (409 otherwise); a non-zero `baseVersion` other than the plan's version is 409 `STALE_VERSION`.".to_owned(),
+        "EditRequest" => "Every edit but init and add names an existing resection (404 otherwise); undo and redo need something to undo or redo (409 otherwise); a non-zero `baseVersion` other than the plan's version is 409 `STALE_VERSION`. Edits apply to kinds: control points and groups to Bézier resections, traces to DS and CP resections, deformations to CP resections, the resolution to Bézier and DS resections (a CP resection is sampled at its grid); translate, rotate, margin, band and target to every kind; another pairing is refused (400). A trace edit must leave a valid surface (as `Resection` says), a trace index must exist, and undoing a deformation needs one (400 otherwise).".to_owned(),
         _ => return None,
     })
 }
@@ -220,12 +224,22 @@ pub fn plan_document() -> Value {
     let resection = json!({
         "type": "object",
         "additionalProperties": false,
-        "required": ["name", "grid", "control_points"],
-        "description": "One resection. `control_points` holds exactly grid[0]·grid[1] points; names are unique in the plan; target labels are tumour labels of `roles` (all refused otherwise).",
+        "required": ["name"],
+        "description": "One resection. A Bézier resection (`kind` absent or `bezier`) needs `grid` and `control_points`, and `control_points` holds exactly grid[0]·grid[1] points; a `ds` or `cp` resection is given by `traces` (and a `cp` one by `deformations` too) and refuses a grid, under the rules of the API's `Resection`; names are unique in the plan; target labels are tumour labels of `roles` (all refused otherwise).",
         "properties": {
             "name": {"type": "string", "minLength": 1, "maxLength": MAX_NAME_LEN, "pattern": NOT_BLANK,
                      "description": format!("1..={MAX_NAME_LEN} bytes of UTF-8 (`maxLength` counts characters: a name of multi-byte characters is refused sooner), not blank.")},
-            "kind": {"enum": ["bezier"]},
+            "kind": {"enum": ["bezier", "ds", "cp"]},
+            "traces": {"type": "array", "maxItems": MAX_TRACES,
+                       "items": {"type": "array", "items": point,
+                                 "minItems": MIN_TRACE_POINTS, "maxItems": MAX_TRACE_POINTS}},
+            "deformations": {"type": "array", "maxItems": MAX_DEFORMATIONS, "items": {
+                "type": "object", "additionalProperties": false,
+                "required": ["point", "offset_mm", "radius_mm"],
+                "properties": {
+                    "point": point,
+                    "offset_mm": {"type": "number", "minimum": -MAX_OFFSET_MM, "maximum": MAX_OFFSET_MM},
+                    "radius_mm": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_RADIUS_MM}}}},
             "grid": pair(MIN_CONTROL_POINTS, MAX_CONTROL_POINTS),
             "control_points": {"type": "array", "items": point,
                                "minItems": MIN_CONTROL_POINTS * MIN_CONTROL_POINTS,
