@@ -18,9 +18,10 @@ pub mod volume_io;
 
 pub use error::{ErrorKind, IoError};
 pub use image::{Image, ScalarType, VoxelData};
+pub use mesh::vtp::PolylineSet;
 pub use mesh::{
     Encoding, MeshFormat, VtpLayout, WriteOptions, mesh_to_bytes, read_mesh, read_mesh_bytes,
-    write_mesh, write_mesh_with,
+    write_mesh, write_mesh_with, write_polylines,
 };
 pub use nrrd::{Segment, Segmentation};
 pub use volume_io::{ImageFormat, read_image, read_label_map, write_image, write_label_map};

@@ -190,6 +190,20 @@ pub fn write_mesh_with(
     std::fs::write(path, bytes).map_err(|e| IoError::new(path, e))
 }
 
+/// Writes polylines (vessel centrelines, say) with their point and line arrays as VTK XML
+/// PolyData `Lines` (`.vtp` only), as RAS like every mesh writer.
+pub fn write_polylines(path: impl AsRef<Path>, set: &vtp::PolylineSet) -> Result<(), IoError> {
+    let path = path.as_ref();
+    if MeshFormat::from_path(path)? != MeshFormat::Vtp {
+        return Err(IoError::new(
+            path,
+            ErrorKind::Mesh("polylines are written as VTK XML PolyData (.vtp) only".into()),
+        ));
+    }
+    let bytes = vtp::write_lines(set, &WriteOptions::default()).map_err(|k| IoError::new(path, k))?;
+    std::fs::write(path, bytes).map_err(|e| IoError::new(path, e))
+}
+
 /// Encodes a mesh in memory; `name` is only used in error messages.
 pub fn mesh_to_bytes(
     mesh: &TriMesh,

@@ -799,8 +799,109 @@ impl Writer<'_> {
 /// Encodes a mesh as VTK XML PolyData (little-endian, `Float64` points/normals/scalars, `Int64`
 /// cells) with a `SPACE`=`RAS` field array.
 pub(crate) fn write(mesh: &TriMesh, opts: &WriteOptions) -> Result<Vec<u8>, ErrorKind> {
-    let n = mesh.vertices().len();
     let t = mesh.triangles().len();
+    let conn: Vec<i64> = mesh
+        .triangles()
+        .iter()
+        .flat_map(|tri| tri.map(i64::from))
+        .collect();
+    let offsets: Vec<i64> = (1..=t as i64).map(|k| 3 * k).collect();
+    let point_data: Vec<(&str, &[f64])> = mesh
+        .scalars()
+        .iter()
+        .map(|(name, values)| (name.as_str(), values.as_slice()))
+        .collect();
+    write_piece(
+        &Piece {
+            points: mesh.vertices(),
+            normals: mesh.normals(),
+            point_data: &point_data,
+            cell_data: &[],
+            cells: Cells::Polys,
+            connectivity: &conn,
+            offsets: &offsets,
+        },
+        opts,
+    )
+}
+
+/// Polylines with named point and cell arrays (one value per point, in the order of the lines'
+/// points; one per line), for [`write_polylines`](super::write_polylines).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PolylineSet {
+    pub lines: Vec<Vec<Vec3>>,
+    pub point_data: Vec<(String, Vec<f64>)>,
+    pub cell_data: Vec<(String, Vec<f64>)>,
+}
+
+/// Encodes polylines as VTK XML PolyData `Lines`, like [`write`].
+pub(crate) fn write_lines(set: &PolylineSet, opts: &WriteOptions) -> Result<Vec<u8>, ErrorKind> {
+    let points: Vec<Vec3> = set.lines.iter().flatten().copied().collect();
+    let check = |what: &str, arrays: &[(String, Vec<f64>)], len: usize| {
+        match arrays.iter().find(|(_, v)| v.len() != len) {
+            Some((name, v)) => Err(ErrorKind::Mesh(format!(
+                "{what} array {name:?} has {} values for {len} {what}s",
+                v.len()
+            ))),
+            None => Ok(()),
+        }
+    };
+    check("point", &set.point_data, points.len())?;
+    check("line", &set.cell_data, set.lines.len())?;
+    let conn: Vec<i64> = (0..points.len() as i64).collect();
+    let offsets: Vec<i64> = set
+        .lines
+        .iter()
+        .scan(0i64, |end, l| {
+            *end += l.len() as i64;
+            Some(*end)
+        })
+        .collect();
+    let (pd, cd) = (named(&set.point_data), named(&set.cell_data));
+    write_piece(
+        &Piece {
+            points: &points,
+            normals: None,
+            point_data: &pd,
+            cell_data: &cd,
+            cells: Cells::Lines,
+            connectivity: &conn,
+            offsets: &offsets,
+        },
+        opts,
+    )
+}
+
+fn named(arrays: &[(String, Vec<f64>)]) -> Vec<(&str, &[f64])> {
+    arrays
+        .iter()
+        .map(|(n, v)| (n.as_str(), v.as_slice()))
+        .collect()
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Cells {
+    Lines,
+    Polys,
+}
+
+struct Piece<'a> {
+    points: &'a [Vec3],
+    normals: Option<&'a [Vec3]>,
+    point_data: &'a [(&'a str, &'a [f64])],
+    cell_data: &'a [(&'a str, &'a [f64])],
+    cells: Cells,
+    connectivity: &'a [i64],
+    offsets: &'a [i64],
+}
+
+fn write_piece(piece: &Piece<'_>, opts: &WriteOptions) -> Result<Vec<u8>, ErrorKind> {
+    let n = piece.points.len();
+    let cells = piece.offsets.len();
+    let (lines, polys, section) = match piece.cells {
+        Cells::Lines => (cells, 0, "Lines"),
+        Cells::Polys => (0, cells, "Polys"),
+    };
     let binary = opts.encoding != super::Encoding::Ascii;
     let appended = binary && opts.vtp_layout != VtpLayout::Inline;
     let mut w = Writer {
@@ -820,42 +921,37 @@ pub(crate) fn write(mesh: &TriMesh, opts: &WriteOptions) -> Result<Vec<u8>, Erro
          byte_order=\"LittleEndian\" header_type=\"{header}\"{compressor}>\n  <PolyData>\n    \
          <FieldData>\n      <DataArray type=\"String\" Name=\"SPACE\" NumberOfTuples=\"1\" \
          format=\"ascii\">\n        82 65 83 0\n      </DataArray>\n    </FieldData>\n    \
-         <Piece NumberOfPoints=\"{n}\" NumberOfVerts=\"0\" NumberOfLines=\"0\" \
-         NumberOfStrips=\"0\" NumberOfPolys=\"{t}\">"
+         <Piece NumberOfPoints=\"{n}\" NumberOfVerts=\"0\" NumberOfLines=\"{lines}\" \
+         NumberOfStrips=\"0\" NumberOfPolys=\"{polys}\">"
     );
-    let normals_attr = if mesh.normals().is_some() {
+    let normals_attr = if piece.normals.is_some() {
         " Normals=\"Normals\""
     } else {
         ""
     };
     let _ = writeln!(w.xml, "      <PointData{normals_attr}>");
-    if let Some(normals) = mesh.normals() {
+    if let Some(normals) = piece.normals {
         let v: Vec<f64> = normals.iter().flat_map(|p| p.iter().copied()).collect();
         w.f64s("Normals", 3, &v)?;
     }
-    for (name, values) in mesh.scalars() {
+    for (name, values) in piece.point_data {
         w.f64s(name, 1, values)?;
     }
-    let _ = writeln!(
-        w.xml,
-        "      </PointData>\n      <CellData>\n      </CellData>\n      <Points>"
-    );
-    let v: Vec<f64> = mesh
-        .vertices()
+    let _ = writeln!(w.xml, "      </PointData>\n      <CellData>");
+    for (name, values) in piece.cell_data {
+        w.f64s(name, 1, values)?;
+    }
+    let _ = writeln!(w.xml, "      </CellData>\n      <Points>");
+    let v: Vec<f64> = piece
+        .points
         .iter()
         .flat_map(|p| p.iter().copied())
         .collect();
     w.f64s("Points", 3, &v)?;
-    let _ = writeln!(w.xml, "      </Points>\n      <Polys>");
-    let conn: Vec<i64> = mesh
-        .triangles()
-        .iter()
-        .flat_map(|tri| tri.map(i64::from))
-        .collect();
-    let offsets: Vec<i64> = (1..=t as i64).map(|k| 3 * k).collect();
-    w.i64s("connectivity", &conn)?;
-    w.i64s("offsets", &offsets)?;
-    let _ = writeln!(w.xml, "      </Polys>\n    </Piece>\n  </PolyData>");
+    let _ = writeln!(w.xml, "      </Points>\n      <{section}>");
+    w.i64s("connectivity", piece.connectivity)?;
+    w.i64s("offsets", piece.offsets)?;
+    let _ = writeln!(w.xml, "      </{section}>\n    </Piece>\n  </PolyData>");
     let mut out = w.xml.into_bytes();
     if appended {
         let enc = if opts.vtp_layout == VtpLayout::AppendedRaw {
