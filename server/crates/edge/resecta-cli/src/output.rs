@@ -2,12 +2,17 @@
 //! watches.
 
 use std::io::{IsTerminal, Write};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use crate::error::CliError;
+
+/// Milliseconds since `since`.
+pub fn ms(since: Instant) -> f64 {
+    since.elapsed().as_secs_f64() * 1e3
+}
 
 /// Prints `value` as one JSON object on stdout.
 pub fn print_json<T: Serialize>(value: &T) -> Result<(), CliError> {

@@ -15,7 +15,7 @@ use resecta_plan::{
 use serde::Serialize;
 
 use crate::error::CliError;
-use crate::output::{print_json, progress};
+use crate::output::{ms, print_json, progress};
 
 #[derive(Debug, Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
@@ -138,10 +138,6 @@ fn plan_err(e: PlanError) -> CliError {
 
 fn read_labels(path: &Path) -> Result<LabelMap, CliError> {
     Ok(read_label_map(path, VoxelLimit::default())?)
-}
-
-fn ms(since: Instant) -> Real {
-    since.elapsed().as_secs_f64() * 1e3
 }
 
 pub fn run(args: &PlanArgs) -> Result<(), CliError> {

@@ -14,7 +14,7 @@ use resecta_recon::{
 use serde::Serialize;
 
 use crate::error::CliError;
-use crate::output::{print_json, progress};
+use crate::output::{ms, print_json, progress};
 
 /// Where the Poisson multigrid runs (points, splatting and marching cubes stay on the host).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -165,10 +165,6 @@ pub(crate) fn recon_err(e: resecta_recon::ReconError) -> CliError {
         | E::Metrics(_)
         | E::Geometry(_) => CliError::Failed(e.to_string()),
     }
-}
-
-fn ms(since: Instant) -> Real {
-    since.elapsed().as_secs_f64() * 1e3
 }
 
 fn mask_ml(mask: &Volume<bool>) -> Real {

@@ -20,7 +20,7 @@ use resecta_plot::{Colour, Figure, MarkerShape, Series, Style};
 use serde::Serialize;
 
 use crate::error::CliError;
-use crate::output::{print_json, progress};
+use crate::output::{ms, print_json, progress};
 
 #[derive(Debug, Subcommand)]
 pub enum Command {
@@ -341,10 +341,6 @@ along its push direction by the violation (m - minimum) times w, w = 1 for the s
 input(s) nearest the minimum's point (distance across d) and a cosine falloff over the inner \
 input spacing for the others (0 beyond); never past P0. Volume deviation is against the Bezier \
 plan of the same case at the same stage (placement, after feedback).";
-
-fn ms(since: Instant) -> Real {
-    since.elapsed().as_secs_f64() * 1e3
-}
 
 fn plan_err(e: PlanError) -> CliError {
     CliError::Failed(e.to_string())
