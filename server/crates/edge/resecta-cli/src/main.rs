@@ -18,6 +18,7 @@ mod plan;
 mod recon;
 mod serve;
 mod study;
+mod territories;
 
 use std::process::ExitCode;
 
@@ -48,6 +49,8 @@ enum Command {
     Evaluate(recon::EvaluateArgs),
     /// Evaluate a resection plan (margins, verdicts, volumes), or `plan init` a new one.
     Plan(plan::PlanArgs),
+    /// Vessel centrelines and the vascular territories of the functional liver.
+    Territories(territories::TerritoriesArgs),
     /// Bézier surfaces.
     #[command(subcommand)]
     Bezier(bezier::Command),
@@ -73,6 +76,7 @@ fn main() -> ExitCode {
         Command::Measure(a) => recon::measure_mesh(&a),
         Command::Evaluate(a) => recon::evaluate(&a),
         Command::Plan(a) => plan::run(&a),
+        Command::Territories(a) => territories::run(&a),
         Command::Bezier(c) => bezier::run(&c),
         Command::Serve(a) => serve::serve(&a),
         Command::Study(c) => study::run(&c),

@@ -1,0 +1,254 @@
+//! `resecta territories`: the vessel trees of a label map's portal, hepatic and other vessel
+//! labels (`resecta-vessels`), and the vascular territories of the functional liver each tree's
+//! branches feed or drain.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+use resecta_geom::{LabelMap, Real, Role, RoleMap, Vec3, Volume, VoxelLimit};
+use resecta_io::{PolylineSet, read_label_map, write_label_map, write_polylines};
+use resecta_vessels::{
+    BranchSelection, RootChoice, TerritoryParams, VesselParams, VesselTree, territories,
+    vessel_tree,
+};
+use serde::Serialize;
+
+use crate::error::CliError;
+use crate::output::{ms, print_json, progress};
+
+/// The vessel systems a label map may hold, by role.
+const SYSTEMS: [(Role, &str); 3] = [
+    (Role::Portal, "portal"),
+    (Role::Hepatic, "hepatic"),
+    (Role::Vessel, "vessel"),
+];
+
+#[derive(Debug, Args)]
+pub struct TerritoriesArgs {
+    /// Label map (NIfTI, NRRD, .seg.nrrd, MetaImage).
+    pub labelmap: PathBuf,
+    /// Role map as JSON (as in plan files); default `{"parenchyma":[1],"tumor":[2],"portal":[3],
+    /// "hepatic":[4]}`.
+    #[arg(long)]
+    pub roles: Option<String>,
+    /// Territories of every branch of this generation (1: the vessels leaving the root), and of
+    /// vessels that end sooner.
+    #[arg(long, default_value_t = 2, conflicts_with = "branches")]
+    pub order: u32,
+    /// Explicit branches per system, by edge id: `{"portal":[3,4],"hepatic":[1]}`.
+    #[arg(long)]
+    pub branches: Option<String>,
+    /// Write the territory label maps (NIfTI), the centrelines (VTP) and the report here.
+    #[arg(long)]
+    pub out_dir: PathBuf,
+    /// Print one JSON object on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Debug, Serialize)]
+struct TerritoryReport {
+    /// 1-based label of the territory in its system's label map.
+    id: usize,
+    vessel: &'static str,
+    /// The edge heading the branch; `None` for the proximal territory (the trunk above every
+    /// selected branch).
+    branch: Option<usize>,
+    ml: Real,
+}
+
+#[derive(Debug, Serialize)]
+struct SystemReport {
+    vessel: &'static str,
+    root: [Real; 3],
+    edges: usize,
+    branch_points: usize,
+    specks: usize,
+    speck_voxels: usize,
+    gaps_bridged: usize,
+    detached_components: usize,
+    detached_voxels: usize,
+    loop_edges_dropped: usize,
+    territory_map: String,
+    centrelines: String,
+}
+
+#[derive(Debug, Serialize)]
+struct Report {
+    liver_ml: Real,
+    territories: Vec<TerritoryReport>,
+    systems: Vec<SystemReport>,
+    elapsed_ms: Real,
+}
+
+fn bad(e: impl std::fmt::Display) -> CliError {
+    CliError::BadInput(e.to_string())
+}
+
+fn mask(labels: &LabelMap, keep: impl Fn(u16) -> bool) -> Result<Volume<bool>, CliError> {
+    let data = labels.data().iter().map(|&l| keep(l)).collect();
+    Volume::from_vec(labels.grid().clone(), data).map_err(bad)
+}
+
+/// The branches `--branches` names for `system`, or the generation rule.
+fn selection(args: &TerritoriesArgs, system: &str) -> Result<BranchSelection, CliError> {
+    let Some(text) = &args.branches else {
+        return Ok(BranchSelection::Generation(args.order));
+    };
+    let map: std::collections::BTreeMap<String, Vec<usize>> =
+        serde_json::from_str(text).map_err(|e| bad(format!("--branches: {e}")))?;
+    if let Some(k) = map.keys().find(|k| !SYSTEMS.iter().any(|(_, s)| s == k)) {
+        return Err(bad(format!(
+            "--branches: {k:?} is not a vessel system (portal, hepatic, vessel)"
+        )));
+    }
+    Ok(BranchSelection::Ids(
+        map.get(system).cloned().unwrap_or_default(),
+    ))
+}
+
+/// The tree's centrelines with their radius per point and branch id and generation per line.
+fn centrelines(tree: &VesselTree) -> PolylineSet {
+    let mut set = PolylineSet::default();
+    let (mut radius, mut id, mut generation) = (Vec::new(), Vec::new(), Vec::new());
+    for e in &tree.edges {
+        set.lines.push(e.points.clone());
+        radius.extend_from_slice(&e.radii);
+        id.push(e.id as Real);
+        generation.push(Real::from(e.generation));
+    }
+    set.point_data.push(("radius".into(), radius));
+    set.cell_data.push(("branch".into(), id));
+    set.cell_data.push(("generation".into(), generation));
+    set
+}
+
+fn arr(v: Vec3) -> [Real; 3] {
+    [v.x, v.y, v.z]
+}
+
+pub fn run(args: &TerritoriesArgs) -> Result<(), CliError> {
+    let t0 = Instant::now();
+    let pb = progress(args.json);
+    pb.set_message("reading the label map");
+    let labels = read_label_map(&args.labelmap, VoxelLimit::default())?;
+    let roles: RoleMap = match &args.roles {
+        Some(s) => serde_json::from_str(s).map_err(|e| bad(format!("--roles: {e}")))?,
+        None => RoleMap::default(),
+    };
+    let liver = mask(&labels, |l| {
+        roles.role_of(l).is_some_and(Role::is_functional_liver)
+    })?;
+    if !liver.data().iter().any(|&v| v) {
+        return Err(bad(format!(
+            "{}: no functional liver (no label of a non-tumour role occurs)",
+            args.labelmap.display()
+        )));
+    }
+    std::fs::create_dir_all(&args.out_dir)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
+    let mut report = Report {
+        liver_ml: 0.0,
+        territories: Vec::new(),
+        systems: Vec::new(),
+        elapsed_ms: 0.0,
+    };
+    for (role, name) in SYSTEMS {
+        let ids = roles.labels(role);
+        let vessels = mask(&labels, |l| ids.contains(&l))?;
+        if ids.is_empty() || !vessels.data().iter().any(|&v| v) {
+            continue;
+        }
+        pb.set_message(format!("{name}: centrelines"));
+        let named = |e: resecta_vessels::VesselError| bad(format!("{name} vessels: {e}"));
+        let tree =
+            vessel_tree(&vessels, RootChoice::Auto, &VesselParams::default()).map_err(named)?;
+        pb.set_message(format!("{name}: territories"));
+        let t = territories(
+            &tree,
+            &liver,
+            &selection(args, name)?,
+            &TerritoryParams::default(),
+        )
+        .map_err(named)?;
+        let wide: Vec<u16> = t
+            .labels
+            .data()
+            .iter()
+            .map(|&l| u16::try_from(l).map_err(|_| bad(format!("{name}: over 65535 territories"))))
+            .collect::<Result<_, _>>()?;
+        let map_path = args.out_dir.join(format!("{name}-territories.nii.gz"));
+        write_label_map(
+            &map_path,
+            &Volume::from_vec(t.labels.grid().clone(), wide).map_err(bad)?,
+        )?;
+        let lines_path = args.out_dir.join(format!("{name}-centrelines.vtp"));
+        write_polylines(&lines_path, &centrelines(&tree))?;
+        report.liver_ml = t.liver_ml;
+        report.territories.extend(
+            t.territories
+                .iter()
+                .enumerate()
+                .map(|(k, x)| TerritoryReport {
+                    id: k + 1,
+                    vessel: name,
+                    branch: x.branch,
+                    ml: x.volume_ml,
+                }),
+        );
+        let r = &tree.report;
+        report.systems.push(SystemReport {
+            vessel: name,
+            root: arr(tree.nodes[tree.root].position),
+            edges: tree.edges.len(),
+            branch_points: tree
+                .nodes
+                .iter()
+                .filter(|n| n.kind == resecta_vessels::NodeKind::Branch)
+                .count(),
+            specks: r.specks,
+            speck_voxels: r.speck_voxels,
+            gaps_bridged: r.gaps_bridged,
+            detached_components: r.detached_components,
+            detached_voxels: r.detached_voxels,
+            loop_edges_dropped: r.loop_edges_dropped,
+            territory_map: display(&map_path),
+            centrelines: display(&lines_path),
+        });
+    }
+    if report.systems.is_empty() {
+        return Err(bad(format!(
+            "{}: no vessel label of the role map (portal, hepatic, vessel) occurs",
+            args.labelmap.display()
+        )));
+    }
+    report.elapsed_ms = ms(t0);
+    let text =
+        serde_json::to_string_pretty(&report).map_err(|e| CliError::Failed(e.to_string()))?;
+    let path = args.out_dir.join("territories.json");
+    std::fs::write(&path, text)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", path.display())))?;
+    pb.finish_and_clear();
+    if args.json {
+        return print_json(&report);
+    }
+    println!("functional liver {:.1} ml", report.liver_ml);
+    for s in &report.systems {
+        println!(
+            "{}: {} branches, {} branch points, {} specks dropped, {} gaps bridged, {} detached pieces",
+            s.vessel, s.edges, s.branch_points, s.specks, s.gaps_bridged, s.detached_components
+        );
+    }
+    for t in &report.territories {
+        let what = t
+            .branch
+            .map_or_else(|| "proximal".to_owned(), |b| format!("branch {b}"));
+        println!("  {} territory {} ({what}): {:.1} ml", t.vessel, t.id, t.ml);
+    }
+    Ok(())
+}
+
+fn display(p: &Path) -> String {
+    p.display().to_string()
+}
