@@ -200,7 +200,8 @@ pub fn write_polylines(path: impl AsRef<Path>, set: &vtp::PolylineSet) -> Result
             ErrorKind::Mesh("polylines are written as VTK XML PolyData (.vtp) only".into()),
         ));
     }
-    let bytes = vtp::write_lines(set, &WriteOptions::default()).map_err(|k| IoError::new(path, k))?;
+    let bytes =
+        vtp::write_lines(set, &WriteOptions::default()).map_err(|k| IoError::new(path, k))?;
     std::fs::write(path, bytes).map_err(|e| IoError::new(path, e))
 }
 

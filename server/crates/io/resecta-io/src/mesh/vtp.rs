@@ -837,14 +837,15 @@ pub struct PolylineSet {
 /// Encodes polylines as VTK XML PolyData `Lines`, like [`write`].
 pub(crate) fn write_lines(set: &PolylineSet, opts: &WriteOptions) -> Result<Vec<u8>, ErrorKind> {
     let points: Vec<Vec3> = set.lines.iter().flatten().copied().collect();
-    let check = |what: &str, arrays: &[(String, Vec<f64>)], len: usize| {
-        match arrays.iter().find(|(_, v)| v.len() != len) {
-            Some((name, v)) => Err(ErrorKind::Mesh(format!(
-                "{what} array {name:?} has {} values for {len} {what}s",
-                v.len()
-            ))),
-            None => Ok(()),
-        }
+    let check = |what: &str, arrays: &[(String, Vec<f64>)], len: usize| match arrays
+        .iter()
+        .find(|(_, v)| v.len() != len)
+    {
+        Some((name, v)) => Err(ErrorKind::Mesh(format!(
+            "{what} array {name:?} has {} values for {len} {what}s",
+            v.len()
+        ))),
+        None => Ok(()),
     };
     check("point", &set.point_data, points.len())?;
     check("line", &set.cell_data, set.lines.len())?;
