@@ -39,6 +39,10 @@ pub struct TerritoriesArgs {
     /// Explicit branches per system, by edge id: `{"portal":[3,4],"hepatic":[1]}`.
     #[arg(long)]
     pub branches: Option<String>,
+    /// A liver mask (non-zero = liver) on the label map's grid, for label maps without a liver
+    /// label (the MSD hepatic-vessel cases): the functional liver is its voxels but tumour ones.
+    #[arg(long)]
+    pub liver_mask: Option<PathBuf>,
     /// Write the territory label maps (NIfTI), the centrelines (VTP) and the report here.
     #[arg(long)]
     pub out_dir: PathBuf,
@@ -91,6 +95,37 @@ fn mask(labels: &LabelMap, keep: impl Fn(u16) -> bool) -> Result<Volume<bool>, C
     Volume::from_vec(labels.grid().clone(), data).map_err(bad)
 }
 
+/// The functional liver of `--liver-mask`: its voxels but the label map's tumour ones. The
+/// mask must lie on the label map's grid (dimensions equal, corners within 0.01 mm).
+fn masked_liver(labels: &LabelMap, roles: &RoleMap, path: &Path) -> Result<Volume<bool>, CliError> {
+    let m = read_label_map(path, VoxelLimit::default())?;
+    let (a, b) = (labels.grid(), m.grid());
+    let [nx, ny, nz] = a.dims();
+    let same = a.dims() == b.dims()
+        && [
+            [0, 0, 0],
+            [nx - 1, ny - 1, nz - 1],
+            [nx - 1, 0, 0],
+            [0, ny - 1, nz - 1],
+        ]
+        .iter()
+        .all(|&ijk| (a.voxel_center(ijk) - b.voxel_center(ijk)).norm() < 0.01);
+    if !same {
+        return Err(bad(format!(
+            "{}: its grid differs from the label map's",
+            path.display()
+        )));
+    }
+    let tumour = roles.labels(Role::Tumor);
+    let data = m
+        .data()
+        .iter()
+        .zip(labels.data())
+        .map(|(&v, l)| v != 0 && !tumour.contains(l))
+        .collect();
+    Volume::from_vec(a.clone(), data).map_err(bad)
+}
+
 /// The branches `--branches` names for `system`, or the generation rule.
 fn selection(args: &TerritoriesArgs, system: &str) -> Result<BranchSelection, CliError> {
     let Some(text) = &args.branches else {
@@ -137,9 +172,12 @@ pub fn run(args: &TerritoriesArgs) -> Result<(), CliError> {
         Some(s) => serde_json::from_str(s).map_err(|e| bad(format!("--roles: {e}")))?,
         None => RoleMap::default(),
     };
-    let liver = mask(&labels, |l| {
-        roles.role_of(l).is_some_and(Role::is_functional_liver)
-    })?;
+    let liver = match &args.liver_mask {
+        Some(path) => masked_liver(&labels, &roles, path)?,
+        None => mask(&labels, |l| {
+            roles.role_of(l).is_some_and(Role::is_functional_liver)
+        })?,
+    };
     if !liver.data().iter().any(|&v| v) {
         return Err(bad(format!(
             "{}: no functional liver (no label of a non-tumour role occurs)",
