@@ -291,6 +291,12 @@ impl Resection {
     /// The cut surface (a DS or CP surface built from the traces: an error names what is wrong
     /// with them).
     pub fn shape(&self) -> Result<Arc<dyn CutSurface>, PlanError> {
+        Ok(self.sampled_shape()?.0)
+    }
+
+    /// The cut surface and the samples per direction the planner evaluates it at: the
+    /// resolution, or a CP's vertex grid (the surface is built once).
+    pub fn sampled_shape(&self) -> Result<(Arc<dyn CutSurface>, [usize; 2]), PlanError> {
         let bad = |what: String| PlanError::resection(&self.name, what);
         let no_net = || {
             if self.grid == [0, 0] && self.control_points.is_empty() {
@@ -303,32 +309,23 @@ impl Resection {
             }
         };
         Ok(match self.kind {
-            ResectionKind::Bezier => Arc::new(self.net()?),
+            ResectionKind::Bezier => (Arc::new(self.net()?), self.resolution),
             ResectionKind::Ds => {
                 no_net()?;
                 if !self.deformations.is_empty() {
                     return Err(bad("deformations apply to CP resections only".into()));
                 }
-                Arc::new(DsSurface::new(&self.traces).map_err(|e| bad(format!("DS: {e}")))?)
+                let s = DsSurface::new(&self.traces).map_err(|e| bad(format!("DS: {e}")))?;
+                (Arc::new(s), self.resolution)
             }
             ResectionKind::Cp => {
                 no_net()?;
-                Arc::new(
-                    CpSurface::new(&self.traces, &self.deformations)
-                        .map_err(|e| bad(format!("CP: {e}")))?,
-                )
+                let s = CpSurface::new(&self.traces, &self.deformations)
+                    .map_err(|e| bad(format!("CP: {e}")))?;
+                let dims = s.dims();
+                (Arc::new(s), dims)
             }
         })
-    }
-
-    /// The samples per direction the planner evaluates: the resolution, or a CP's vertex grid.
-    pub fn sample_resolution(&self) -> Result<[usize; 2], PlanError> {
-        match self.kind {
-            ResectionKind::Cp => Ok(CpSurface::new(&self.traces, &self.deformations)
-                .map_err(|e| PlanError::resection(&self.name, format!("CP: {e}")))?
-                .dims()),
-            ResectionKind::Bezier | ResectionKind::Ds => Ok(self.resolution),
-        }
     }
 
     /// Refuses an edit of the wrong kind.

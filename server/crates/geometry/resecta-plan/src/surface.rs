@@ -58,9 +58,9 @@ impl LiveSurface {
     /// The evaluator of `engine` for the resection, nothing evaluated yet.
     pub(crate) fn unevaluated(r: &Resection, engine: &SurfaceEngine) -> Result<Self, PlanError> {
         if r.kind != ResectionKind::Bezier {
-            let [ru, rv] = r.sample_resolution()?;
+            let (shape, [ru, rv]) = r.sampled_shape()?;
             return Ok(Self {
-                shape: Shape::Traced(r.shape()?),
+                shape: Shape::Traced(shape),
                 grid: SurfaceGrid::zeroed(Resolution::new(ru, rv)?, Outputs::Normals),
                 fallbacks: 0,
                 device_error: None,
@@ -100,8 +100,8 @@ impl LiveSurface {
         let evaluator = match &mut self.shape {
             Shape::Bezier(e) => e,
             Shape::Traced(_) => {
-                let [ru, rv] = r.sample_resolution()?;
-                self.shape = Shape::Traced(r.shape()?);
+                let (shape, [ru, rv]) = r.sampled_shape()?;
+                self.shape = Shape::Traced(shape);
                 let res = Resolution::new(ru, rv)?;
                 if self.grid.resolution() != res {
                     self.grid = SurfaceGrid::zeroed(res, Outputs::Normals);
