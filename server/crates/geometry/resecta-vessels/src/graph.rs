@@ -38,6 +38,9 @@ pub enum RootChoice {
     Auto,
     /// The graph node nearest this RAS point (mm).
     NearestTo(Vec3),
+    /// One root per graph component, each chosen as by [`RootChoice::Auto`]: a forest, e.g. the
+    /// hepatic veins entering the vena cava by several ostia. Nothing is detached.
+    EveryComponent,
 }
 
 /// What a node of the tree is.
@@ -106,7 +109,11 @@ pub struct TreeReport {
 #[derive(Debug, Clone, PartialEq)]
 pub struct VesselTree {
     pub grid: Grid,
+    /// The first root (the widest trunk).
     pub root: usize,
+    /// Every root node, widest trunk first (node ids `0..roots.len()`); one unless
+    /// [`RootChoice::EveryComponent`].
+    pub roots: Vec<usize>,
     pub nodes: Vec<Node>,
     pub edges: Vec<Edge>,
     pub report: TreeReport,
@@ -524,49 +531,66 @@ pub fn vessel_tree(
     g.merge_degree_two();
     let inc = g.incidence();
     let alive: Vec<usize> = (0..g.nodes.len()).filter(|&n| g.nodes[n].alive).collect();
-    let root_node = match root {
-        RootChoice::Auto => {
-            let score = |n: usize| -> f64 {
-                match inc[n].as_slice() {
-                    [e] => g.edges[*e]
-                        .as_ref()
-                        .map_or(g.nodes[n].radius, |e| median(&e.radii)),
-                    _ => f64::NEG_INFINITY,
-                }
-            };
-            let ends: Vec<usize> = alive
-                .iter()
-                .copied()
-                .filter(|&n| inc[n].len() == 1)
-                .collect();
-            let pool = if ends.is_empty() { &alive } else { &ends };
-            pool.iter().copied().max_by(|&a, &b| {
-                let (sa, sb) = if ends.is_empty() {
-                    (g.nodes[a].radius, g.nodes[b].radius)
-                } else {
-                    (score(a), score(b))
-                };
-                sa.total_cmp(&sb).then(b.cmp(&a))
-            })
-        }
-        RootChoice::NearestTo(p) => alive.iter().copied().min_by(|&a, &b| {
-            (g.nodes[a].pos - p)
-                .norm()
-                .total_cmp(&(g.nodes[b].pos - p).norm())
-        }),
+    let comp = g.components();
+    // The widest end of `pool` (its node of largest radius when it has no end).
+    let auto_root = |pool: &[usize]| -> Option<(usize, f64)> {
+        let ends: Vec<usize> = pool
+            .iter()
+            .copied()
+            .filter(|&n| inc[n].len() == 1)
+            .collect();
+        let score = |n: usize| -> f64 {
+            match inc[n].as_slice() {
+                [e] if !ends.is_empty() => g.edges[*e]
+                    .as_ref()
+                    .map_or(g.nodes[n].radius, |e| median(&e.radii)),
+                _ => g.nodes[n].radius,
+            }
+        };
+        let pool = if ends.is_empty() { pool } else { &ends };
+        pool.iter()
+            .copied()
+            .map(|n| (n, score(n)))
+            .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
     };
-    let Some(root_node) = root_node else {
+    let roots: Vec<usize> = match root {
+        RootChoice::Auto => auto_root(&alive).map(|r| r.0).into_iter().collect(),
+        RootChoice::NearestTo(p) => alive
+            .iter()
+            .copied()
+            .min_by(|&a, &b| {
+                (g.nodes[a].pos - p)
+                    .norm()
+                    .total_cmp(&(g.nodes[b].pos - p).norm())
+            })
+            .into_iter()
+            .collect(),
+        RootChoice::EveryComponent => {
+            let mut groups: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+            for &n in &alive {
+                groups.entry(comp[n]).or_default().push(n);
+            }
+            let mut picked: Vec<(usize, f64)> =
+                groups.values().filter_map(|pool| auto_root(pool)).collect();
+            picked.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+            picked.into_iter().map(|r| r.0).collect()
+        }
+    };
+    let Some(&root_node) = roots.first() else {
         return Err(VesselError::EmptyVesselMask {
             specks: t.specks,
             min_voxels,
         });
     };
+    let is_root = |n: usize| roots.contains(&n);
     // Shortest paths (by centreline length) from the root: the spanning tree.
     let mut dist = vec![f64::INFINITY; g.nodes.len()];
     let mut parent_edge = vec![usize::MAX; g.nodes.len()];
     let mut heap = BinaryHeap::new();
-    dist[root_node] = 0.0;
-    heap.push(Reverse((0u64, root_node)));
+    for &r in &roots {
+        dist[r] = 0.0;
+        heap.push(Reverse((0u64, r)));
+    }
     while let Some(Reverse((bits, u))) = heap.pop() {
         if f64::from_bits(bits) > dist[u] {
             continue;
@@ -585,19 +609,18 @@ pub fn vessel_tree(
         }
     }
     // Detached components and loops.
-    let comp = g.components();
-    let root_comp = comp[root_node];
+    let root_comps: BTreeSet<usize> = roots.iter().map(|&r| comp[r]).collect();
     let mut detached = BTreeSet::new();
     let mut detached_labels = BTreeSet::new();
     for &n in &alive {
-        if comp[n] != root_comp {
+        if !root_comps.contains(&comp[n]) {
             detached.insert(comp[n]);
             detached_labels.insert(g.nodes[n].component);
         }
     }
     let root_labels: BTreeSet<u32> = alive
         .iter()
-        .filter(|&&n| comp[n] == root_comp)
+        .filter(|&&n| root_comps.contains(&comp[n]))
         .map(|&n| g.nodes[n].component)
         .collect();
     report.detached_components = detached.len();
@@ -612,7 +635,7 @@ pub fn vessel_tree(
         .iter()
         .enumerate()
         .filter_map(|(i, e)| e.as_ref().map(|e| (i, e)))
-        .filter(|(i, e)| comp[e.a] == root_comp && !is_tree_edge(*i, e))
+        .filter(|(i, e)| root_comps.contains(&comp[e.a]) && !is_tree_edge(*i, e))
         .count();
     // Breadth-first renumbering from the root.
     let mut node_id = vec![usize::MAX; g.nodes.len()];
@@ -631,8 +654,10 @@ pub fn vessel_tree(
         }
         node_id[n]
     };
-    push_node(root_node, &mut nodes);
-    let mut queue = std::collections::VecDeque::from([root_node]);
+    for &r in &roots {
+        push_node(r, &mut nodes);
+    }
+    let mut queue: std::collections::VecDeque<usize> = roots.iter().copied().collect();
     while let Some(u) = queue.pop_front() {
         for &e in &inc[u] {
             let Some(edge) = g.edges[e].as_ref() else {
@@ -649,7 +674,7 @@ pub fn vessel_tree(
             };
             let from = push_node(u, &mut nodes);
             let to = push_node(v, &mut nodes);
-            let parent = (u != root_node)
+            let parent = (!is_root(u))
                 .then(|| edge_of_raw.get(parent_edge[u]).copied())
                 .flatten()
                 .filter(|&p| p != usize::MAX);
@@ -683,7 +708,7 @@ pub fn vessel_tree(
         degree[e.to] += 1;
     }
     for n in &mut nodes {
-        n.kind = if n.id == 0 {
+        n.kind = if n.id < roots.len() {
             NodeKind::Root
         } else if degree[n.id] >= 2 {
             NodeKind::Branch
@@ -691,9 +716,11 @@ pub fn vessel_tree(
             NodeKind::End
         };
     }
+    debug_assert_eq!(node_id[root_node], 0);
     Ok(VesselTree {
         grid,
         root: 0,
+        roots: (0..roots.len()).collect(),
         nodes,
         edges,
         report,

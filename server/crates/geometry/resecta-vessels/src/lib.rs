@@ -45,9 +45,14 @@
 //!    those voxels, in mm on the anisotropic grid). Centrelines above every selected branch
 //!    (e.g. the trunk) form the **proximal** territory, reported first, so the territories
 //!    partition the liver mask exactly. See `docs/vessels.md` for the measured accuracy.
+//! 4. **Risk** ([`RiskModel`]): the vessels a resection cuts (centreline crossings with its
+//!    surface inside the liver), the trees beyond each cut disconnected, and the remnant whose
+//!    nearest portal point is disconnected (devascularised) or whose nearest hepatic point is
+//!    (congested); the functional remnant is the rest.
 
 mod error;
 mod graph;
+mod risk;
 mod skeleton;
 mod territory;
 
@@ -55,4 +60,5 @@ pub use error::VesselError;
 pub use graph::{
     Edge, Node, NodeKind, RootChoice, TreeReport, VesselParams, VesselTree, vessel_tree,
 };
+pub use risk::{Crossing, CutBranch, RiskAssessment, RiskModel, RiskRegions, VesselSystem};
 pub use territory::{BranchSelection, Territories, Territory, TerritoryParams, territories};

@@ -48,14 +48,14 @@ pub struct Territories {
     pub liver_ml: f64,
 }
 
-/// Points along a polyline every `step` mm (both ends included).
-fn resample(points: &[Vec3], step: f64) -> Vec<Vec3> {
+/// Points along a polyline every `step` mm (both ends included), with their arc length.
+fn resample(points: &[Vec3], step: f64) -> Vec<(Vec3, f64)> {
     let mut out = Vec::new();
     let Some(&first) = points.first() else {
         return out;
     };
-    out.push(first);
-    let mut carry = 0.0;
+    out.push((first, 0.0));
+    let (mut carry, mut done) = (0.0, 0.0);
     for w in points.windows(2) {
         let seg = w[1] - w[0];
         let len = seg.norm();
@@ -64,17 +64,86 @@ fn resample(points: &[Vec3], step: f64) -> Vec<Vec3> {
         }
         let mut s = step - carry;
         while s < len {
-            out.push(w[0] + seg * (s / len));
+            out.push((w[0] + seg * (s / len), done + s));
             s += step;
         }
         carry = len - (s - step);
+        done += len;
     }
     if let Some(&last) = points.last()
-        && out.last().is_none_or(|p| (p - last).norm() > 1e-9)
+        && out.last().is_none_or(|p| (p.0 - last).norm() > 1e-9)
     {
-        out.push(last);
+        out.push((last, done));
     }
     out
+}
+
+/// A rasterised centreline voxel: the edge of the centreline point nearest its centre and that
+/// point's arc length along the edge (mm from its proximal node).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct CentrelineVoxel {
+    d2: f64,
+    pub edge: usize,
+    pub arc_mm: f64,
+}
+
+/// The centrelines resampled every `step` mm and rasterised to their nearest voxels (grid
+/// offset → voxel); a voxel hit by several edges takes the point nearest its centre. Branch
+/// points belong to no edge (so no child is favoured there); roots and distal ends are kept.
+pub(crate) fn rasterise(tree: &VesselTree, step: f64) -> HashMap<usize, CentrelineVoxel> {
+    let grid = &tree.grid;
+    let dims = grid.dims();
+    let mut hits: HashMap<usize, CentrelineVoxel> = HashMap::new();
+    for e in &tree.edges {
+        let pts = resample(&e.points, step);
+        let last = pts.len().saturating_sub(1);
+        let keep_first = e.parent.is_none() && tree.roots.contains(&e.from);
+        let keep_last = e.children.is_empty();
+        for (i, &(p, arc_mm)) in pts.iter().enumerate() {
+            if (i == 0 && !keep_first) || (i == last && !keep_last) {
+                continue;
+            }
+            let c = grid.world_to_index(p);
+            let r = c.map(f64::round);
+            if r.iter()
+                .zip(dims)
+                .any(|(&x, d)| !(x >= 0.0 && x < d as f64))
+            {
+                continue;
+            }
+            let o = grid.offset([r[0] as usize, r[1] as usize, r[2] as usize]);
+            let d2 = (c - r).norm_squared();
+            let v = CentrelineVoxel {
+                d2,
+                edge: e.id,
+                arc_mm,
+            };
+            hits.entry(o)
+                .and_modify(|h| {
+                    if d2 < h.d2 {
+                        *h = v;
+                    }
+                })
+                .or_insert(v);
+        }
+    }
+    hits
+}
+
+/// The sampling step of [`TerritoryParams::sample_mm`] on `grid`.
+pub(crate) fn sample_step(
+    grid: &resecta_geom::Grid,
+    sample_mm: Option<f64>,
+) -> Result<f64, VesselError> {
+    let sp = grid.spacing();
+    match sample_mm {
+        None => Ok(0.5 * sp[0].min(sp[1]).min(sp[2])),
+        Some(s) if s.is_finite() && s > 0.0 => Ok(s),
+        Some(_) => Err(VesselError::InvalidParameter {
+            name: "sample_mm",
+            reason: "must be finite and positive",
+        }),
+    }
 }
 
 /// Labels every liver voxel with the selected branch whose centreline is nearest (exact
@@ -93,17 +162,7 @@ pub fn territories(
     if liver_voxels == 0 {
         return Err(VesselError::EmptyLiver);
     }
-    let sp = grid.spacing();
-    let step = match params.sample_mm {
-        None => 0.5 * sp[0].min(sp[1]).min(sp[2]),
-        Some(s) if s.is_finite() && s > 0.0 => s,
-        Some(_) => {
-            return Err(VesselError::InvalidParameter {
-                name: "sample_mm",
-                reason: "must be finite and positive",
-            });
-        }
-    };
+    let step = sample_step(grid, params.sample_mm)?;
     let count = tree.edges.len();
     let selected: Vec<usize> = match selection {
         BranchSelection::Ids(ids) => {
@@ -134,37 +193,7 @@ pub fn territories(
             None => e.parent.and_then(|p| owner.get(p).copied()).unwrap_or(0),
         };
     }
-    // Rasterise: each centreline point to its voxel; a voxel hit by several edges takes the point
-    // nearest its centre. Branch points belong to no edge (so no child is favoured there).
-    let mut hits: HashMap<usize, (f64, u32)> = HashMap::new();
-    let dims = grid.dims();
-    for e in &tree.edges {
-        let pts = resample(&e.points, step);
-        let last = pts.len().saturating_sub(1);
-        let keep_first =
-            e.parent.is_none() && tree.nodes.get(e.from).is_some_and(|n| n.id == tree.root);
-        let keep_last = e.children.is_empty();
-        for (i, p) in pts.iter().enumerate() {
-            if (i == 0 && !keep_first) || (i == last && !keep_last) {
-                continue;
-            }
-            let c = grid.world_to_index(*p);
-            let r = c.map(f64::round);
-            if r.iter()
-                .zip(dims)
-                .any(|(&x, d)| !(x >= 0.0 && x < d as f64))
-            {
-                continue;
-            }
-            let ijk = [r[0] as usize, r[1] as usize, r[2] as usize];
-            let d2 = (c - r).norm_squared();
-            let o = grid.offset(ijk);
-            let entry = hits.entry(o).or_insert((f64::INFINITY, 0));
-            if d2 < entry.0 {
-                *entry = (d2, owner[e.id]);
-            }
-        }
-    }
+    let hits = rasterise(tree, step);
     if hits.is_empty() {
         return Err(VesselError::NoCentreline);
     }
@@ -180,7 +209,7 @@ pub fn territories(
         if !inside || f == NO_FEATURE {
             continue;
         }
-        let t = hits.get(&(f as usize)).map_or(0, |h| h.1);
+        let t = hits.get(&(f as usize)).map_or(0, |h| owner[h.edge]);
         labels[o] = t + 1;
         voxels[t as usize] += 1;
     }
@@ -215,7 +244,8 @@ mod tests {
         ];
         let r = resample(&pts, 0.5);
         assert_eq!(r.len(), 5);
-        assert!((r[4] - pts[2]).norm() < 1e-12);
-        assert!((r[2] - pts[1]).norm() < 1e-12);
+        assert!((r[4].0 - pts[2]).norm() < 1e-12 && (r[4].1 - 2.0).abs() < 1e-12);
+        assert!((r[2].0 - pts[1]).norm() < 1e-12 && (r[2].1 - 1.0).abs() < 1e-12);
+        assert!((r[3].1 - 1.5).abs() < 1e-12);
     }
 }

@@ -175,13 +175,30 @@ impl Volumetry {
         &mut self,
         cuts: &[(&dyn CutSurface, &[Vec3])],
     ) -> Result<MultiCut, VolumetryError> {
+        Ok(self.cuts_inner(cuts, cuts.len() > 1)?.0)
+    }
+
+    /// [`Volumetry::cuts`] and the resected fraction (0..=1, the union over the cuts) of every
+    /// liver voxel in compact order ([`LiverVoxels::offsets`]).
+    pub fn cuts_with_fractions(
+        &mut self,
+        cuts: &[(&dyn CutSurface, &[Vec3])],
+    ) -> Result<(MultiCut, Vec<f32>), VolumetryError> {
+        self.cuts_inner(cuts, true)
+    }
+
+    fn cuts_inner(
+        &mut self,
+        cuts: &[(&dyn CutSurface, &[Vec3])],
+        union_wanted: bool,
+    ) -> Result<(MultiCut, Vec<f32>), VolumetryError> {
         let n = self.liver.len();
         let vox = self.liver.grid().voxel_volume_mm3();
-        let mut union = vec![0f32; if cuts.len() > 1 { n } else { 0 }];
+        let mut union = vec![0f32; if union_wanted { n } else { 0 }];
         let mut results = Vec::with_capacity(cuts.len());
         for &(surface, pts) in cuts {
             let s = self.sides(surface, pts)?;
-            if cuts.len() > 1 {
+            if union_wanted {
                 for &(a, b) in &s.resected_runs {
                     union[a as usize..b as usize].fill(1.0);
                 }
@@ -198,13 +215,14 @@ impl Volumetry {
             [one] => one.resected_mm3,
             _ => union.iter().map(|&f| Real::from(f)).sum::<Real>() * vox,
         };
-        Ok(MultiCut {
+        let multi = MultiCut {
             complete: results.iter().all(|r| r.complete),
             cuts: results,
             total_mm3: total,
             resected_mm3: resected,
             remnant_mm3: total - resected,
-        })
+        };
+        Ok((multi, union))
     }
 
     /// Label map on the liver grid: 0 not liver, 1 remnant, 2 + i resected by cut i (voxel
@@ -228,18 +246,9 @@ impl Volumetry {
             }
         }
         let grid = self.liver.grid().clone();
-        let [nx, ny, _] = grid.dims();
         let mut out = vec![0u8; grid.len()];
-        let l = &self.liver;
-        let [_, by, _] = l.bdims();
-        for (row, w) in l.row_start.windows(2).enumerate() {
-            let (y, z) = (row % by + l.lo[1], row / by + l.lo[2]);
-            for r in &l.runs[w[0] as usize..w[1] as usize] {
-                for x in r.x0..r.x1 {
-                    let c = (r.offset + x - r.x0) as usize;
-                    out[x as usize + l.lo[0] + nx * (y + ny * z)] = label[c];
-                }
-            }
+        for (c, o) in self.liver.offsets().into_iter().enumerate() {
+            out[o] = label[c];
         }
         Ok(Volume::from_vec(grid, out)?)
     }

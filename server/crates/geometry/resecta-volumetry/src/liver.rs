@@ -100,6 +100,21 @@ impl LiverVoxels {
     }
 
     /// Liver voxels.
+    /// The grid offset ([`Grid::offset`]) of every liver voxel, in compact order (the order of
+    /// [`crate::Volumetry::cuts_with_fractions`]' fractions).
+    pub fn offsets(&self) -> Vec<usize> {
+        let [nx, ny, _] = self.grid.dims();
+        let [_, by, _] = self.bdims();
+        let mut out = Vec::with_capacity(self.count);
+        for (row, w) in self.row_start.windows(2).enumerate() {
+            let (y, z) = (row % by + self.lo[1], row / by + self.lo[2]);
+            for r in &self.runs[w[0] as usize..w[1] as usize] {
+                out.extend((r.x0..r.x1).map(|x| x as usize + self.lo[0] + nx * (y + ny * z)));
+            }
+        }
+        out
+    }
+
     pub fn len(&self) -> usize {
         self.count
     }

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 
 use resecta_bezier::{ControlNet, basis_at, binomial_row};
-use resecta_geom::{Grid, Mat3, Real, Vec3, Volume};
+use resecta_geom::{CutSurface, Grid, Mat3, Real, Vec3, Volume};
 use resecta_volumetry::{IncompleteCut, LiverVoxels, Volumetry, VolumetryError, thesis_volumetry};
 
 const AXES: [Real; 3] = [50.0, 38.0, 30.0];
@@ -286,6 +286,24 @@ fn unions_labels_and_the_thesis_method() {
         multi.resected_mm3
     );
     assert!((multi.remnant_mm3 + multi.resected_mm3 - whole_vox).abs() < 1e-6 * whole_vox);
+    // Per-voxel fractions sum to the volumes, one cut or two, and sit at their voxels.
+    let offsets = vol.liver().offsets();
+    let (da, db): (&dyn CutSurface, &dyn CutSurface) = (&a, &b);
+    for cuts in [&[(da, &ta[..]), (db, &tb[..])][..], &[(da, &ta[..])][..]] {
+        let (again, fractions) = vol.cuts_with_fractions(cuts).unwrap();
+        let sum: Real = fractions.iter().map(|&f| Real::from(f)).sum();
+        assert!((sum * grid.voxel_volume_mm3() - again.resected_mm3).abs() < 1e-3 * union);
+        for (&o, &f) in offsets.iter().zip(&fractions) {
+            assert!(m.data()[o]);
+            let c = grid.voxel_center(grid.ijk(o));
+            if c.x > 22.0 {
+                assert_eq!(f, 1.0);
+            } else if c.x < 18.0 && (cuts.len() == 1 || c.y < 8.0) {
+                assert_eq!(f, 0.0);
+            }
+        }
+    }
+    assert_eq!(multi, vol.cuts(&[(&a, &ta), (&b, &tb)]).unwrap());
     // Labels: the ≥ ½ voxels agree with the fractional volume within the band's rounding.
     let labels = vol.resected_labels(&[(&a, &ta)]).unwrap();
     let n2 = labels.data().iter().filter(|&&l| l == 2).count() as Real * grid.voxel_volume_mm3();
