@@ -17,6 +17,7 @@ use crate::engine::{TargetModel, build_target};
 use crate::error::PlanError;
 use crate::inside::InsideField;
 use crate::resection::Target;
+use crate::vascular::Vascular;
 
 /// The surface a tumour's margins are measured to: the boundary of its voxels taken as cubes
 /// ([`resecta_isosurface::voxel_boundary`]), not its smoothed display model. A distance to it is
@@ -64,6 +65,8 @@ pub struct Anatomy {
     /// The functional voxels indexed for volumetry, built with the anatomy and taken by the
     /// first planner's volumetry engine ([`Anatomy::take_liver_voxels`]).
     liver_voxels: Mutex<Option<LiverVoxels>>,
+    /// The portal and hepatic trees with each functional voxel's nearest centreline point.
+    vascular: Vascular,
 }
 
 /// Selections whose margin structures an anatomy keeps (more start the memory afresh).
@@ -153,7 +156,11 @@ impl Anatomy {
                         let functional = functional_mask(labels, &lut, &envelope)?;
                         // An empty liver is reported when a volumetry is asked for.
                         let voxels = LiverVoxels::new(&functional).ok();
-                        Ok::<_, PlanError>((functional, voxels))
+                        let vascular = match &voxels {
+                            Some(v) => Vascular::build(labels, roles, &v.offsets()),
+                            None => Vascular::Absent,
+                        };
+                        Ok::<_, PlanError>((functional, voxels, vascular))
                     },
                 )
             },
@@ -175,7 +182,7 @@ impl Anatomy {
                     .collect()
             },
         );
-        let (parenchyma, (functional, liver_voxels)) = (parenchyma?, functional?);
+        let (parenchyma, (functional, liver_voxels, vascular)) = (parenchyma?, functional?);
         let tumours = tumours?;
         let targets = targets?;
         go_on()?;
@@ -188,6 +195,7 @@ impl Anatomy {
             tumours,
             targets: Mutex::new(targets.into_iter().collect()),
             liver_voxels: Mutex::new(liver_voxels),
+            vascular,
         })
     }
 
@@ -223,6 +231,11 @@ impl Anatomy {
     /// volumetry engine is built once per planner), later callers index them again.
     pub fn take_liver_voxels(&self) -> Option<LiverVoxels> {
         self.liver_voxels.lock().ok()?.take()
+    }
+
+    /// The vessel trees (risk analysis), when the roles name portal or hepatic labels.
+    pub fn vascular(&self) -> &Vascular {
+        &self.vascular
     }
 
     pub fn roles(&self) -> &RoleMap {

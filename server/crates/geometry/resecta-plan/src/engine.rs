@@ -23,6 +23,7 @@ use crate::plan::{Plan, PlanEvent};
 use crate::probe::{ComputeEngine, SampleProbe};
 use crate::resection::{Resection, Target, arr};
 use crate::surface::LiveSurface;
+use crate::vascular::{CutMesh, RiskReport, Vascular, crossings, risk_report};
 
 /// Default future-liver-remnant warning threshold (% of the total functional liver).
 pub const DEFAULT_FLR_THRESHOLD_PCT: Real = 30.0;
@@ -133,6 +134,13 @@ pub struct VolumeReport {
     pub flr_warning: Option<bool>,
     pub complete: bool,
     pub resections: Vec<ResectionVolume>,
+    /// What the cuts put at risk, when the anatomy has vessel trees and every cut is complete
+    /// (then `flr_warning` is based on the functional remnant).
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    pub risk: Option<RiskReport>,
+    /// Why there is no risk analysis although the roles name vessels.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub risk_unavailable: Option<String>,
 }
 
 /// One resection's volume.
@@ -553,6 +561,10 @@ impl Planner {
             .iter()
             .map(|r| Ok(resection_metrics(self.state(&r.name)?, r.margin_mm)))
             .collect::<Result<_, PlanError>>()?;
+        let vascular = match self.anatomy.vascular() {
+            Vascular::Ready(_) => Some((self.anatomy_shared(), self.cut_meshes()?)),
+            Vascular::Absent | Vascular::Failed(_) => None,
+        };
         self.volumetry_engine()?;
         let engine = self.volumetry.take().ok_or(PlanError::EmptyLiver)?;
         Ok(VolumeJob {
@@ -566,7 +578,28 @@ impl Planner {
             metrics,
             inputs,
             threshold: self.flr_threshold_pct,
+            vascular,
+            risk_unavailable: match self.anatomy.vascular() {
+                Vascular::Failed(why) => Some(why.clone()),
+                Vascular::Absent | Vascular::Ready(_) => None,
+            },
         })
+    }
+
+    /// Every resection's surface mesh, for the risk analysis.
+    pub fn cut_meshes(&self) -> Result<Vec<CutMesh>, PlanError> {
+        self.plan()
+            .resections
+            .iter()
+            .map(|r| {
+                let s = self.state(&r.name)?;
+                Ok(CutMesh {
+                    name: r.name.clone(),
+                    mesh: s.surface.mesh()?,
+                    resolution: s.surface.resolution(),
+                })
+            })
+            .collect()
     }
 
     /// The volumes of `reference` (a plan with the same roles) on this planner's anatomy: what
@@ -617,16 +650,55 @@ pub struct VolumeJob {
     metrics: Vec<ResectionMetrics>,
     inputs: Vec<CutInput>,
     threshold: Real,
+    /// The risk analysis' inputs: the anatomy (its trees and inside levels) and the meshes.
+    vascular: Option<(Arc<Anatomy>, Vec<CutMesh>)>,
+    /// Why the anatomy has no trees although its roles name vessels.
+    risk_unavailable: Option<String>,
 }
 
 impl VolumeJob {
     /// The volumes, and the engine to give back to the planner.
     pub fn run(mut self) -> (Volumetry, Result<VolumeReport, PlanError>) {
-        let report = self
-            .engine
-            .cuts(&cut_refs(&self.inputs))
-            .map(|multi| volume_report(&self.names, &self.metrics, &multi, self.threshold))
-            .map_err(PlanError::from);
+        let cuts = cut_refs(&self.inputs);
+        let report = match &self.vascular {
+            None => self
+                .engine
+                .cuts(&cuts)
+                .map(|multi| volume_report(&self.names, &self.metrics, &multi, self.threshold))
+                .map_err(PlanError::from),
+            Some((anatomy, meshes)) => self
+                .engine
+                .cuts_with_fractions(&cuts)
+                .map_err(PlanError::from)
+                .and_then(|(multi, resected)| {
+                    let mut report =
+                        volume_report(&self.names, &self.metrics, &multi, self.threshold);
+                    if multi.complete
+                        && let Some(model) = anatomy.vascular().model()
+                    {
+                        let inside = |p: &Vec3| anatomy.inside_level(p);
+                        let reach = anatomy
+                            .envelope()
+                            .grid()
+                            .spacing()
+                            .iter()
+                            .fold(0.0, |m: Real, &s| m.max(s));
+                        let x = crossings(model, meshes, &inside, reach)?;
+                        let remnant: Vec<f32> = resected.iter().map(|f| 1.0 - f).collect();
+                        let a = model.assess(&x, &remnant).map_err(|e| {
+                            PlanError::InvalidArgument(format!("risk analysis: {e}"))
+                        })?;
+                        let risk = risk_report(&a, meshes, multi.total_mm3);
+                        report.flr_warning = Some(risk.functional_remnant_pct < self.threshold);
+                        report.risk = Some(risk);
+                    }
+                    Ok(report)
+                }),
+        };
+        let report = report.map(|mut r| {
+            r.risk_unavailable = self.risk_unavailable.take();
+            r
+        });
         (self.engine, report)
     }
 }
@@ -666,6 +738,8 @@ fn volume_report(
         flr_warning: ok.then(|| pct(multi.remnant_mm3) < threshold),
         complete: ok,
         resections,
+        risk: None,
+        risk_unavailable: None,
     }
 }
 

@@ -17,6 +17,7 @@ pub mod plan;
 pub mod probe;
 pub mod resection;
 pub mod surface;
+pub mod vascular;
 
 pub use anatomy::{Anatomy, Tumour};
 pub use engine::{
@@ -39,3 +40,4 @@ pub use resecta_traces::{Deformation, SliceOrientation};
 pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};
 pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};
+pub use vascular::{CutVessel, RiskReport, Vascular};

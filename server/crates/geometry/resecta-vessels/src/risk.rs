@@ -216,19 +216,25 @@ impl RiskModel {
     }
 
     /// The crossings of every edge's centreline with the surfaces (their triangles in `bvhs`)
-    /// at points where `inside` holds (the liver); per edge and surface the one nearest the
-    /// root.
-    pub fn crossings(&self, bvhs: &[&MeshBvh], inside: &dyn Fn(&Vec3) -> bool) -> Vec<Crossing> {
+    /// that `inside` accepts (in the liver); per edge and surface the one nearest the root.
+    pub fn crossings(
+        &self,
+        bvhs: &[&MeshBvh],
+        inside: &dyn Fn(&Crossing) -> bool,
+    ) -> Vec<Crossing> {
         let mut out = Vec::new();
         for s in &self.systems {
             for e in &s.tree.edges {
                 for (k, bvh) in bvhs.iter().enumerate() {
-                    if let Some(c) = first_crossing(e, bvh, inside) {
-                        out.push(Crossing {
+                    if let Some(c) = first_crossing(e, bvh, &|c: Crossing| {
+                        let c = Crossing {
                             system: s.system,
                             surface: k,
                             ..c
-                        });
+                        };
+                        inside(&c).then_some(c)
+                    }) {
+                        out.push(c);
                     }
                 }
             }
@@ -353,12 +359,12 @@ impl RiskModel {
     }
 }
 
-/// The crossing of an edge's centreline with a surface nearest the edge's proximal end, at a
-/// point where `inside` holds.
+/// The crossing of an edge's centreline with a surface nearest the edge's proximal end that
+/// `accept` keeps.
 fn first_crossing(
     e: &crate::graph::Edge,
     bvh: &MeshBvh,
-    inside: &dyn Fn(&Vec3) -> bool,
+    accept: &dyn Fn(Crossing) -> Option<Crossing>,
 ) -> Option<Crossing> {
     let bounds = bvh.bounds()?;
     let mut arc = 0.0;
@@ -373,17 +379,13 @@ fn first_crossing(
                 origin: w[0],
                 direction: d,
             };
-            if let Some(h) = bvh
-                .ray_hits(&ray, 0.0, 1.0)
-                .into_iter()
-                .find(|h| inside(&h.point))
-            {
+            for h in bvh.ray_hits(&ray, 0.0, 1.0) {
                 let r = if h.t < 0.5 {
                     e.radii[i]
                 } else {
                     e.radii[i + 1]
                 };
-                return Some(Crossing {
+                let c = Crossing {
                     system: VesselSystem::Portal,
                     edge: e.id,
                     arc_mm: arc + h.t * len,
@@ -392,7 +394,10 @@ fn first_crossing(
                     surface: 0,
                     triangle: h.triangle,
                     barycentric: h.barycentric,
-                });
+                };
+                if let Some(c) = accept(c) {
+                    return Some(c);
+                }
             }
         }
         arc += len;

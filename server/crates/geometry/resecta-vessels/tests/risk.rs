@@ -3,7 +3,8 @@
 
 use resecta_geom::{Mat3, MeshBvh, TriMesh, Vec3};
 use resecta_vessels::{
-    RiskModel, RootChoice, VesselError, VesselParams, VesselSystem, VesselTree, vessel_tree,
+    Crossing, RiskModel, RootChoice, VesselError, VesselParams, VesselSystem, VesselTree,
+    vessel_tree,
 };
 
 mod common;
@@ -88,7 +89,7 @@ fn cutting_one_branch_loses_its_cell_beyond_the_cut_and_nothing_else() {
         .unwrap();
         let cut = plane(Vec3::new(-c, 0.0, 0.0), Vec3::x(), 60.0);
         let (lo, hi) = (s.case.lo, s.case.hi);
-        let inside = move |p: &Vec3| in_box(*p, lo, hi);
+        let inside = move |c: &Crossing| in_box(c.point, lo, hi);
         let crossings = model.crossings(&[&cut], &inside);
         assert_eq!(crossings.len(), 1, "{crossings:?}");
         let x = crossings[0];
@@ -204,7 +205,7 @@ fn no_cut_puts_nothing_at_risk_and_a_cut_outside_the_liver_cuts_nothing() {
     let below = plane(Vec3::new(0.0, 0.0, -8.0), Vec3::z(), 60.0);
     assert!(
         model
-            .crossings(&[&below], &|p| in_box(*p, lo, hi))
+            .crossings(&[&below], &|c| in_box(c.point, lo, hi))
             .is_empty()
     );
     // Crossing the trunk inside a liver that holds it disconnects everything downstream.
@@ -248,7 +249,7 @@ fn hepatic_cut_congests_only_its_drainage_cell() {
     };
     let cut = plane(Vec3::new(-4.0, 0.0, 0.0), Vec3::x(), 60.0);
     let (lo, hi) = (s.case.lo, s.case.hi);
-    let inside = move |p: &Vec3| in_box(*p, lo, hi);
+    let inside = move |c: &Crossing| in_box(c.point, lo, hi);
     let remnant: Vec<f32> = s
         .centres
         .iter()

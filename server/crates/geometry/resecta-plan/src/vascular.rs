@@ -1,0 +1,204 @@
+//! The patient's vessel trees and what a plan puts at risk: the vessels its resections cut and
+//! the remnant that loses portal supply or hepatic drainage (`resecta-vessels`' risk model).
+
+use std::sync::Arc;
+
+use resecta_geom::{LabelMap, MeshBvh, Real, Role, RoleMap, TriMesh, Vec3, Volume};
+use resecta_vessels::{
+    Crossing, RiskAssessment, RiskModel, RootChoice, VesselParams, VesselSystem, VesselTree,
+    vessel_tree,
+};
+use serde::Serialize;
+
+/// Territories drawn on a resectogram are the portal branches of this generation (with the
+/// shorter vessels that end above it): the sectors and segments of a typical portal tree.
+pub const TERRITORY_GENERATION: u32 = 2;
+
+/// The vessel trees of an anatomy, built with it.
+#[derive(Debug, Clone)]
+pub enum Vascular {
+    /// The roles name no portal or hepatic label, or the label map has none of their voxels.
+    Absent,
+    Ready(Arc<RiskModel>),
+    /// The trees could not be built (e.g. every vessel component a speck); why.
+    Failed(String),
+}
+
+impl Vascular {
+    /// The trees of the portal (one trunk, the widest end) and hepatic (one root per component:
+    /// the veins enter the vena cava by several ostia) labels of `roles`, for the liver voxels
+    /// at the ascending grid offsets `liver`.
+    pub fn build(labels: &LabelMap, roles: &RoleMap, liver: &[usize]) -> Self {
+        let systems = [
+            (VesselSystem::Portal, Role::Portal, RootChoice::Auto),
+            (
+                VesselSystem::Hepatic,
+                Role::Hepatic,
+                RootChoice::EveryComponent,
+            ),
+        ];
+        let mut trees: Vec<(VesselSystem, VesselTree)> = Vec::new();
+        for (system, role, root) in systems {
+            let wanted = roles.labels(role);
+            if wanted.is_empty() {
+                continue;
+            }
+            let data: Vec<bool> = labels.data().iter().map(|l| wanted.contains(l)).collect();
+            if !data.contains(&true) {
+                continue;
+            }
+            let tree = Volume::from_vec(labels.grid().clone(), data)
+                .map_err(resecta_vessels::VesselError::from)
+                .and_then(|mask| vessel_tree(&mask, root, &VesselParams::default()));
+            match tree {
+                Ok(t) => trees.push((system, t)),
+                Err(e) => return Self::Failed(format!("{} tree: {e}", system.name())),
+            }
+        }
+        if trees.is_empty() {
+            return Self::Absent;
+        }
+        match RiskModel::new(labels.grid(), liver, trees, None) {
+            Ok(m) => Self::Ready(Arc::new(m)),
+            Err(e) => Self::Failed(e.to_string()),
+        }
+    }
+
+    pub fn model(&self) -> Option<&Arc<RiskModel>> {
+        match self {
+            Self::Ready(m) => Some(m),
+            Self::Absent | Self::Failed(_) => None,
+        }
+    }
+}
+
+/// A vessel cut by a resection.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CutVessel {
+    /// `"portal"` or `"hepatic"`.
+    pub system: &'static str,
+    pub resection: String,
+    /// The branch (edge id of its tree) and its generation.
+    pub branch: usize,
+    pub generation: u32,
+    pub radius_mm: Real,
+    /// Where the centreline crosses the surface (RAS mm) and its (u, v) on the surface.
+    pub point: [Real; 3],
+    pub uv: [Real; 2],
+    /// Already disconnected by a cut nearer the root.
+    pub downstream_of_another_cut: bool,
+}
+
+/// What a plan puts at risk (ml, and the functional remnant as % of the functional liver).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RiskReport {
+    pub devascularised_ml: Real,
+    pub congested_ml: Real,
+    pub at_risk_ml: Real,
+    pub functional_remnant_ml: Real,
+    pub functional_remnant_pct: Real,
+    pub has_portal: bool,
+    pub has_hepatic: bool,
+    /// Largest radius first.
+    pub cut_vessels: Vec<CutVessel>,
+}
+
+/// A resection's surface as the risk analysis needs it.
+#[derive(Debug, Clone)]
+pub struct CutMesh {
+    pub name: String,
+    pub mesh: TriMesh,
+    /// Samples per direction: vertex `a·rv + b` sits at `(a/(ru−1), b/(rv−1))`.
+    pub resolution: [usize; 2],
+}
+
+/// The crossings of every vessel with the surfaces inside the liver: where the surface around
+/// the vessel (a ring of its radius plus `reach` mm in the triangle's plane) meets the liver
+/// (`inside` > 0 at one of its 12 points, or at the centreline point). A vessel's lumen need not
+/// be liver itself (large vessels leave the envelope at the hilum), the tissue cut around it is.
+pub fn crossings(
+    model: &RiskModel,
+    surfaces: &[CutMesh],
+    inside: &(dyn Fn(&Vec3) -> Real + Sync),
+    reach: Real,
+) -> Result<Vec<Crossing>, resecta_geom::GeomError> {
+    let bvhs = surfaces
+        .iter()
+        .map(|s| MeshBvh::new(&s.mesh))
+        .collect::<Result<Vec<_>, _>>()?;
+    let refs: Vec<&MeshBvh> = bvhs.iter().collect();
+    let in_liver = |c: &Crossing| -> bool {
+        if inside(&c.point) > 0.0 {
+            return true;
+        }
+        let Some(mesh) = surfaces.get(c.surface).map(|s| &s.mesh) else {
+            return false;
+        };
+        let [a, b, d] = mesh.corners(c.triangle);
+        let (t1, n) = ((b - a).normalize(), (b - a).cross(&(d - a)));
+        if !(n.norm() > 0.0 && t1.iter().all(|x| x.is_finite())) {
+            return false;
+        }
+        let t2 = n.normalize().cross(&t1);
+        let r = c.radius_mm + reach;
+        (0..12).any(|k| {
+            let th = std::f64::consts::TAU * Real::from(k) / 12.0;
+            inside(&(c.point + (t1 * th.cos() + t2 * th.sin()) * r)) > 0.0
+        })
+    };
+    Ok(model.crossings(&refs, &in_liver))
+}
+
+/// (u, v) of a crossing on its surface.
+pub fn crossing_uv(c: &Crossing, surface: &CutMesh) -> [Real; 2] {
+    let [ru, rv] = surface.resolution;
+    let tri = surface
+        .mesh
+        .triangles()
+        .get(c.triangle)
+        .copied()
+        .unwrap_or([0; 3]);
+    let mut uv = [0.0; 2];
+    for (k, w) in tri.iter().zip(c.barycentric) {
+        let k = *k as usize;
+        uv[0] += w * (k / rv.max(1)) as Real / (ru.max(2) - 1) as Real;
+        uv[1] += w * (k % rv.max(1)) as Real / (rv.max(2) - 1) as Real;
+    }
+    uv
+}
+
+/// The report of an assessment over a functional liver of `total_mm3`.
+pub fn risk_report(a: &RiskAssessment, surfaces: &[CutMesh], total_mm3: Real) -> RiskReport {
+    let ml = |v: Real| v / 1000.0;
+    let cut_vessels = a
+        .cut
+        .iter()
+        .filter_map(|c| {
+            let s = surfaces.get(c.crossing.surface)?;
+            Some(CutVessel {
+                system: c.crossing.system.name(),
+                resection: s.name.clone(),
+                branch: c.crossing.edge,
+                generation: c.generation,
+                radius_mm: c.crossing.radius_mm,
+                point: [c.crossing.point.x, c.crossing.point.y, c.crossing.point.z],
+                uv: crossing_uv(&c.crossing, s),
+                downstream_of_another_cut: c.downstream_of_another_cut,
+            })
+        })
+        .collect();
+    RiskReport {
+        devascularised_ml: ml(a.devascularised_mm3),
+        congested_ml: ml(a.congested_mm3),
+        at_risk_ml: ml(a.at_risk_mm3),
+        functional_remnant_ml: ml(a.functional_remnant_mm3),
+        functional_remnant_pct: if total_mm3 > 0.0 {
+            100.0 * a.functional_remnant_mm3 / total_mm3
+        } else {
+            0.0
+        },
+        has_portal: a.has_portal,
+        has_hepatic: a.has_hepatic,
+        cut_vessels,
+    }
+}
