@@ -16,6 +16,7 @@ pub mod metrics;
 pub mod plan;
 pub mod probe;
 pub mod resection;
+pub mod resectogram;
 pub mod surface;
 pub mod vascular;
 
@@ -39,5 +40,6 @@ pub use resecta_traces as traces;
 pub use resecta_traces::{Deformation, SliceOrientation};
 pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};
+pub use resectogram::Resectogram;
 pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};
 pub use vascular::{CutVessel, RiskReport, Vascular};

@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use resecta_geom::{LabelMap, MeshBvh, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_vessels::{
-    Crossing, RiskAssessment, RiskModel, RootChoice, VesselParams, VesselSystem, VesselTree,
-    vessel_tree,
+    Crossing, CutBranch, RiskAssessment, RiskModel, RootChoice, VesselParams, VesselSystem,
+    VesselTree, vessel_tree,
 };
 use serde::Serialize;
 
@@ -167,12 +167,9 @@ pub fn crossing_uv(c: &Crossing, surface: &CutMesh) -> [Real; 2] {
     uv
 }
 
-/// The report of an assessment over a functional liver of `total_mm3`.
-pub fn risk_report(a: &RiskAssessment, surfaces: &[CutMesh], total_mm3: Real) -> RiskReport {
-    let ml = |v: Real| v / 1000.0;
-    let cut_vessels = a
-        .cut
-        .iter()
+/// The cut branches as reported, on their surfaces.
+pub fn cut_vessels(cut: &[CutBranch], surfaces: &[CutMesh]) -> Vec<CutVessel> {
+    cut.iter()
         .filter_map(|c| {
             let s = surfaces.get(c.crossing.surface)?;
             Some(CutVessel {
@@ -186,7 +183,13 @@ pub fn risk_report(a: &RiskAssessment, surfaces: &[CutMesh], total_mm3: Real) ->
                 downstream_of_another_cut: c.downstream_of_another_cut,
             })
         })
-        .collect();
+        .collect()
+}
+
+/// The report of an assessment over a functional liver of `total_mm3`.
+pub fn risk_report(a: &RiskAssessment, surfaces: &[CutMesh], total_mm3: Real) -> RiskReport {
+    let ml = |v: Real| v / 1000.0;
+    let cut_vessels = cut_vessels(&a.cut, surfaces);
     RiskReport {
         devascularised_ml: ml(a.devascularised_mm3),
         congested_ml: ml(a.congested_mm3),

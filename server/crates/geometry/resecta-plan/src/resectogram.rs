@@ -1,0 +1,252 @@
+//! The resectogram: a resection surface unrolled to its (u, v) square, coloured by margin
+//! class, with the liver boundary, the portal territories it passes through, the vessels it
+//! cuts and its worst point (Slicer-Liver's view of a cut, from the planner's own samples).
+
+use resecta_geom::{Real, Vec3};
+use resecta_margin::{MarginClass, MarginSettings};
+use resecta_vessels::VesselSystem;
+use serde::Serialize;
+
+use crate::engine::Planner;
+use crate::error::PlanError;
+use crate::vascular::{CutMesh, CutVessel, TERRITORY_GENERATION, crossings, cut_vessels};
+
+/// Largest resectogram side in pixels.
+pub const MAX_SIDE: usize = 2048;
+
+/// A resection's resectogram. Pixel `(i, j)` (row-major, `j·width + i`) shows the surface at
+/// `u = (i + ½)/width`, `v = (j + ½)/height`.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Resectogram {
+    pub resection: String,
+    pub width: usize,
+    pub height: usize,
+    /// [`MarginClass`] per pixel (0 outside the liver, 1 safe, 2 warning, 3 violation): the
+    /// liver boundary is where 0 meets the rest. Distances and inside levels are interpolated
+    /// bilinearly between the surface samples.
+    pub classes: Vec<u8>,
+    /// Portal territory per pixel: 1 + the branch (of generation ≤ 2, see
+    /// [`TERRITORY_GENERATION`]) feeding the liver there; 0 outside the liver or without a
+    /// portal tree.
+    pub territories: Vec<u32>,
+    /// The vessels this resection cuts, with their (u, v).
+    pub cut_vessels: Vec<CutVessel>,
+    /// Where the margin is smallest inside the liver.
+    pub worst_uv: Option<[Real; 2]>,
+    pub min_margin_mm: Option<Real>,
+    pub margin_mm: Real,
+    pub band_mm: Real,
+}
+
+/// Bilinear interpolation of per-sample values on the ru×rv grid at (a, b) in sample units;
+/// non-finite corners are left out (the nearest finite corner's value when all weights vanish).
+fn bilinear(values: &[Real], rv: usize, a: Real, b: Real, ru: usize) -> Real {
+    let (a0, b0) = (
+        (a.floor() as usize).min(ru.saturating_sub(2)),
+        (b.floor() as usize).min(rv.saturating_sub(2)),
+    );
+    let (fa, fb) = (a - a0 as Real, b - b0 as Real);
+    let (a1, b1) = ((a0 + 1).min(ru - 1), (b0 + 1).min(rv - 1));
+    let corners = [
+        (a0, b0, (1.0 - fa) * (1.0 - fb)),
+        (a1, b0, fa * (1.0 - fb)),
+        (a0, b1, (1.0 - fa) * fb),
+        (a1, b1, fa * fb),
+    ];
+    let (mut sum, mut w) = (0.0, 0.0);
+    let mut nearest = (Real::NEG_INFINITY, Real::INFINITY);
+    for (i, j, wt) in corners {
+        let x = values[i * rv + j];
+        if x.is_finite() {
+            sum += wt * x;
+            w += wt;
+        }
+        if wt > nearest.0 {
+            nearest = (wt, x);
+        }
+    }
+    if w > 1e-12 { sum / w } else { nearest.1 }
+}
+
+impl Planner {
+    /// The resectogram of resection `name` at `width`×`height` pixels (each 1..=[`MAX_SIDE`]).
+    pub fn resectogram(
+        &self,
+        name: &str,
+        width: usize,
+        height: usize,
+    ) -> Result<Resectogram, PlanError> {
+        if !(1..=MAX_SIDE).contains(&width) || !(1..=MAX_SIDE).contains(&height) {
+            return Err(PlanError::InvalidArgument(format!(
+                "resectogram size {width}×{height}: each side must be 1..={MAX_SIDE} pixels"
+            )));
+        }
+        let r = self
+            .plan()
+            .resections
+            .iter()
+            .find(|r| r.name == name)
+            .ok_or_else(|| PlanError::UnknownResection(name.to_owned()))?;
+        let state = self.state(name)?;
+        let settings = MarginSettings {
+            margin_mm: r.margin_mm,
+            band_mm: r.band_mm,
+        };
+        let [ru, rv] = state.surface.resolution();
+        let anatomy = self.anatomy();
+        let model = anatomy.vascular().model();
+        // Per sample: the territory (portal), then per pixel: class and nearest sample's territory.
+        let points = state.surface.points();
+        let sample_territory: Vec<u32> = match model {
+            Some(m) => points
+                .iter()
+                .zip(&state.inside)
+                .map(|(p, &ins)| {
+                    if ins > 0.0 {
+                        m.territory_at(VesselSystem::Portal, p, TERRITORY_GENERATION)
+                            .map_or(0, |t| t as u32 + 1)
+                    } else {
+                        0
+                    }
+                })
+                .collect(),
+            None => vec![0; points.len()],
+        };
+        let mut classes = vec![0u8; width * height];
+        let mut territories = vec![0u32; width * height];
+        for j in 0..height {
+            let b = (j as Real + 0.5) / height as Real * (rv - 1) as Real;
+            for i in 0..width {
+                let a = (i as Real + 0.5) / width as Real * (ru - 1) as Real;
+                let d = bilinear(&state.margins.distance, rv, a, b, ru);
+                let ins = bilinear(&state.inside, rv, a, b, ru);
+                let class = settings.classify(d, ins);
+                let k = j * width + i;
+                classes[k] = class as u8;
+                if class != MarginClass::Outside {
+                    let (na, nb) = (a.round() as usize, b.round() as usize);
+                    territories[k] = sample_territory[na.min(ru - 1) * rv + nb.min(rv - 1)];
+                }
+            }
+        }
+        let cut_vessels = match model {
+            Some(m) => {
+                let surface = [CutMesh {
+                    name: name.to_owned(),
+                    mesh: state.surface.mesh()?,
+                    resolution: [ru, rv],
+                }];
+                let reach = anatomy
+                    .envelope()
+                    .grid()
+                    .spacing()
+                    .iter()
+                    .fold(0.0, |m: Real, &s| m.max(s));
+                let x = crossings(m, &surface, &|p: &Vec3| anatomy.inside_level(p), reach)?;
+                cut_vessels(&m.regions(&x).cut, &surface)
+            }
+            None => Vec::new(),
+        };
+        Ok(Resectogram {
+            resection: name.to_owned(),
+            width,
+            height,
+            classes,
+            territories,
+            cut_vessels,
+            worst_uv: state.verdict.uv,
+            min_margin_mm: state.verdict.min_margin_mm,
+            margin_mm: r.margin_mm,
+            band_mm: r.band_mm,
+        })
+    }
+}
+
+/// RGB of a margin class, as the 3D views colour it (outside light grey).
+pub const CLASS_RGB: [[u8; 3]; 4] = [
+    [219, 219, 219],
+    [158, 158, 158],
+    [255, 217, 0],
+    [230, 13, 13],
+];
+const PORTAL_RGB: [u8; 3] = [40, 90, 220];
+const HEPATIC_RGB: [u8; 3] = [130, 50, 170];
+
+impl Resectogram {
+    /// The picture, `scale` screen pixels per resectogram pixel: class colours, territories
+    /// shaded alternately and outlined, the liver boundary in black, cut vessels as discs
+    /// (portal blue, hepatic purple; radius ∝ the vessel's) and the worst point as a magenta
+    /// cross. RGBA, row-major, row 0 at v = 0.
+    pub fn to_rgba(&self, scale: usize) -> (usize, usize, Vec<u8>) {
+        let scale = scale.clamp(1, 8);
+        let (w, h) = (self.width * scale, self.height * scale);
+        let mut px = vec![255u8; w * h * 4];
+        let at = |x: usize, y: usize| (y / scale) * self.width + x / scale;
+        let put = |px: &mut [u8], x: usize, y: usize, rgb: [u8; 3]| {
+            let o = (y * w + x) * 4;
+            px[o..o + 3].copy_from_slice(&rgb);
+        };
+        for y in 0..h {
+            for x in 0..w {
+                let k = at(x, y);
+                let c = usize::from(self.classes[k]).min(3);
+                let mut rgb = CLASS_RGB[c];
+                let t = self.territories[k];
+                if t > 0 && t % 2 == 0 {
+                    rgb = rgb.map(|v| (f32::from(v) * 0.88) as u8);
+                }
+                // Boundaries: a pixel whose right or lower neighbour differs.
+                let diff = |k2: usize| {
+                    (self.classes[k] == 0) != (self.classes[k2] == 0)
+                        || self.territories[k] != self.territories[k2]
+                };
+                let right = (x + 1 < w && x % scale == scale - 1).then(|| at(x + 1, y));
+                let down = (y + 1 < h && y % scale == scale - 1).then(|| at(x, y + 1));
+                for k2 in [right, down].into_iter().flatten() {
+                    if (self.classes[k] == 0) != (self.classes[k2] == 0) {
+                        rgb = [0, 0, 0];
+                    } else if diff(k2) && rgb != [0, 0, 0] {
+                        rgb = [90, 90, 90];
+                    }
+                }
+                put(&mut px, x, y, rgb);
+            }
+        }
+        let to_px = |uv: [Real; 2]| (uv[0] * w as Real, uv[1] * h as Real);
+        for c in &self.cut_vessels {
+            let (cx, cy) = to_px(c.uv);
+            let r = (c.radius_mm * scale as Real).clamp(3.0, 12.0 * scale as Real);
+            let rgb = if c.system == "hepatic" {
+                HEPATIC_RGB
+            } else {
+                PORTAL_RGB
+            };
+            for y in (cy - r - 1.0).max(0.0) as usize..((cy + r + 2.0) as usize).min(h) {
+                for x in (cx - r - 1.0).max(0.0) as usize..((cx + r + 2.0) as usize).min(w) {
+                    let d =
+                        ((x as Real + 0.5 - cx).powi(2) + (y as Real + 0.5 - cy).powi(2)).sqrt();
+                    if d <= r {
+                        put(&mut px, x, y, rgb);
+                    } else if d <= r + 1.0 {
+                        put(&mut px, x, y, [0, 0, 0]);
+                    }
+                }
+            }
+        }
+        if let Some(uv) = self.worst_uv {
+            let (cx, cy) = to_px(uv);
+            let arm = 4 * scale as i64 + 3;
+            for d in -arm..=arm {
+                for (x, y) in [
+                    (cx as i64 + d, cy as i64 + d),
+                    (cx as i64 + d, cy as i64 - d),
+                ] {
+                    if (0..w as i64).contains(&x) && (0..h as i64).contains(&y) {
+                        put(&mut px, x as usize, y as usize, [230, 0, 200]);
+                    }
+                }
+            }
+        }
+        (w, h, px)
+    }
+}
