@@ -192,7 +192,7 @@ impl Resectogram {
                 let c = usize::from(self.classes[k]).min(3);
                 let mut rgb = CLASS_RGB[c];
                 let t = self.territories[k];
-                if t > 0 && t % 2 == 0 {
+                if t > 0 && t.is_multiple_of(2) {
                     rgb = rgb.map(|v| (f32::from(v) * 0.88) as u8);
                 }
                 // Boundaries: a pixel whose right or lower neighbour differs.
