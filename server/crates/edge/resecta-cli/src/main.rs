@@ -16,6 +16,7 @@ mod output;
 mod phantom;
 mod plan;
 mod recon;
+mod resectogram;
 mod serve;
 mod study;
 mod territories;
@@ -51,6 +52,9 @@ enum Command {
     Plan(plan::PlanArgs),
     /// Vessel centrelines and the vascular territories of the functional liver.
     Territories(territories::TerritoriesArgs),
+    /// A resection unrolled to its (u, v) square as a PNG: margin classes, liver boundary,
+    /// portal territories, cut vessels and the worst point.
+    Resectogram(resectogram::ResectogramArgs),
     /// Bézier surfaces.
     #[command(subcommand)]
     Bezier(bezier::Command),
@@ -77,6 +81,7 @@ fn main() -> ExitCode {
         Command::Evaluate(a) => recon::evaluate(&a),
         Command::Plan(a) => plan::run(&a),
         Command::Territories(a) => territories::run(&a),
+        Command::Resectogram(a) => resectogram::run(&a),
         Command::Bezier(c) => bezier::run(&c),
         Command::Serve(a) => serve::serve(&a),
         Command::Study(c) => study::run(&c),

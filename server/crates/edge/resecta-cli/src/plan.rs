@@ -10,7 +10,8 @@ use clap::{Args, Subcommand};
 use resecta_geom::{LabelMap, Real, RoleMap, Volume, VoxelLimit};
 use resecta_io::{read_label_map, write_label_map, write_mesh};
 use resecta_plan::{
-    Anatomy, Plan, PlanError, PlanEvent, Planner, ResectionMetrics, Target, VolumeReport,
+    Anatomy, Plan, PlanError, PlanEvent, Planner, ResectionMetrics, RiskReport, Target,
+    VolumeReport,
 };
 use serde::Serialize;
 
@@ -107,7 +108,7 @@ fn parse_grid(s: &str) -> Result<[usize; 2], String> {
     Ok([p(m)?, p(n)?])
 }
 
-fn plan_err(e: PlanError) -> CliError {
+pub(crate) fn plan_err(e: PlanError) -> CliError {
     match e {
         PlanError::Recon(_)
         | PlanError::Geometry(_)
@@ -136,7 +137,7 @@ fn plan_err(e: PlanError) -> CliError {
     }
 }
 
-fn read_labels(path: &Path) -> Result<LabelMap, CliError> {
+pub(crate) fn read_labels(path: &Path) -> Result<LabelMap, CliError> {
     Ok(read_label_map(path, VoxelLimit::default())?)
 }
 
@@ -184,13 +185,18 @@ struct PlanReport {
     flr_warning: Option<bool>,
     complete: bool,
     resections: Vec<ResectionReport>,
+    /// Vessels cut and the remnant at risk, when the label map has portal or hepatic vessels.
+    #[serde(flatten, skip_serializing_if = "Option::is_none")]
+    risk: Option<RiskReport>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    risk_unavailable: Option<String>,
     read_ms: Real,
     setup_ms: Real,
     margins_ms: Real,
     volumetry_ms: Real,
 }
 
-fn read_plan(path: &Path) -> Result<Plan, CliError> {
+pub(crate) fn read_plan(path: &Path) -> Result<Plan, CliError> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| CliError::BadInput(format!("{}: {e}", path.display())))?;
     Plan::from_json(&text).map_err(|e| CliError::BadInput(format!("{}: {e}", path.display())))
@@ -288,6 +294,8 @@ fn report(
         flr_warning: v.flr_warning,
         complete: v.complete,
         resections,
+        risk: v.risk,
+        risk_unavailable: v.risk_unavailable,
         read_ms,
         setup_ms,
         margins_ms,
@@ -346,6 +354,19 @@ fn print_summary(r: &PlanReport) {
             ""
         }
     );
+    if let Some(k) = &r.risk {
+        println!(
+            "functional remnant {:.1} ml ({:.1} %) · devascularised {:.1} ml · congested {:.1} ml · {} vessel(s) cut",
+            k.functional_remnant_ml,
+            k.functional_remnant_pct,
+            k.devascularised_ml,
+            k.congested_ml,
+            k.cut_vessels.len()
+        );
+    }
+    if let Some(why) = &r.risk_unavailable {
+        println!("no risk analysis: {why}");
+    }
     for s in &r.resections {
         println!(
             "{}: resected {} · min margin {} (margin {:.1} mm) · {} · violating {:.0} mm² · {}",

@@ -195,19 +195,24 @@ impl Resectogram {
                 if t > 0 && t.is_multiple_of(2) {
                     rgb = rgb.map(|v| (f32::from(v) * 0.88) as u8);
                 }
-                // Boundaries: a pixel whose right or lower neighbour differs.
-                let diff = |k2: usize| {
-                    (self.classes[k] == 0) != (self.classes[k2] == 0)
-                        || self.territories[k] != self.territories[k2]
-                };
-                let right = (x + 1 < w && x % scale == scale - 1).then(|| at(x + 1, y));
-                let down = (y + 1 < h && y % scale == scale - 1).then(|| at(x, y + 1));
-                for k2 in [right, down].into_iter().flatten() {
-                    if (self.classes[k] == 0) != (self.classes[k2] == 0) {
+                // Boundaries: a pixel with a 4-neighbour on the other side (drawn on both).
+                let inside = self.classes[k] > 0;
+                let neighbours = [
+                    (x > 0).then(|| at(x - 1, y)),
+                    (x + 1 < w).then(|| at(x + 1, y)),
+                    (y > 0).then(|| at(x, y - 1)),
+                    (y + 1 < h).then(|| at(x, y + 1)),
+                ];
+                let mut territory_edge = false;
+                for k2 in neighbours.into_iter().flatten() {
+                    if (self.classes[k2] > 0) != inside {
                         rgb = [0, 0, 0];
-                    } else if diff(k2) && rgb != [0, 0, 0] {
-                        rgb = [90, 90, 90];
+                    } else if self.territories[k2] != t {
+                        territory_edge = true;
                     }
+                }
+                if territory_edge && rgb != [0, 0, 0] {
+                    rgb = [70, 70, 70];
                 }
                 put(&mut px, x, y, rgb);
             }

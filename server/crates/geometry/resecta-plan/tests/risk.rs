@@ -167,7 +167,10 @@ fn the_resectogram_unrolls_the_cut_with_its_liver_boundary_vessel_and_worst_poin
     .unwrap();
     let p = Planner::new(anatomy(), plan).unwrap();
     let g = p.resectogram("r", 200, 160).unwrap();
-    assert_eq!((g.classes.len(), g.territories.len()), (200 * 160, 200 * 160));
+    assert_eq!(
+        (g.classes.len(), g.territories.len()),
+        (200 * 160, 200 * 160)
+    );
     // The liver's section by x = 12: an ellipse of semi-axes 45·√(1 − 0.2²) and 40·√(1 − 0.2²)
     // on the 140 × 140 mm square.
     let inside = g.classes.iter().filter(|&&c| c > 0).count() as Real / g.classes.len() as Real;
@@ -177,17 +180,28 @@ fn the_resectogram_unrolls_the_cut_with_its_liver_boundary_vessel_and_worst_poin
     // The tumour is 3 mm from the plane: a violation around (y, z) = (0, 0), the worst point.
     assert!(g.classes.contains(&3));
     let w = g.worst_uv.unwrap();
-    assert!((w[0] - 0.5).abs() < 0.03 && (w[1] - 0.5).abs() < 0.03, "{w:?}");
+    assert!(
+        (w[0] - 0.5).abs() < 0.03 && (w[1] - 0.5).abs() < 0.03,
+        "{w:?}"
+    );
     assert!((g.min_margin_mm.unwrap() - 3.0).abs() < 1.0);
     // The right branch is cut at z ≈ −19.7: (u, v) ≈ (0.5, 0.36), in its own territory.
     assert_eq!(g.cut_vessels.len(), 1);
     let c = &g.cut_vessels[0];
-    assert!((c.uv[0] - 0.5).abs() < 0.03 && (c.uv[1] - (50.3 / 140.0)).abs() < 0.03, "{c:?}");
+    assert!(
+        (c.uv[0] - 0.5).abs() < 0.03 && (c.uv[1] - (50.3 / 140.0)).abs() < 0.03,
+        "{c:?}"
+    );
     let (i, j) = ((c.uv[0] * 200.0) as usize, (c.uv[1] * 160.0) as usize);
     assert_eq!(g.territories[j * 200 + i], c.branch as u32 + 1);
     assert!(g.territories.iter().all(|&t| t == 0 || t as usize <= 3));
     // Outside the liver there is no territory.
-    assert!(g.classes.iter().zip(&g.territories).all(|(&c, &t)| c > 0 || t == 0));
+    assert!(
+        g.classes
+            .iter()
+            .zip(&g.territories)
+            .all(|(&c, &t)| c > 0 || t == 0)
+    );
     let (pw, ph, rgba) = g.to_rgba(2);
     assert_eq!((pw, ph, rgba.len()), (400, 320, 400 * 320 * 4));
     // Bad sizes and names are refused.

@@ -80,6 +80,14 @@ pub struct Figure {
 pub enum PlotError {
     #[error("the figure has no points")]
     NoData,
+    #[error("a {width}×{height} image needs {want} RGBA bytes, got {got}")]
+    ImageSize {
+        width: usize,
+        height: usize,
+        want: usize,
+        got: usize,
+    },
+
     #[error("series {series:?}, point {index}: coordinates must be finite")]
     NonFinite { series: String, index: usize },
     #[error("series {series:?}, point {index}: x must be positive on a logarithmic axis")]

@@ -11,7 +11,9 @@
 
 mod figure;
 mod pareto;
+mod raster;
 mod render;
 
 pub use figure::{Colour, Figure, MarkerShape, PlotError, Series, Style};
 pub use pareto::pareto_figure;
+pub use raster::rgba_png;
