@@ -32,7 +32,7 @@ class GetServerInfoRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class ServerLimits(_message.Message):
-    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm", "max_label_slice_side", "max_label_slice_pixel_mm", "max_traces", "min_trace_points", "max_trace_points", "min_ds_traces", "slice_tolerance_mm", "max_deformations", "max_deformation_radius_mm", "max_deformation_offset_mm")
+    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm", "max_label_slice_side", "max_label_slice_pixel_mm", "max_traces", "min_trace_points", "max_trace_points", "min_ds_traces", "slice_tolerance_mm", "max_deformations", "max_deformation_radius_mm", "max_deformation_offset_mm", "max_resectogram_side")
     MAX_VOXELS_FIELD_NUMBER: _ClassVar[int]
     MAX_SESSIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_UPLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
@@ -68,6 +68,7 @@ class ServerLimits(_message.Message):
     MAX_DEFORMATIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_DEFORMATION_RADIUS_MM_FIELD_NUMBER: _ClassVar[int]
     MAX_DEFORMATION_OFFSET_MM_FIELD_NUMBER: _ClassVar[int]
+    MAX_RESECTOGRAM_SIDE_FIELD_NUMBER: _ClassVar[int]
     max_voxels: int
     max_sessions: int
     max_upload_bytes: int
@@ -103,7 +104,8 @@ class ServerLimits(_message.Message):
     max_deformations: int
     max_deformation_radius_mm: float
     max_deformation_offset_mm: float
-    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ..., max_traces: _Optional[int] = ..., min_trace_points: _Optional[int] = ..., max_trace_points: _Optional[int] = ..., min_ds_traces: _Optional[int] = ..., slice_tolerance_mm: _Optional[float] = ..., max_deformations: _Optional[int] = ..., max_deformation_radius_mm: _Optional[float] = ..., max_deformation_offset_mm: _Optional[float] = ...) -> None: ...
+    max_resectogram_side: int
+    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ..., max_traces: _Optional[int] = ..., min_trace_points: _Optional[int] = ..., max_trace_points: _Optional[int] = ..., min_ds_traces: _Optional[int] = ..., slice_tolerance_mm: _Optional[float] = ..., max_deformations: _Optional[int] = ..., max_deformation_radius_mm: _Optional[float] = ..., max_deformation_offset_mm: _Optional[float] = ..., max_resectogram_side: _Optional[int] = ...) -> None: ...
 
 class GetServerInfoResponse(_message.Message):
     __slots__ = ("server_version", "api_version", "capabilities", "limits", "compute")
@@ -390,6 +392,46 @@ class GetLabelSliceResponse(_message.Message):
     min_position_mm: float
     max_position_mm: float
     def __init__(self, width: _Optional[int] = ..., height: _Optional[int] = ..., pixel_mm: _Optional[float] = ..., origin: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., column_axis: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., row_axis: _Optional[_Union[_common_pb2.Vec3, _Mapping]] = ..., labels: _Optional[bytes] = ..., min_position_mm: _Optional[float] = ..., max_position_mm: _Optional[float] = ...) -> None: ...
+
+class GetResectogramRequest(_message.Message):
+    __slots__ = ("session_id", "resection", "width", "height")
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    RESECTION_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    session_id: str
+    resection: str
+    width: int
+    height: int
+    def __init__(self, session_id: _Optional[str] = ..., resection: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ...) -> None: ...
+
+class GetResectogramResponse(_message.Message):
+    __slots__ = ("plan_version", "resection", "width", "height", "classes", "territories", "cut_vessels", "worst_u", "worst_v", "min_margin_mm", "margin_mm", "band_mm")
+    PLAN_VERSION_FIELD_NUMBER: _ClassVar[int]
+    RESECTION_FIELD_NUMBER: _ClassVar[int]
+    WIDTH_FIELD_NUMBER: _ClassVar[int]
+    HEIGHT_FIELD_NUMBER: _ClassVar[int]
+    CLASSES_FIELD_NUMBER: _ClassVar[int]
+    TERRITORIES_FIELD_NUMBER: _ClassVar[int]
+    CUT_VESSELS_FIELD_NUMBER: _ClassVar[int]
+    WORST_U_FIELD_NUMBER: _ClassVar[int]
+    WORST_V_FIELD_NUMBER: _ClassVar[int]
+    MIN_MARGIN_MM_FIELD_NUMBER: _ClassVar[int]
+    MARGIN_MM_FIELD_NUMBER: _ClassVar[int]
+    BAND_MM_FIELD_NUMBER: _ClassVar[int]
+    plan_version: int
+    resection: str
+    width: int
+    height: int
+    classes: bytes
+    territories: _containers.RepeatedScalarFieldContainer[int]
+    cut_vessels: _containers.RepeatedCompositeFieldContainer[_volumes_pb2.CutVessel]
+    worst_u: float
+    worst_v: float
+    min_margin_mm: float
+    margin_mm: float
+    band_mm: float
+    def __init__(self, plan_version: _Optional[int] = ..., resection: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., classes: _Optional[bytes] = ..., territories: _Optional[_Iterable[int]] = ..., cut_vessels: _Optional[_Iterable[_Union[_volumes_pb2.CutVessel, _Mapping]]] = ..., worst_u: _Optional[float] = ..., worst_v: _Optional[float] = ..., min_margin_mm: _Optional[float] = ..., margin_mm: _Optional[float] = ..., band_mm: _Optional[float] = ...) -> None: ...
 
 class WatchRequest(_message.Message):
     __slots__ = ("session_id", "since_seq", "allow_zstd", "allow_quantized")

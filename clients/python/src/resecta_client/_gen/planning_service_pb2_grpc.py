@@ -110,6 +110,11 @@ class PlanningServiceStub:
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceRequest.SerializeToString,
                 response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceResponse.FromString,
                 _registered_method=True)
+        self.GetResectogram = channel.unary_unary(
+                '/resecta.v1.PlanningService/GetResectogram',
+                request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramRequest.SerializeToString,
+                response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramResponse.FromString,
+                _registered_method=True)
         self.Watch = channel.unary_stream(
                 '/resecta.v1.PlanningService/Watch',
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.WatchRequest.SerializeToString,
@@ -241,6 +246,14 @@ class PlanningServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def GetResectogram(self, request, context):
+        """A resection unrolled to its (u, v) square: margin classes, portal territories, the vessels
+        it cuts and its worst point, for clients to draw (INVALID_ARGUMENT beyond the size limit).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
     def Watch(self, request, context):
         """Follows a session: a snapshot first (or, with `since_seq`, the events after it when the
         server still has them), then a delta per plan change and volumes when they are recomputed.
@@ -326,6 +339,11 @@ def add_PlanningServiceServicer_to_server(servicer, server):
                     servicer.GetLabelSlice,
                     request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceRequest.FromString,
                     response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceResponse.SerializeToString,
+            ),
+            'GetResectogram': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetResectogram,
+                    request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramRequest.FromString,
+                    response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramResponse.SerializeToString,
             ),
             'Watch': grpc.unary_stream_rpc_method_handler(
                     servicer.Watch,
@@ -716,6 +734,33 @@ class PlanningService:
             '/resecta.v1.PlanningService/GetLabelSlice',
             resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceRequest.SerializeToString,
             resecta_dot_v1_dot_planning__service__pb2.GetLabelSliceResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetResectogram(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/resecta.v1.PlanningService/GetResectogram',
+            resecta_dot_v1_dot_planning__service__pb2.GetResectogramRequest.SerializeToString,
+            resecta_dot_v1_dot_planning__service__pb2.GetResectogramResponse.FromString,
             options,
             channel_credentials,
             insecure,

@@ -200,6 +200,12 @@ impl PlanningService for Fake {
     ) -> Result<Response<GetLabelSliceResponse>, Status> {
         Err(Status::unimplemented("get_label_slice"))
     }
+    async fn get_resectogram(
+        &self,
+        _: Request<GetResectogramRequest>,
+    ) -> Result<Response<GetResectogramResponse>, Status> {
+        Err(Status::unimplemented("get_resectogram"))
+    }
     type WatchStream = BoxStream<WatchResponse>;
     async fn watch(
         &self,

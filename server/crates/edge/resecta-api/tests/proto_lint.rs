@@ -406,6 +406,7 @@ fn service_has_the_operations_with_their_stream_kinds() {
         ("ExportModel", (false, true)),
         ("GetSlices", (false, false)),
         ("GetLabelSlice", (false, false)),
+        ("GetResectogram", (false, false)),
         ("Watch", (false, true)),
     ];
     assert_eq!(kinds, expected.into_iter().collect());

@@ -9,9 +9,11 @@ use resecta_api::v1 as pb;
 use resecta_geom::{Mat3, Real, Role, RoleMap};
 use resecta_io::mesh::MeshFormat;
 use resecta_plan::resection::ResectionKind;
+
+use crate::info::saturating_u32;
 use resecta_plan::{
-    Deformation, Group, IncompleteCut, LabelSlice, PlanEvent, Resection, SliceAxis, SlicePositions,
-    SliceProjections, Target, Verdict, VolumeReport,
+    CutVessel, Deformation, Group, IncompleteCut, LabelSlice, PlanEvent, Resection, Resectogram,
+    RiskReport, SliceAxis, SlicePositions, SliceProjections, Target, Verdict, VolumeReport,
 };
 use resecta_session::api::{
     DEFAULT_GRID, DataType, EditOp, EditOutcome, FileFormat, LabelMapSummary, ModelInfo,
@@ -667,6 +669,72 @@ pub fn volumes(v: &VolumeReport) -> pb::VolumeReport {
                 }),
             })
             .collect(),
+        risk: v.risk.as_ref().map(risk),
+        risk_unavailable: v.risk_unavailable.clone().unwrap_or_default(),
+    }
+}
+
+fn cut_vessel(c: &CutVessel) -> pb::CutVessel {
+    pb::CutVessel {
+        system: (if c.system == "hepatic" {
+            pb::VesselSystem::Hepatic
+        } else {
+            pb::VesselSystem::Portal
+        }) as i32,
+        resection: c.resection.clone(),
+        branch: saturating_u32(c.branch),
+        generation: c.generation,
+        radius_mm: c.radius_mm,
+        point: Some(vec3(c.point)),
+        u: c.uv[0],
+        v: c.uv[1],
+        downstream_of_another_cut: c.downstream_of_another_cut,
+    }
+}
+
+pub fn risk(r: &RiskReport) -> pb::RiskReport {
+    pb::RiskReport {
+        devascularised_ml: r.devascularised_ml,
+        congested_ml: r.congested_ml,
+        at_risk_ml: r.at_risk_ml,
+        functional_remnant_ml: r.functional_remnant_ml,
+        functional_remnant_pct: r.functional_remnant_pct,
+        has_portal: r.has_portal,
+        has_hepatic: r.has_hepatic,
+        cut_vessels: r.cut_vessels.iter().map(cut_vessel).collect(),
+    }
+}
+
+/// A resectogram request's resection and size (0 → [`DEFAULT_RESECTOGRAM_SIDE`]; the upper
+/// limit is the operation's to check).
+pub fn resectogram_request(r: &pb::GetResectogramRequest) -> Wire<(String, usize, usize)> {
+    if r.resection.is_empty() {
+        return Err(WireError::invalid("resection", "is required"));
+    }
+    let side = |v: u32| match v {
+        0 => DEFAULT_RESECTOGRAM_SIDE,
+        v => v as usize,
+    };
+    Ok((r.resection.clone(), side(r.width), side(r.height)))
+}
+
+/// Resectogram side when a request leaves it 0.
+pub const DEFAULT_RESECTOGRAM_SIDE: usize = 200;
+
+pub fn resectogram(plan_version: u64, g: &Resectogram) -> pb::GetResectogramResponse {
+    pb::GetResectogramResponse {
+        plan_version,
+        resection: g.resection.clone(),
+        width: saturating_u32(g.width),
+        height: saturating_u32(g.height),
+        classes: g.classes.clone(),
+        territories: g.territories.clone(),
+        cut_vessels: g.cut_vessels.iter().map(cut_vessel).collect(),
+        worst_u: g.worst_uv.map(|uv| uv[0]),
+        worst_v: g.worst_uv.map(|uv| uv[1]),
+        min_margin_mm: g.min_margin_mm,
+        margin_mm: g.margin_mm,
+        band_mm: g.band_mm,
     }
 }
 

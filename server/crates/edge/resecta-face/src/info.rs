@@ -19,6 +19,7 @@ pub mod limits {
         MAX_ANGLE_DEG, MAX_COORDINATE_MM, MAX_MARGIN_MM, MAX_NAME_LEN, MAX_RESOLUTION,
         MAX_TARGET_LABELS, MAX_TARGET_POINTS, MIN_CONTROL_POINTS, MIN_RESOLUTION,
     };
+    pub use resecta_plan::resectogram::MAX_SIDE as MAX_RESECTOGRAM_SIDE;
     pub use resecta_plan::traces::cp::{MAX_OFFSET_MM, MAX_RADIUS_MM};
     pub use resecta_plan::traces::{
         MAX_DEFORMATIONS, MAX_TRACE_POINTS, MAX_TRACES, MIN_TRACE_POINTS, MIN_TRACES,
@@ -29,13 +30,13 @@ pub mod limits {
     };
 
     pub use crate::MAX_MESSAGE_BYTES;
-    pub use crate::convert::{DECIMATION, PSR_DEPTHS, SMOOTHING};
+    pub use crate::convert::{DECIMATION, DEFAULT_RESECTOGRAM_SIDE, PSR_DEPTHS, SMOOTHING};
 
     /// Largest label value (labels are `1..=MAX_LABEL`; 0 is the background).
     pub const MAX_LABEL: u16 = u16::MAX;
 }
 
-fn saturating_u32(v: usize) -> u32 {
+pub(crate) fn saturating_u32(v: usize) -> u32 {
     u32::try_from(v).unwrap_or(u32::MAX)
 }
 
@@ -89,6 +90,7 @@ pub fn server_info(service: &Service) -> pb::GetServerInfoResponse {
             max_deformations: saturating_u32(MAX_DEFORMATIONS),
             max_deformation_radius_mm: MAX_RADIUS_MM,
             max_deformation_offset_mm: MAX_OFFSET_MM,
+            max_resectogram_side: saturating_u32(MAX_RESECTOGRAM_SIDE),
         }),
     }
 }

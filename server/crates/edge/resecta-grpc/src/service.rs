@@ -293,6 +293,23 @@ impl PlanningService for Planning {
         Ok(Response::new(convert::label_slice(&slice)))
     }
 
+    async fn get_resectogram(
+        &self,
+        request: Request<pb::GetResectogramRequest>,
+    ) -> Result<Response<pb::GetResectogramResponse>, Status> {
+        let r = request.get_ref();
+        let (name, width, height) = convert::resectogram_request(r).or_status()?;
+        let g = self
+            .service
+            .resectogram(&r.session_id, &name, width, height)
+            .await
+            .or_status()?;
+        Ok(Response::new(convert::resectogram(
+            g.plan_version,
+            &g.value,
+        )))
+    }
+
     type WatchStream = BoxStream<pb::WatchResponse>;
 
     async fn watch(

@@ -349,6 +349,22 @@ pub async fn label_slice(
     Ok(axum::Json(convert::label_slice(&s)))
 }
 
+/// `GetResectogram`: the query is the `GetResectogramRequest`
+/// (`resection=r1&width=200&height=200`); the classes come base64-encoded.
+pub async fn resectogram(
+    State(app): State<App>,
+    Path(id): Path<String>,
+    ProtoQuery(mut req): ProtoQuery<pb::GetResectogramRequest>,
+) -> JsonAnswer<pb::GetResectogramResponse> {
+    session_id(&mut req.session_id, id)?;
+    let (name, width, height) = convert::resectogram_request(&req)?;
+    let g = app
+        .service
+        .resectogram(&req.session_id, &name, width, height)
+        .await?;
+    Ok(axum::Json(convert::resectogram(g.plan_version, &g.value)))
+}
+
 // ---- watch ---------------------------------------------------------------------------------
 
 /// `Watch` as server-sent events: the query is the `WatchRequest` (`sinceSeq`, `allowZstd`,

@@ -32,6 +32,7 @@
 //! | `GET /v1/sessions/{id}/models/{name}?format=MODEL_FORMAT_VTP` | `ExportModel` | → the mesh file as the body |
 //! | `GET /v1/sessions/{id}/slices?resection=…&axial=…` | `GetSlices` | → `GetSlicesResponse` |
 //! | `GET /v1/sessions/{id}/label-slice?axis=…&positionMm=…` | `GetLabelSlice` | → `GetLabelSliceResponse` |
+//! | `GET /v1/sessions/{id}/resectogram?resection=…&width=…&height=…` | `GetResectogram` | → `GetResectogramResponse` |
 //! | `GET /v1/sessions/{id}/watch?sinceSeq=…` | `Watch` | → SSE of `WatchResponse` (`snapshot`, `delta`, `volumes`), `id` = seq, `Last-Event-ID` resumes |
 //!
 //! Errors map [`resecta_session::ErrorKind`] and `resecta_face::WireError` once (see
@@ -255,6 +256,12 @@ fn table() -> Vec<Route> {
             "/v1/sessions/{id}/label-slice",
             Some("GetLabelSlice"),
             h::label_slice,
+        ),
+        route(
+            Get,
+            "/v1/sessions/{id}/resectogram",
+            Some("GetResectogram"),
+            h::resectogram,
         ),
         route(Get, "/v1/sessions/{id}/watch", Some("Watch"), h::watch),
     ]

@@ -212,6 +212,7 @@ async fn every_rpc_answers_the_same_on_both_faces() {
         );
         assert_eq!(l.max_label_slice_side as usize, k::MAX_LABEL_SLICE_SIDE);
         assert_eq!(l.max_label_slice_pixel_mm, k::MAX_LABEL_SLICE_PIXEL_MM);
+        assert_eq!(l.max_resectogram_side as usize, k::MAX_RESECTOGRAM_SIDE);
         let idle = config().idle_expiry.map_or(0, |d| d.as_secs());
         assert!(idle > 0);
         assert_eq!(l.session_idle_timeout_s, idle);
@@ -522,6 +523,27 @@ async fn every_rpc_answers_the_same_on_both_faces() {
         g.labels.chunks(2).any(|l| l != [0, 0]),
         "the plane cuts the liver"
     );
+
+    walked("GetResectogram");
+    let g = grpc
+        .get_resectogram(pb::GetResectogramRequest {
+            session_id: a.clone(),
+            resection: "r1".into(),
+            width: 40,
+            height: 30,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let h = get(
+        http,
+        &format!("/v1/sessions/{b}/resectogram?resection=r1&width=40&height=30"),
+    )
+    .await
+    .json();
+    assert_same("GetResectogram", &pj(&g), &h);
+    assert_eq!((g.classes.len(), g.territories.len()), (1200, 1200));
+    assert!(g.classes.iter().any(|&c| c > 0), "the cut meets the liver");
 
     // Watch: the first snapshot (its parts) of each session.
     walked("Watch");

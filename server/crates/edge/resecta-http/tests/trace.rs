@@ -87,5 +87,8 @@ async fn requests_are_logged_without_patient_data() {
     }
     assert!(text.contains("route=\"/v1/sessions/{id}\""), "{text}");
     // The date in full: "1970" alone may occur in a latency or an id.
-    assert!(!text.contains("Jane") && !text.contains("1970-01-01"), "{text}");
+    assert!(
+        !text.contains("Jane") && !text.contains("1970-01-01"),
+        "{text}"
+    );
 }

@@ -26,7 +26,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use resecta_geom::RoleMap;
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
 use resecta_plan::{
-    LabelSlice, SliceAxis, SlicePositions, SliceProjections, label_slice, slice_projections,
+    LabelSlice, Resectogram, SliceAxis, SlicePositions, SliceProjections, label_slice,
+    slice_projections,
 };
 use resecta_store::SessionStore;
 
@@ -436,6 +437,24 @@ impl Service {
         let planner = loaded.ready().await?;
         let mesh = planner.state(name)?.mesh()?;
         Ok(slice_projections(&mesh, &at)?)
+    }
+
+    /// A resection's resectogram, with the plan version it shows.
+    pub async fn resectogram(
+        &self,
+        id: &str,
+        name: &str,
+        width: usize,
+        height: usize,
+    ) -> Result<Versioned<Resectogram>> {
+        let (_, mut st) = self.open(id).await?;
+        let plan_version = st.version;
+        let loaded = loaded_mut(&mut st)?;
+        let planner = loaded.ready().await?;
+        Ok(Versioned {
+            plan_version,
+            value: planner.resectogram(name, width, height)?,
+        })
     }
 
     /// One plane of the label map as a raster of labels (nearest neighbour), computed off the

@@ -12,7 +12,7 @@ use crate::error::PlanError;
 use crate::vascular::{CutMesh, CutVessel, TERRITORY_GENERATION, crossings, cut_vessels};
 
 /// Largest resectogram side in pixels.
-pub const MAX_SIDE: usize = 2048;
+pub const MAX_SIDE: usize = 512;
 
 /// A resection's resectogram. Pixel `(i, j)` (row-major, `j·width + i`) shows the surface at
 /// `u = (i + ½)/width`, `v = (j + ½)/height`.

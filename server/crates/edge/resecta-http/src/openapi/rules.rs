@@ -125,6 +125,9 @@ pub fn field(message: &str, field: &str) -> Option<Value> {
             json!({"minimum": -MAX_OFFSET_MM, "maximum": MAX_OFFSET_MM})
         }
         ("Deformation", "radiusMm") => json!({"exclusiveMinimum": 0, "maximum": MAX_RADIUS_MM}),
+        ("GetResectogramRequest", "width" | "height") => {
+            json!({"minimum": 0, "maximum": MAX_RESECTOGRAM_SIDE})
+        }
         ("GetLabelSliceRequest", "positionMm") => finite(),
         ("GetLabelSliceRequest", "pixelMm") => {
             json!({"exclusiveMinimum": 0, "maximum": MAX_LABEL_SLICE_PIXEL_MM})
@@ -163,6 +166,7 @@ pub fn required(message: &str) -> &'static [&'static str] {
         "ExportModelRequest" => &["format"],
         "GetSlicesRequest" => &["resection"],
         "GetLabelSliceRequest" => &["axis"],
+        "GetResectogramRequest" => &["resection"],
         _ => &[],
     }
 }
@@ -203,6 +207,7 @@ pub fn note(message: &str) -> Option<String> {
         "Resection" => format!("By `kind`: a Bézier resection (BEZIER, or UNSPECIFIED as older clients send) needs `gridM`, `gridN` and `controlPoints`, and refuses traces and deformations. In a request, `controlPoints` holds exactly gridM·gridN points. DS and CP resections are given by `traces` and refuse a control grid; a DS resection needs {MIN_TRACES} or more traces on axis-aligned slices of one orientation (points within {SLICE_TOLERANCE_MM} mm of their slice), one trace per slice, none crossing itself; a CP resection's traces must span a plane, and only CP resections take `deformations`, each of whose point must project onto the plane (all refused with 400 otherwise)."),
         "Trace" => "A trace with no length (all points equal) is refused.".to_owned(),
         "GetLabelSliceRequest" => format!("`positionMm` must lie within the label map's extent along the axis (the answer's `minPositionMm`..=`maxPositionMm`; 400 otherwise). The pixel size is raised so that neither side of the raster exceeds {MAX_LABEL_SLICE_SIDE} pixels. 409 `NO_LABEL_MAP` before a label map is loaded."),
+        "GetResectogramRequest" => format!("`width` and `height` of 0 (or absent) mean {DEFAULT_RESECTOGRAM_SIDE}; at most {MAX_RESECTOGRAM_SIDE} each (400 otherwise). An unknown resection is 404; 409 `NO_LABEL_MAP` before a label map is loaded."),
         "EditRequest" => "Every edit but init and add names an existing resection (404 otherwise); undo and redo need something to undo or redo (409 otherwise); a non-zero `baseVersion` other than the plan's version is 409 `STALE_VERSION`. Edits apply to kinds: control points and groups to Bézier resections, traces to DS and CP resections, deformations to CP resections, the resolution to Bézier and DS resections (a CP resection is sampled at its grid); translate, rotate, margin, band and target to every kind; another pairing is refused (400). A trace edit must leave a valid surface (as `Resection` says), a trace index must exist, and undoing a deformation needs one (400 otherwise).".to_owned(),
         _ => return None,
     })
