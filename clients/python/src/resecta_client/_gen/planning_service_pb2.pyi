@@ -433,6 +433,32 @@ class GetResectogramResponse(_message.Message):
     band_mm: float
     def __init__(self, plan_version: _Optional[int] = ..., resection: _Optional[str] = ..., width: _Optional[int] = ..., height: _Optional[int] = ..., classes: _Optional[bytes] = ..., territories: _Optional[_Iterable[int]] = ..., cut_vessels: _Optional[_Iterable[_Union[_volumes_pb2.CutVessel, _Mapping]]] = ..., worst_u: _Optional[float] = ..., worst_v: _Optional[float] = ..., min_margin_mm: _Optional[float] = ..., margin_mm: _Optional[float] = ..., band_mm: _Optional[float] = ...) -> None: ...
 
+class GetRiskMapRequest(_message.Message):
+    __slots__ = ("session_id",)
+    SESSION_ID_FIELD_NUMBER: _ClassVar[int]
+    session_id: str
+    def __init__(self, session_id: _Optional[str] = ...) -> None: ...
+
+class GetRiskMapResponse(_message.Message):
+    __slots__ = ("plan_version", "dims", "spacing", "origin", "direction", "classes_zstd", "territories_zstd", "risk")
+    PLAN_VERSION_FIELD_NUMBER: _ClassVar[int]
+    DIMS_FIELD_NUMBER: _ClassVar[int]
+    SPACING_FIELD_NUMBER: _ClassVar[int]
+    ORIGIN_FIELD_NUMBER: _ClassVar[int]
+    DIRECTION_FIELD_NUMBER: _ClassVar[int]
+    CLASSES_ZSTD_FIELD_NUMBER: _ClassVar[int]
+    TERRITORIES_ZSTD_FIELD_NUMBER: _ClassVar[int]
+    RISK_FIELD_NUMBER: _ClassVar[int]
+    plan_version: int
+    dims: _containers.RepeatedScalarFieldContainer[int]
+    spacing: _containers.RepeatedScalarFieldContainer[float]
+    origin: _containers.RepeatedScalarFieldContainer[float]
+    direction: _containers.RepeatedScalarFieldContainer[float]
+    classes_zstd: bytes
+    territories_zstd: bytes
+    risk: _volumes_pb2.RiskReport
+    def __init__(self, plan_version: _Optional[int] = ..., dims: _Optional[_Iterable[int]] = ..., spacing: _Optional[_Iterable[float]] = ..., origin: _Optional[_Iterable[float]] = ..., direction: _Optional[_Iterable[float]] = ..., classes_zstd: _Optional[bytes] = ..., territories_zstd: _Optional[bytes] = ..., risk: _Optional[_Union[_volumes_pb2.RiskReport, _Mapping]] = ...) -> None: ...
+
 class WatchRequest(_message.Message):
     __slots__ = ("session_id", "since_seq", "allow_zstd", "allow_quantized")
     SESSION_ID_FIELD_NUMBER: _ClassVar[int]

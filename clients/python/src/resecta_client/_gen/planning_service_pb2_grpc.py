@@ -115,6 +115,11 @@ class PlanningServiceStub:
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramRequest.SerializeToString,
                 response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramResponse.FromString,
                 _registered_method=True)
+        self.GetRiskMap = channel.unary_unary(
+                '/resecta.v1.PlanningService/GetRiskMap',
+                request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapRequest.SerializeToString,
+                response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapResponse.FromString,
+                _registered_method=True)
         self.Watch = channel.unary_stream(
                 '/resecta.v1.PlanningService/Watch',
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.WatchRequest.SerializeToString,
@@ -254,6 +259,15 @@ class PlanningServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def GetRiskMap(self, request, context):
+        """The plan's risk per voxel of the functional liver (remnant kept, resected, devascularised,
+        congested) with the portal territories, for label-map views (FAILED_PRECONDITION without
+        vessel trees or while a cut is incomplete).
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
     def Watch(self, request, context):
         """Follows a session: a snapshot first (or, with `since_seq`, the events after it when the
         server still has them), then a delta per plan change and volumes when they are recomputed.
@@ -344,6 +358,11 @@ def add_PlanningServiceServicer_to_server(servicer, server):
                     servicer.GetResectogram,
                     request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramRequest.FromString,
                     response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetResectogramResponse.SerializeToString,
+            ),
+            'GetRiskMap': grpc.unary_unary_rpc_method_handler(
+                    servicer.GetRiskMap,
+                    request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapRequest.FromString,
+                    response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapResponse.SerializeToString,
             ),
             'Watch': grpc.unary_stream_rpc_method_handler(
                     servicer.Watch,
@@ -761,6 +780,33 @@ class PlanningService:
             '/resecta.v1.PlanningService/GetResectogram',
             resecta_dot_v1_dot_planning__service__pb2.GetResectogramRequest.SerializeToString,
             resecta_dot_v1_dot_planning__service__pb2.GetResectogramResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def GetRiskMap(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/resecta.v1.PlanningService/GetRiskMap',
+            resecta_dot_v1_dot_planning__service__pb2.GetRiskMapRequest.SerializeToString,
+            resecta_dot_v1_dot_planning__service__pb2.GetRiskMapResponse.FromString,
             options,
             channel_credentials,
             insecure,

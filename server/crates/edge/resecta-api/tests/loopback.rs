@@ -206,6 +206,12 @@ impl PlanningService for Fake {
     ) -> Result<Response<GetResectogramResponse>, Status> {
         Err(Status::unimplemented("get_resectogram"))
     }
+    async fn get_risk_map(
+        &self,
+        _: Request<GetRiskMapRequest>,
+    ) -> Result<Response<GetRiskMapResponse>, Status> {
+        Err(Status::unimplemented("get_risk_map"))
+    }
     type WatchStream = BoxStream<WatchResponse>;
     async fn watch(
         &self,

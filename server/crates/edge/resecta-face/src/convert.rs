@@ -13,7 +13,8 @@ use resecta_plan::resection::ResectionKind;
 use crate::info::saturating_u32;
 use resecta_plan::{
     CutVessel, Deformation, Group, IncompleteCut, LabelSlice, PlanEvent, Resection, Resectogram,
-    RiskReport, SliceAxis, SlicePositions, SliceProjections, Target, Verdict, VolumeReport,
+    RiskMap, RiskReport, SliceAxis, SlicePositions, SliceProjections, Target, Verdict,
+    VolumeReport,
 };
 use resecta_session::api::{
     DEFAULT_GRID, DataType, EditOp, EditOutcome, FileFormat, LabelMapSummary, ModelInfo,
@@ -21,6 +22,7 @@ use resecta_session::api::{
 };
 
 use crate::error::WireError;
+use resecta_session::SessionError;
 
 type Wire<T> = Result<T, WireError>;
 
@@ -716,6 +718,30 @@ pub fn resectogram_request(r: &pb::GetResectogramRequest) -> Wire<(String, usize
         v => v as usize,
     };
     Ok((r.resection.clone(), side(r.width), side(r.height)))
+}
+
+/// The risk map with its classes and territories as zstd frames.
+pub fn risk_map(plan_version: u64, m: &RiskMap) -> Result<pb::GetRiskMapResponse, SessionError> {
+    let pack = |bytes: &[u8]| {
+        zstd::bulk::compress(bytes, 3).map_err(|e| SessionError::Internal(format!("zstd: {e}")))
+    };
+    let territories: Vec<u8> = m
+        .territories
+        .iter()
+        .flat_map(|&t| u16::try_from(t).unwrap_or(u16::MAX).to_le_bytes())
+        .collect();
+    let d = m.grid.direction();
+    let o = m.grid.origin();
+    Ok(pb::GetRiskMapResponse {
+        plan_version,
+        dims: m.grid.dims().map(saturating_u32).to_vec(),
+        spacing: m.grid.spacing().to_vec(),
+        origin: vec![o.x, o.y, o.z],
+        direction: (0..9).map(|k| d[(k / 3, k % 3)]).collect(),
+        classes_zstd: pack(&m.classes)?,
+        territories_zstd: pack(&territories)?,
+        risk: Some(risk(&m.report)),
+    })
 }
 
 /// Resectogram side when a request leaves it 0.

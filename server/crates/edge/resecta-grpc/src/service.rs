@@ -310,6 +310,17 @@ impl PlanningService for Planning {
         )))
     }
 
+    async fn get_risk_map(
+        &self,
+        request: Request<pb::GetRiskMapRequest>,
+    ) -> Result<Response<pb::GetRiskMapResponse>, Status> {
+        let r = request.get_ref();
+        let m = self.service.risk_map(&r.session_id).await.or_status()?;
+        Ok(Response::new(
+            convert::risk_map(m.plan_version, &m.value).or_status()?,
+        ))
+    }
+
     type WatchStream = BoxStream<pb::WatchResponse>;
 
     async fn watch(

@@ -365,6 +365,15 @@ pub async fn resectogram(
     Ok(axum::Json(convert::resectogram(g.plan_version, &g.value)))
 }
 
+/// `GetRiskMap`: the classes and territories come base64-encoded zstd frames.
+pub async fn risk_map(
+    State(app): State<App>,
+    Path(id): Path<String>,
+) -> JsonAnswer<pb::GetRiskMapResponse> {
+    let m = app.service.risk_map(&id).await?;
+    Ok(axum::Json(convert::risk_map(m.plan_version, &m.value)?))
+}
+
 // ---- watch ---------------------------------------------------------------------------------
 
 /// `Watch` as server-sent events: the query is the `WatchRequest` (`sinceSeq`, `allowZstd`,

@@ -33,6 +33,7 @@
 //! | `GET /v1/sessions/{id}/slices?resection=…&axial=…` | `GetSlices` | → `GetSlicesResponse` |
 //! | `GET /v1/sessions/{id}/label-slice?axis=…&positionMm=…` | `GetLabelSlice` | → `GetLabelSliceResponse` |
 //! | `GET /v1/sessions/{id}/resectogram?resection=…&width=…&height=…` | `GetResectogram` | → `GetResectogramResponse` |
+//! | `GET /v1/sessions/{id}/risk-map` | `GetRiskMap` | → `GetRiskMapResponse` |
 //! | `GET /v1/sessions/{id}/watch?sinceSeq=…` | `Watch` | → SSE of `WatchResponse` (`snapshot`, `delta`, `volumes`), `id` = seq, `Last-Event-ID` resumes |
 //!
 //! Errors map [`resecta_session::ErrorKind`] and `resecta_face::WireError` once (see
@@ -262,6 +263,12 @@ fn table() -> Vec<Route> {
             "/v1/sessions/{id}/resectogram",
             Some("GetResectogram"),
             h::resectogram,
+        ),
+        route(
+            Get,
+            "/v1/sessions/{id}/risk-map",
+            Some("GetRiskMap"),
+            h::risk_map,
         ),
         route(Get, "/v1/sessions/{id}/watch", Some("Watch"), h::watch),
     ]

@@ -545,6 +545,29 @@ async fn every_rpc_answers_the_same_on_both_faces() {
     assert_eq!((g.classes.len(), g.territories.len()), (1200, 1200));
     assert!(g.classes.iter().any(|&c| c > 0), "the cut meets the liver");
 
+    walked("GetRiskMap");
+    let g = grpc
+        .get_risk_map(pb::GetRiskMapRequest {
+            session_id: a.clone(),
+        })
+        .await;
+    let h = get(http, &format!("/v1/sessions/{b}/risk-map")).await;
+    match g {
+        Ok(g) => {
+            let g = g.into_inner();
+            assert_same("GetRiskMap", &pj(&g), &h.json());
+            let n: u32 = g.dims.iter().product();
+            let classes = zstd::bulk::decompress(&g.classes_zstd, n as usize).unwrap();
+            assert_eq!(classes.len(), n as usize);
+            assert!(classes.contains(&1), "a functional remnant");
+        }
+        Err(status) => {
+            // The small phantom's cut may leave no complete plan: refused alike.
+            assert_eq!(status.code(), tonic::Code::FailedPrecondition, "{status:?}");
+            assert_eq!(h.status, StatusCode::CONFLICT);
+        }
+    }
+
     // Watch: the first snapshot (its parts) of each session.
     walked("Watch");
     let mut gw = grpc

@@ -26,7 +26,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use resecta_geom::RoleMap;
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
 use resecta_plan::{
-    LabelSlice, Resectogram, SliceAxis, SlicePositions, SliceProjections, label_slice,
+    LabelSlice, Resectogram, RiskMap, SliceAxis, SlicePositions, SliceProjections, label_slice,
     slice_projections,
 };
 use resecta_store::SessionStore;
@@ -37,7 +37,7 @@ use crate::budget::{
     watcher_bytes,
 };
 use crate::config::ServiceConfig;
-use crate::error::{Quota, Result, SessionError};
+use crate::error::{Missing, Quota, Result, SessionError};
 use crate::labelmap;
 use crate::log;
 use crate::pools::{self, Priority};
@@ -454,6 +454,26 @@ impl Service {
         Ok(Versioned {
             plan_version,
             value: planner.resectogram(name, width, height)?,
+        })
+    }
+
+    /// The plan's risk map, with the plan version it shows.
+    pub async fn risk_map(&self, id: &str) -> Result<Versioned<RiskMap>> {
+        let (_, mut st) = self.open(id).await?;
+        let plan_version = st.version;
+        let loaded = loaded_mut(&mut st)?;
+        let planner = loaded.ready().await?;
+        let value = planner.risk_map()?.ok_or_else(|| {
+            SessionError::Precondition(
+                Missing::Other,
+                "no risk map: the label map has no usable portal or hepatic vessels, or a \
+                 resection does not cut the liver completely"
+                    .into(),
+            )
+        })?;
+        Ok(Versioned {
+            plan_version,
+            value,
         })
     }
 

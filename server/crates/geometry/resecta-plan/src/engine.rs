@@ -23,7 +23,10 @@ use crate::plan::{Plan, PlanEvent};
 use crate::probe::{ComputeEngine, SampleProbe};
 use crate::resection::{Resection, Target, arr};
 use crate::surface::LiveSurface;
-use crate::vascular::{CutMesh, RiskReport, Vascular, crossings, risk_report};
+use crate::vascular::{
+    self, CutMesh, RiskMap, RiskReport, TERRITORY_GENERATION, Vascular, crossings, risk_report,
+};
+use resecta_vessels::VesselSystem;
 
 /// Default future-liver-remnant warning threshold (% of the total functional liver).
 pub const DEFAULT_FLR_THRESHOLD_PCT: Real = 30.0;
@@ -618,6 +621,44 @@ impl Planner {
             ));
         }
         Planner::with_engine(self.anatomy_shared(), reference, self.compute.clone())
+    }
+
+    /// The plan's risk per voxel (cropped to the functional liver) with its report; `None`
+    /// without vessel trees or while some cut is incomplete.
+    pub fn risk_map(&mut self) -> Result<Option<RiskMap>, PlanError> {
+        let anatomy = self.anatomy_shared();
+        let Some(model) = anatomy.vascular().model() else {
+            return Ok(None);
+        };
+        let meshes = self.cut_meshes()?;
+        let (multi, resected) = self.run_cuts(|v, cuts| v.cuts_with_fractions(cuts))?;
+        if !multi.complete {
+            return Ok(None);
+        }
+        let inside = |p: &Vec3| anatomy.inside_level(p);
+        let reach = anatomy
+            .envelope()
+            .grid()
+            .spacing()
+            .iter()
+            .fold(0.0, |m: Real, &s| m.max(s));
+        let x = crossings(model, &meshes, &inside, reach)?;
+        let remnant: Vec<f32> = resected.iter().map(|f| 1.0 - f).collect();
+        let a = model
+            .assess(&x, &remnant)
+            .map_err(|e| PlanError::InvalidArgument(format!("risk analysis: {e}")))?;
+        let report = risk_report(&a, &meshes, multi.total_mm3);
+        let regions = model.regions(&x);
+        let offsets = self.volumetry_engine()?.liver().offsets();
+        let territories = model.voxel_territories(VesselSystem::Portal, TERRITORY_GENERATION);
+        Ok(Some(vascular::risk_map(
+            anatomy.functional().grid(),
+            &offsets,
+            &resected,
+            &regions,
+            territories,
+            report,
+        )?))
     }
 
     /// Takes back the engine of a [`VolumeJob`] (one built for the same anatomy).

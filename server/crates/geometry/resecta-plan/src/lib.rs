@@ -42,4 +42,4 @@ pub use resecta_volumetry::{IncompleteCut, Volumetry};
 pub use resection::{Group, Resection, ResectionKind, Target};
 pub use resectogram::Resectogram;
 pub use surface::{LiveSurface, SlicePositions, SliceProjections, slice_projections};
-pub use vascular::{CutVessel, RiskReport, Vascular};
+pub use vascular::{CutVessel, RiskMap, RiskReport, Vascular, risk_class};

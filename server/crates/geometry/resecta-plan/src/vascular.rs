@@ -3,10 +3,10 @@
 
 use std::sync::Arc;
 
-use resecta_geom::{LabelMap, MeshBvh, Real, Role, RoleMap, TriMesh, Vec3, Volume};
+use resecta_geom::{Grid, LabelMap, MeshBvh, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_vessels::{
-    Crossing, CutBranch, RiskAssessment, RiskModel, RootChoice, VesselParams, VesselSystem,
-    VesselTree, vessel_tree,
+    Crossing, CutBranch, RiskAssessment, RiskModel, RiskRegions, RootChoice, VesselParams,
+    VesselSystem, VesselTree, vessel_tree,
 };
 use serde::Serialize;
 
@@ -204,4 +204,92 @@ pub fn risk_report(a: &RiskAssessment, surfaces: &[CutMesh], total_mm3: Real) ->
         has_hepatic: a.has_hepatic,
         cut_vessels,
     }
+}
+
+/// Per-voxel risk classes of [`RiskMap::classes`].
+pub mod risk_class {
+    /// Not functional liver.
+    pub const NONE: u8 = 0;
+    /// Remnant that keeps portal supply and hepatic drainage.
+    pub const FUNCTIONAL: u8 = 1;
+    /// Resected (resected fraction ≥ ½).
+    pub const RESECTED: u8 = 2;
+    pub const DEVASCULARISED: u8 = 3;
+    pub const CONGESTED: u8 = 4;
+    /// Devascularised and congested.
+    pub const BOTH: u8 = 5;
+}
+
+/// The plan's risk per voxel of the functional liver's bounding box.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RiskMap {
+    /// The bounding box of the functional liver on the label map's grid.
+    pub grid: Grid,
+    /// [`risk_class`] per voxel (x fastest).
+    pub classes: Vec<u8>,
+    /// 1 + the generation-2 portal branch feeding each voxel ([`TERRITORY_GENERATION`]); 0
+    /// outside the functional liver or without a portal tree.
+    pub territories: Vec<u32>,
+    pub report: RiskReport,
+}
+
+/// The risk map of liver voxels at grid `offsets` with their resected fractions and lost
+/// flags, cropped to their bounding box.
+pub(crate) fn risk_map(
+    grid: &Grid,
+    offsets: &[usize],
+    resected: &[f32],
+    regions: &RiskRegions,
+    territories: Option<Vec<u32>>,
+    report: RiskReport,
+) -> Result<RiskMap, resecta_geom::GeomError> {
+    let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+    for &o in offsets {
+        let ijk = grid.ijk(o);
+        for a in 0..3 {
+            lo[a] = lo[a].min(ijk[a]);
+            hi[a] = hi[a].max(ijk[a] + 1);
+        }
+    }
+    if lo[0] == usize::MAX {
+        lo = [0; 3];
+        hi = [1; 3];
+    }
+    let dims = [0, 1, 2].map(|a| hi[a] - lo[a]);
+    let crop = Grid::new(
+        dims,
+        grid.spacing(),
+        grid.voxel_center(lo),
+        grid.direction(),
+    )?;
+    let mut classes = vec![risk_class::NONE; crop.len()];
+    let mut terr = vec![0u32; crop.len()];
+    let flag = |v: &Option<Vec<bool>>, i: usize| v.as_ref().is_some_and(|v| v[i]);
+    for (i, &o) in offsets.iter().enumerate() {
+        let ijk = grid.ijk(o);
+        let c = crop.offset([ijk[0] - lo[0], ijk[1] - lo[1], ijk[2] - lo[2]]);
+        let (d, g) = (
+            flag(&regions.devascularised, i),
+            flag(&regions.congested, i),
+        );
+        classes[c] = if resected[i] >= 0.5 {
+            risk_class::RESECTED
+        } else {
+            match (d, g) {
+                (true, true) => risk_class::BOTH,
+                (true, false) => risk_class::DEVASCULARISED,
+                (false, true) => risk_class::CONGESTED,
+                (false, false) => risk_class::FUNCTIONAL,
+            }
+        };
+        if let Some(t) = &territories {
+            terr[c] = t[i];
+        }
+    }
+    Ok(RiskMap {
+        grid: crop,
+        classes,
+        territories: terr,
+        report,
+    })
 }

@@ -209,3 +209,36 @@ fn the_resectogram_unrolls_the_cut_with_its_liver_boundary_vessel_and_worst_poin
     assert!(p.resectogram("r", 10, 513).is_err());
     assert!(p.resectogram("nope", 10, 10).is_err());
 }
+
+#[test]
+fn the_risk_map_agrees_with_the_report() {
+    let mut plan = Plan::new(RoleMap::default());
+    plan.apply(&PlanEvent::AddResection {
+        resection: plane_x(12.0),
+    })
+    .unwrap();
+    let mut p = Planner::new(anatomy(), plan).unwrap();
+    let m = p.risk_map().unwrap().unwrap();
+    let v = p.volumes().unwrap();
+    assert_eq!(Some(&m.report), v.risk.as_ref());
+    let ml = m.grid.voxel_volume_mm3() / 1000.0;
+    let count = |c: u8| m.classes.iter().filter(|&&k| k == c).count() as Real * ml;
+    use resecta_plan::risk_class::*;
+    let (dev, res, fun) = (count(DEVASCULARISED), count(RESECTED), count(FUNCTIONAL));
+    println!("map: devascularised {dev:.2} ml, resected {res:.1}, functional {fun:.1}");
+    // Voxels are whole in the map, fractional in the report: within the cut's band.
+    assert!((dev - m.report.devascularised_ml).abs() < 0.1 * m.report.devascularised_ml);
+    assert!((res - v.resected_ml.unwrap()).abs() < 0.02 * v.resected_ml.unwrap());
+    assert!((fun - m.report.functional_remnant_ml).abs() < 0.02 * m.report.functional_remnant_ml);
+    assert_eq!(count(CONGESTED) + count(BOTH), 0.0);
+    // Every functional-liver voxel has a territory, no other voxel has one.
+    assert!(
+        m.classes
+            .iter()
+            .zip(&m.territories)
+            .all(|(&c, &t)| (c == NONE) == (t == 0))
+    );
+    // The crop is the functional liver's box: the total is the liver.
+    let liver = m.classes.iter().filter(|&&c| c != NONE).count() as Real * ml;
+    assert!((liver - v.total_ml).abs() < 1e-6 * v.total_ml);
+}

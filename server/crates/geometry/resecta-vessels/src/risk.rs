@@ -183,6 +183,33 @@ impl RiskModel {
         self.liver.len()
     }
 
+    /// Per liver voxel (the order given to [`RiskModel::new`]): 1 + the branch of generation
+    /// at most `generation` above its nearest centreline point of `system` (0 without one).
+    pub fn voxel_territories(&self, system: VesselSystem, generation: u32) -> Option<Vec<u32>> {
+        let s = self.systems.iter().find(|s| s.system == system)?;
+        let edges = &s.tree.edges;
+        let head: Vec<u32> = edges
+            .iter()
+            .map(|e| {
+                let mut k = e.id;
+                while let Some(p) = edges[k].parent.filter(|_| edges[k].generation > generation) {
+                    k = p;
+                }
+                k as u32 + 1
+            })
+            .collect();
+        Some(
+            s.nearest
+                .iter()
+                .map(|&f| {
+                    s.features
+                        .get(f as usize)
+                        .map_or(0, |&(e, _)| head[e as usize])
+                })
+                .collect(),
+        )
+    }
+
     /// The territory holding `p`: the branch of generation at most `generation` above the
     /// nearest centreline point of `system` to the liver voxel holding `p` (`None` outside the
     /// liver or without a tree of `system`).
