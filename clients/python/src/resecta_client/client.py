@@ -32,6 +32,8 @@ from .types import (
     Reconstruction,
     Resection,
     ResectionKind,
+    Resectogram,
+    RiskMap,
     ServerInfo,
     SessionInfo,
     SliceAxis,
@@ -695,6 +697,18 @@ class Session:
             pixel_mm=pixel_mm,
         )
         return LabelSlice.from_pb(self.client._call("GetLabelSlice", request))
+
+    def resectogram(self, name: str, width: int = 200, height: int = 200) -> Resectogram:
+        """Resection `name` unrolled to its (u, v) square at `width`×`height` pixels (each
+        1..=`max_resectogram_side`): margin classes, portal territories, cut vessels, worst point."""
+        request = pb.GetResectogramRequest(session_id=self.id, resection=name, width=width, height=height)
+        return Resectogram.from_pb(self.client._call("GetResectogram", request))
+
+    def risk_map(self, *, timeout: float | None = None) -> RiskMap:
+        """The plan's risk per voxel of the functional liver with the portal territories
+        (`FailedPrecondition` without vessels or while a cut is incomplete); needs `zstandard`."""
+        r = self.client._call("GetRiskMap", pb.GetRiskMapRequest(session_id=self.id), timeout=timeout)
+        return RiskMap.from_pb(r)
 
     # --- watch --------------------------------------------------------------------------------
 

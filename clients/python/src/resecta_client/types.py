@@ -217,6 +217,7 @@ class ServerLimits:
     max_control_points: int
     max_resolution: int
     session_idle_timeout_s: int
+    max_resectogram_side: int = 0
 
 
 @dataclass(frozen=True)
@@ -585,9 +586,71 @@ class ResectionVolume:
 
 
 @dataclass(frozen=True)
+class CutVessel:
+    """A vessel a resection cuts: `system` ``"portal"`` or ``"hepatic"``, its branch (edge id
+    of the centreline tree) and generation, the radius and RAS point of the crossing, and its
+    (u, v) on the resection's surface (the resectogram's axes)."""
+
+    system: str
+    resection: str
+    branch: int
+    generation: int
+    radius_mm: float
+    point: tuple[float, float, float]
+    uv: tuple[float, float]
+    downstream_of_another_cut: bool
+
+    @classmethod
+    def from_pb(cls, m: volumes_pb2.CutVessel) -> CutVessel:
+        system = {volumes_pb2.VESSEL_SYSTEM_HEPATIC: "hepatic"}.get(m.system, "portal")
+        return cls(
+            system,
+            m.resection,
+            m.branch,
+            m.generation,
+            m.radius_mm,
+            _xyz(m.point),
+            (m.u, m.v),
+            m.downstream_of_another_cut,
+        )
+
+
+@dataclass(frozen=True)
+class Risk:
+    """What the plan puts at risk: the remnant without portal supply (devascularised) or
+    hepatic drainage (congested), the functional remnant that keeps both (ml and % of the
+    functional liver) and the cut vessels, largest first."""
+
+    devascularised_ml: float
+    congested_ml: float
+    at_risk_ml: float
+    functional_remnant_ml: float
+    functional_remnant_pct: float
+    has_portal: bool
+    has_hepatic: bool
+    cut_vessels: tuple[CutVessel, ...]
+
+    @classmethod
+    def from_pb(cls, m: volumes_pb2.RiskReport) -> Risk:
+        return cls(
+            m.devascularised_ml,
+            m.congested_ml,
+            m.at_risk_ml,
+            m.functional_remnant_ml,
+            m.functional_remnant_pct,
+            m.has_portal,
+            m.has_hepatic,
+            tuple(CutVessel.from_pb(c) for c in m.cut_vessels),
+        )
+
+
+@dataclass(frozen=True)
 class Volumes:
     """Resected and remnant volumes of the functional liver (every role but tumour) for
-    `plan_version`; remnant and resected values are None when some cut is incomplete."""
+    `plan_version`; remnant and resected values are None when some cut is incomplete. `risk`
+    is the vascular risk analysis when the label map has portal or hepatic vessels and every
+    cut is complete (then `flr_warning` is based on the functional remnant);
+    `risk_unavailable` says why there is none although the roles name vessels."""
 
     plan_version: int
     total_ml: float
@@ -598,6 +661,8 @@ class Volumes:
     flr_warning: bool | None
     complete: bool
     resections: tuple[ResectionVolume, ...] = field(default=())
+    risk: Risk | None = None
+    risk_unavailable: str = ""
 
     @classmethod
     def from_pb(cls, m: volumes_pb2.VolumeReport, plan_version: int) -> Volumes:
@@ -623,6 +688,8 @@ class Volumes:
             flr_warning=_opt(m, "flr_warning"),
             complete=m.complete,
             resections=res,
+            risk=Risk.from_pb(m.risk) if m.HasField("risk") else None,
+            risk_unavailable=m.risk_unavailable,
         )
 
 
@@ -653,6 +720,96 @@ class Slices:
         return cls(
             *(tuple(Polyline.from_pb(p) for p in getattr(m, k)) for k in ("axial", "coronal", "sagittal"))
         )
+
+
+@dataclass(frozen=True, eq=False)
+class Resectogram:
+    """A resection unrolled to its (u, v) square: `classes` (height, width) uint8 margin
+    classes (0 outside the liver, 1 safe, 2 warning, 3 violation; pixel (r, c) at
+    u = (c + ½)/width, v = (r + ½)/height), `territories` (height, width) portal territory ids
+    (0 none), the cut vessels and the worst point's (u, v)."""
+
+    plan_version: int
+    resection: str
+    classes: npt.NDArray[np.uint8]
+    territories: npt.NDArray[np.uint32]
+    cut_vessels: tuple[CutVessel, ...]
+    worst_uv: tuple[float, float] | None
+    min_margin_mm: float | None
+    margin_mm: float
+    band_mm: float
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.GetResectogramResponse) -> Resectogram:
+        shape = (m.height, m.width)
+        classes = np.frombuffer(m.classes, dtype=np.uint8).reshape(shape)
+        terr = np.asarray(m.territories, dtype=np.uint32)
+        territories = terr.reshape(shape) if terr.size else np.zeros(shape, np.uint32)
+        worst = (m.worst_u, m.worst_v) if m.HasField("worst_u") and m.HasField("worst_v") else None
+        return cls(
+            int(m.plan_version),
+            m.resection,
+            classes,
+            territories,
+            tuple(CutVessel.from_pb(c) for c in m.cut_vessels),
+            worst,
+            _opt(m, "min_margin_mm"),
+            m.margin_mm,
+            m.band_mm,
+        )
+
+
+class RiskClass(enum.IntEnum):
+    """Per-voxel class of a `RiskMap`."""
+
+    NONE = 0
+    FUNCTIONAL = 1
+    RESECTED = 2
+    DEVASCULARISED = 3
+    CONGESTED = 4
+    BOTH = 5
+
+
+@dataclass(frozen=True, eq=False)
+class RiskMap:
+    """The plan's risk per voxel on the functional liver's bounding box: `classes` and
+    `territories` are (k, j, i) arrays (x fastest in memory) of `RiskClass` codes and portal
+    territory ids (0 none); `ijk_to_ras` (4×4) places voxel centres in RAS mm."""
+
+    plan_version: int
+    classes: npt.NDArray[np.uint8]
+    territories: npt.NDArray[np.uint16]
+    ijk_to_ras: F64
+    risk: Risk
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.GetRiskMapResponse) -> RiskMap:
+        try:
+            import zstandard
+        except ImportError:  # the `zstd` extra
+            raise RuntimeError("a risk map needs the 'zstandard' package (the zstd extra)") from None
+        i, j, k = (int(d) for d in m.dims)
+        n = i * j * k
+        unpack = zstandard.ZstdDecompressor().decompress
+        classes = np.frombuffer(unpack(m.classes_zstd, max_output_size=n), np.uint8)
+        terr = np.frombuffer(unpack(m.territories_zstd, max_output_size=2 * n), "<u2")
+        if classes.size != n or terr.size != n:
+            raise ValueError(f"risk map of {i}×{j}×{k} voxels holds {classes.size} classes, {terr.size} territories")
+        ijk = np.eye(4)
+        ijk[:3, :3] = np.asarray(m.direction, dtype=np.float64).reshape(3, 3) * np.asarray(m.spacing)
+        ijk[:3, 3] = m.origin
+        return cls(
+            int(m.plan_version),
+            classes.reshape(k, j, i),
+            terr.astype(np.uint16).reshape(k, j, i),
+            ijk,
+            Risk.from_pb(m.risk),
+        )
+
+    def volume_ml(self, *codes: RiskClass) -> float:
+        """Volume of the voxels of these classes, ml."""
+        voxel = abs(float(np.linalg.det(self.ijk_to_ras[:3, :3]))) / 1000.0
+        return float(np.isin(self.classes, [int(c) for c in codes]).sum()) * voxel
 
 
 @dataclass(frozen=True, eq=False)
