@@ -137,6 +137,51 @@ export interface VolumeReport {
   flrWarning?: boolean;
   complete?: boolean;
   resections?: ResectionVolume[];
+  risk?: RiskReport; // when the label map has vessels and every cut is complete
+  riskUnavailable?: string; // why there is no risk analysis although the roles name vessels
+}
+
+export type VesselSystem = "VESSEL_SYSTEM_PORTAL" | "VESSEL_SYSTEM_HEPATIC";
+
+/** A vessel a resection cuts: where its centreline crosses the surface inside the liver. */
+export interface CutVessel {
+  system?: VesselSystem;
+  resection?: string;
+  branch?: number;
+  generation?: number;
+  radiusMm?: number;
+  point?: Partial<Vec3>;
+  u?: number; // on the resection's (u, v) square, 0..1
+  v?: number;
+  downstreamOfAnotherCut?: boolean;
+}
+
+/** What the cuts put at risk; `VolumeReport.flrWarning` then judges the functional remnant. */
+export interface RiskReport {
+  devascularisedMl?: number;
+  congestedMl?: number;
+  atRiskMl?: number;
+  functionalRemnantMl?: number;
+  functionalRemnantPct?: number;
+  hasPortal?: boolean;
+  hasHepatic?: boolean;
+  cutVessels?: CutVessel[]; // largest radius first
+}
+
+/** `GetResectogramResponse`: pixel (r, c) shows the surface at u = (c + ½)/width, v = (r + ½)/height. */
+export interface ResectogramResponse {
+  planVersion?: string;
+  resection?: string;
+  width?: number;
+  height?: number;
+  classes?: string; // base64, one margin class per pixel, row-major
+  territories?: number[]; // portal territory per pixel (0: none)
+  cutVessels?: CutVessel[];
+  worstU?: number;
+  worstV?: number;
+  minMarginMm?: number;
+  marginMm?: number;
+  bandMm?: number;
 }
 
 export interface Surface {
@@ -327,6 +372,11 @@ export class Api {
   }
   volumes(id: string): Promise<{ planVersion?: string; volumes?: VolumeReport }> {
     return this.json("GET", `/v1/sessions/${enc(id)}/volumes`);
+  }
+  /** Resection `resection` unrolled to its (u, v) square, `width` × `height` pixels. */
+  resectogram(id: string, resection: string, width: number, height: number): Promise<ResectogramResponse> {
+    const q = new URLSearchParams({ resection, width: String(width), height: String(height) });
+    return this.json("GET", `/v1/sessions/${enc(id)}/resectogram?${q}`);
   }
   /** One plane of the label map as a raster (`pixelMm` absent: the finest voxel spacing). */
   labelSlice(id: string, axis: SliceAxis, positionMm: number, pixelMm?: number): Promise<LabelSliceResponse> {

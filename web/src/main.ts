@@ -12,6 +12,8 @@ import { nearestVertex } from "./traces";
 import { askToken, Panel } from "./panel";
 import { Plan } from "./plan";
 import type { Change, PublicState } from "./plan";
+import { ResectogramView } from "./resectogram";
+import type { ResectogramState } from "./resectogram";
 import { PALETTE, Scene } from "./scene";
 import type { ScreenPoint } from "./scene";
 import { SliceView } from "./sliceview";
@@ -41,6 +43,8 @@ declare global {
       models(): string[];
       /** The slice view's plane, raster size, contours drawn and last picked point. */
       slice(): SliceState | null;
+      /** What the resectogram shows: its resection, plan version, size and cut vessels. */
+      resectogram(): ResectogramState | null;
       /** The DS or CP resection being drawn, not yet sent. */
       drawing(): DrawingState | null;
       /** The vertex of surface `name` nearest the point of it drawn at page position (x, y). */
@@ -56,6 +60,7 @@ const panel = new Panel(document.getElementById("panel")!);
 const view = document.getElementById("view")!;
 const scene = new Scene(view);
 const timer = new RepaintTimer();
+const resectogram = new ResectogramView(panel.root.appendChild(document.createElement("section")), api);
 const intake = new Intake(panel.root.appendChild(document.createElement("section")), api);
 const sliceView = new SliceView(document.getElementById("slice")!, api, PALETTE, PALETTE["resection"]![0], (e) =>
   panel.setStatus(`Slice view: ${message(e)}`, "error"),
@@ -263,6 +268,7 @@ window.resecta = {
   look: (name) => scene.look(name),
   models: () => [...(plan?.models.keys() ?? [])],
   slice: () => sliceView.state(),
+  resectogram: () => resectogram.state(),
   drawing: () => methods.drawingState(),
   probe(name, x, y) {
     const p = scene.pickSurface(x, y, [name]), mesh = scene.mesh(name);
@@ -318,10 +324,17 @@ function redraw(p: Plan, change: Change): void {
   editor?.refresh();
   panel.selected = editor?.selected ?? null;
   panel.show(p);
+  resectogram.refresh(p.sessionId, panel.selected);
   tools.update(p, panel.selected);
   methods.update(p, panel.selected);
   if (marked) showClosest(marked, false);
   sliceView.planChanged([...p.resections.keys()], editor?.selected ?? null);
+  requestRender();
+}
+
+/** The vessels the volumes' risk analysis finds cut, marked in the 3D view. */
+function showCutVessels(p: Plan): void {
+  scene.showCutVessels(p.volumes?.risk?.cutVessels ?? []);
   requestRender();
 }
 
@@ -344,6 +357,7 @@ async function main(): Promise<void> {
     sliceView.select(name);
     panel.selected = name;
     panel.show(p);
+    resectogram.refresh(p.sessionId, name);
     tools.update(p, name);
     methods.update(p, name);
   };
@@ -355,6 +369,7 @@ async function main(): Promise<void> {
     snapshot(s, msg) {
       try {
         redraw(p, p.applySnapshot(s, msg));
+        showCutVessels(p);
         intake.show(p.session);
         const labelMap = p.session?.labelMap;
         const key = labelMap ? JSON.stringify(labelMap) : "";
@@ -381,6 +396,7 @@ async function main(): Promise<void> {
     },
     volumes(v, msg) {
       p.applyVolumes(v, msg);
+      showCutVessels(p);
       panel.show(p);
       methods.update(p, panel.selected);
     },

@@ -2,7 +2,7 @@
 // session picker and the bearer-token prompt. Plain DOM; text is always set as text.
 
 import { problemText } from "./api";
-import type { Session, VolumeReport } from "./api";
+import type { RiskReport, Session, VolumeReport } from "./api";
 import type { Plan } from "./plan";
 import { methodOf } from "./traces";
 
@@ -133,8 +133,11 @@ function volumesTable(v: VolumeReport, stale: boolean): HTMLElement {
     ]),
   ];
   const out = h("div", {}, table(["", "volume", "share"], rows));
+  if (v.risk) out.append(...riskTables(v.risk));
+  else if (v.riskUnavailable) out.append(h("p", { class: "muted risk-unavailable" }, `No risk analysis: ${v.riskUnavailable}`));
   if (v.flrWarning) {
-    out.append(h("p", { class: "bad flr", role: "alert" }, `⚠ Future liver remnant ${pct(v.remnantPct)} is below ${pct(v.flrThresholdPct)}`));
+    const what = v.risk ? `Functional remnant ${pct(v.risk.functionalRemnantPct ?? 0)}` : `Future liver remnant ${pct(v.remnantPct)}`;
+    out.append(h("p", { class: "bad flr", role: "alert" }, `⚠ ${what} is below ${pct(v.flrThresholdPct)}`));
   }
   for (const r of v.resections ?? []) {
     if (!r.completeCut && r.incompleteReason) out.append(h("p", { class: "bad incomplete" }, `${r.name}: ${r.incompleteReason}`));
@@ -148,6 +151,36 @@ function volumesTable(v: VolumeReport, stale: boolean): HTMLElement {
     out.append(t);
   }
   if (stale) out.append(h("p", { class: "muted" }, "Recomputing…"));
+  return out;
+}
+
+const SYSTEM_LABEL: Record<string, string> = { VESSEL_SYSTEM_PORTAL: "portal", VESSEL_SYSTEM_HEPATIC: "hepatic" };
+/** Cut vessels listed (the largest first); the rest are counted. */
+const CUT_VESSELS_LISTED = 6;
+
+/** The remnant the cuts leave supplied and drained, what they put at risk, the vessels cut. */
+function riskTables(r: RiskReport): HTMLElement[] {
+  const risk = table(["risk", "volume", "share"], [
+    ["functional remnant", ml(r.functionalRemnantMl ?? 0), pct(r.functionalRemnantPct ?? 0)],
+    ["devascularised", r.hasPortal ? ml(r.devascularisedMl ?? 0) : "no portal tree", ""],
+    ["congested", r.hasHepatic ? ml(r.congestedMl ?? 0) : "no hepatic tree", ""],
+    ["at risk", ml(r.atRiskMl ?? 0), ""],
+  ]);
+  risk.className = "risk";
+  risk.title = "Remnant whose nearest portal (hepatic) centreline is cut off from its root: devascularised (congested)";
+  const cuts = r.cutVessels ?? [];
+  const out = [risk, h("p", { class: "cut-count" }, `${cuts.length} cut vessel${cuts.length === 1 ? "" : "s"}`)];
+  if (cuts.length) {
+    const rows = cuts.slice(0, CUT_VESSELS_LISTED).map((c) => [
+      `${SYSTEM_LABEL[c.system ?? ""] ?? "vessel"}${c.downstreamOfAnotherCut ? " (downstream)" : ""}`,
+      mm(c.radiusMm ?? 0),
+      c.resection ?? "",
+    ]);
+    const t = table(["cut vessel", "radius", "resection"], rows);
+    t.className = "cut-vessels";
+    out.push(t);
+    if (cuts.length > CUT_VESSELS_LISTED) out.push(h("p", { class: "muted" }, `… and ${cuts.length - CUT_VESSELS_LISTED} more`));
+  }
   return out;
 }
 

@@ -15,7 +15,8 @@ import vtkRenderer from "@kitware/vtk.js/Rendering/Core/Renderer";
 import vtkRenderWindow from "@kitware/vtk.js/Rendering/Core/RenderWindow";
 import vtkRenderWindowInteractor from "@kitware/vtk.js/Rendering/Core/RenderWindowInteractor";
 import vtkOpenGLRenderWindow from "@kitware/vtk.js/Rendering/OpenGL/RenderWindow";
-import type { Vec3 } from "./api";
+import type { CutVessel, Vec3 } from "./api";
+import { CUT_VESSEL_RGB, MARGIN_CLASS_RGBA } from "./colours";
 import type { Mesh } from "./wire";
 
 type Rgb = [number, number, number];
@@ -29,14 +30,6 @@ export const PALETTE: Record<string, [Rgb, number]> = {
   vessel: [[0.847, 0.396, 0.31], 1.0],
   resection: [[0.75, 0.75, 0.75], 1.0],
 };
-
-/** RGBA per margin class code (outside, safe, warning, violation), as the Slicer module. */
-export const MARGIN_CLASS_RGBA: readonly [number, number, number, number][] = [
-  [0.86, 0.86, 0.86, 0.35],
-  [0.62, 0.62, 0.62, 1.0],
-  [1.0, 0.85, 0.0, 1.0],
-  [0.9, 0.05, 0.05, 1.0],
-];
 
 export interface SurfaceStyle {
   kind: string; // parenchyma, tumor, ..., resection
@@ -78,6 +71,10 @@ export class Scene {
   private readonly marker = gridActor(1, MARKER_RGB);
   private readonly traceLines = gridActor(3, TRACE_RGB);
   private readonly tracePoints = gridActor(1, TRACE_RGB);
+  private readonly cutVessels = {
+    VESSEL_SYSTEM_PORTAL: gridActor(1, CUT_VESSEL_RGB.VESSEL_SYSTEM_PORTAL),
+    VESSEL_SYSTEM_HEPATIC: gridActor(1, CUT_VESSEL_RGB.VESSEL_SYSTEM_HEPATIC),
+  };
   private readonly picker = vtkCellPicker.newInstance({ tolerance: 0 });
   /** Opacity and visibility the person set per surface name; kept across snapshots. */
   private readonly looks = new Map<string, { opacity?: number; visible?: boolean }>();
@@ -199,6 +196,23 @@ export class Scene {
     }
     setSpheres(this.marker.polyData, [p], radius);
     if (!shown) this.renderer.addActor(this.marker.actor);
+  }
+
+  /** Marks each cut vessel with a sphere at its crossing, blue (portal) or purple (hepatic),
+   * replacing those marked before; its radius max(2, 1.5 × the vessel's) mm, so that it shows
+   * around the vessel's own surface. */
+  showCutVessels(vessels: readonly CutVessel[]): void {
+    for (const [system, g] of Object.entries(this.cutVessels)) {
+      const these = vessels.filter((c) => c.system === system && c.point);
+      const shown = this.renderer.hasViewProp(g.actor);
+      if (!these.length) {
+        if (shown) this.renderer.removeActor(g.actor);
+        continue;
+      }
+      const points = these.map((c) => ({ x: c.point!.x ?? 0, y: c.point!.y ?? 0, z: c.point!.z ?? 0 }));
+      setSpheres(g.polyData, points, these.map((c) => Math.max(2, 1.5 * (c.radiusMm ?? 0))));
+      if (!shown) this.renderer.addActor(g.actor);
+    }
   }
 
   /** Turns the camera to look at `p` from where it looks now, from `distance` mm. */
@@ -357,17 +371,18 @@ const SPHERE = (() => {
   return { points: out.getPoints().getData() as Float32Array, polys: out.getPolys().getData() as Uint32Array };
 })();
 
-/** One sphere of `radius` at each point, all in one polydata. */
-function setSpheres(polyData: PolyData, points: readonly Vec3[], radius: number): void {
+/** One sphere of `radius` (one for all, or one per point) at each point, all in one polydata. */
+function setSpheres(polyData: PolyData, points: readonly Vec3[], radius: number | readonly number[]): void {
   const per = SPHERE.points.length / 3;
   const xyz = new Float32Array(3 * per * points.length);
   const cells = new Uint32Array(SPHERE.polys.length * points.length);
   points.forEach((p, k) => {
+    const r = typeof radius === "number" ? radius : radius[k]!;
     for (let v = 0; v < per; v++) {
       const o = 3 * (k * per + v);
-      xyz[o] = p.x + radius * SPHERE.points[3 * v]!;
-      xyz[o + 1] = p.y + radius * SPHERE.points[3 * v + 1]!;
-      xyz[o + 2] = p.z + radius * SPHERE.points[3 * v + 2]!;
+      xyz[o] = p.x + r * SPHERE.points[3 * v]!;
+      xyz[o + 1] = p.y + r * SPHERE.points[3 * v + 1]!;
+      xyz[o + 2] = p.z + r * SPHERE.points[3 * v + 2]!;
     }
     const c0 = k * SPHERE.polys.length;
     for (let c = 0; c < SPHERE.polys.length; ) {
