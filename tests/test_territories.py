@@ -127,3 +127,40 @@ def test_real_msd_vessel_territories_partition_the_liver(resecta, test_data, tmp
           f"{system['branch_points']} branch points, {len(t)} territories, "
           f"{system['specks']} specks, {system['detached_components']} detached pieces, "
           f"{r['elapsed_ms']:.0f} ms")
+
+
+def test_couinaud_style_grouping(resecta, y_phantom, tmp_path, test_data):
+    """`--couinaud`: the largest portal subtrees (at most 8), named as an approximation. On the Y
+    they are the two arms, as `--order 2`; on a real MSD tree (taken as portal) eight."""
+    y = resecta("territories", y_phantom, "--out-dir", tmp_path / "y", "--couinaud", "--json").json()
+    o2 = resecta("territories", y_phantom, "--out-dir", tmp_path / "o2", "--json").json()
+    assert [t["ml"] for t in y["territories"]] == [t["ml"] for t in o2["territories"]]
+    assert "approximation" in y["systems"][0]["grouping"]
+    d = test_data / "liver" / "msd-task08-hepaticvessel"
+    r = resecta("territories", d / "hepaticvessel_002_label.nii.gz", "--out-dir", tmp_path / "msd",
+                "--roles", '{"tumor":[2],"portal":[1]}', "--couinaud",
+                "--liver-mask", d / "hepaticvessel_002_liver_pred.nii.gz", "--json").json()
+    t = r["territories"]
+    assert len(t) == 1 + 8 and t[0]["branch"] is None
+    assert abs(sum(x["ml"] for x in t) - r["liver_ml"]) <= 1e-3 * r["liver_ml"]
+    assert min(x["ml"] for x in t[1:]) > 0
+    r = resecta("territories", y_phantom, "--out-dir", tmp_path / "bad", "--couinaud",
+                "--order", "3", check=False)
+    assert r.code == 2
+
+
+def test_real_totalsegmentator_portal_territories_partition_the_liver(resecta, test_data, tmp_path):
+    """TotalSegmentator's v1 labels on its example CT (3 mm): liver 5, portal and splenic vein 9.
+    The territories of the portal tree partition the functional liver (sum within 0.1 %)."""
+    f = test_data / "liver" / "totalsegmentator-example" / "example_seg_v1_on_ct.nii.gz"
+    r = resecta("territories", f, "--out-dir", tmp_path, "--roles", '{"parenchyma":[5],"portal":[9]}',
+                "--json").json()
+    (portal,) = r["systems"]
+    assert portal["edges"] >= 3 and portal["branch_points"] >= 1
+    t = r["territories"]
+    assert len(t) >= 3
+    assert abs(sum(x["ml"] for x in t) - r["liver_ml"]) <= 1e-3 * r["liver_ml"]
+    # The liver label's own volume (41 733 voxels of 27 mm³) is inside the functional liver.
+    assert r["liver_ml"] >= 41733 * 27 / 1000 - 1e-6
+    print(f"TotalSegmentator: liver {r['liver_ml']:.1f} ml, {portal['edges']} edges, "
+          + ", ".join(f"{x['ml']:.1f}" for x in t) + " ml")

@@ -9,20 +9,24 @@ use clap::Args;
 use resecta_geom::{LabelMap, Real, Role, RoleMap, Vec3, Volume, VoxelLimit};
 use resecta_io::{PolylineSet, read_label_map, write_label_map, write_polylines};
 use resecta_vessels::{
-    BranchSelection, RootChoice, TerritoryParams, VesselParams, VesselTree, territories,
-    vessel_tree,
+    BranchSelection, RootChoice, TerritoryParams, VesselParams, VesselSystem, VesselTree,
+    territories, vessel_tree,
 };
 use serde::Serialize;
 
 use crate::error::CliError;
 use crate::output::{ms, print_json, progress};
 
-/// The vessel systems a label map may hold, by role.
-const SYSTEMS: [(Role, &str); 3] = [
-    (Role::Portal, "portal"),
-    (Role::Hepatic, "hepatic"),
-    (Role::Vessel, "vessel"),
+/// The vessel systems a label map may hold, by role, with how their trees are rooted (a vessel
+/// label not split into portal and hepatic: at its widest end).
+const SYSTEMS: [(Role, &str, Option<VesselSystem>); 3] = [
+    (Role::Portal, "portal", Some(VesselSystem::Portal)),
+    (Role::Hepatic, "hepatic", Some(VesselSystem::Hepatic)),
+    (Role::Vessel, "vessel", None),
 ];
+
+/// Territories of the Couinaud-style grouping (`--couinaud`).
+const COUINAUD_BRANCHES: usize = 8;
 
 #[derive(Debug, Args)]
 pub struct TerritoriesArgs {
@@ -34,8 +38,13 @@ pub struct TerritoriesArgs {
     pub roles: Option<String>,
     /// Territories of every branch of this generation (1: the vessels leaving the root), and of
     /// vessels that end sooner.
-    #[arg(long, default_value_t = 2, conflicts_with = "branches")]
+    #[arg(long, default_value_t = 2, conflicts_with_all = ["branches", "couinaud"])]
     pub order: u32,
+    /// Portal territories grouped Couinaud-style: the eight largest portal subtrees (the
+    /// longest centrelines split first). An approximation of the eight segments from the tree's
+    /// shape, not an anatomical labelling of segments I–VIII; other systems keep `--order`.
+    #[arg(long, conflicts_with = "branches")]
+    pub couinaud: bool,
     /// Explicit branches per system, by edge id: `{"portal":[3,4],"hepatic":[1]}`.
     #[arg(long)]
     pub branches: Option<String>,
@@ -65,7 +74,11 @@ struct TerritoryReport {
 #[derive(Debug, Serialize)]
 struct SystemReport {
     vessel: &'static str,
+    /// How the territories were chosen.
+    grouping: String,
     root: [Real; 3],
+    /// Trees (more than one for hepatic veins entering the vena cava separately).
+    roots: usize,
     edges: usize,
     branch_points: usize,
     specks: usize,
@@ -126,14 +139,18 @@ fn masked_liver(labels: &LabelMap, roles: &RoleMap, path: &Path) -> Result<Volum
     Volume::from_vec(a.clone(), data).map_err(bad)
 }
 
-/// The branches `--branches` names for `system`, or the generation rule.
+/// The branches `--branches` names for `system`, the Couinaud-style grouping, or the
+/// generation rule.
 fn selection(args: &TerritoriesArgs, system: &str) -> Result<BranchSelection, CliError> {
     let Some(text) = &args.branches else {
+        if args.couinaud && system == "portal" {
+            return Ok(BranchSelection::Largest(COUINAUD_BRANCHES));
+        }
         return Ok(BranchSelection::Generation(args.order));
     };
     let map: std::collections::BTreeMap<String, Vec<usize>> =
         serde_json::from_str(text).map_err(|e| bad(format!("--branches: {e}")))?;
-    if let Some(k) = map.keys().find(|k| !SYSTEMS.iter().any(|(_, s)| s == k)) {
+    if let Some(k) = map.keys().find(|k| !SYSTEMS.iter().any(|(_, s, _)| s == k)) {
         return Err(bad(format!(
             "--branches: {k:?} is not a vessel system (portal, hepatic, vessel)"
         )));
@@ -192,7 +209,7 @@ pub fn run(args: &TerritoriesArgs) -> Result<(), CliError> {
         systems: Vec::new(),
         elapsed_ms: 0.0,
     };
-    for (role, name) in SYSTEMS {
+    for (role, name, system) in SYSTEMS {
         let ids = roles.labels(role);
         let vessels = mask(&labels, |l| ids.contains(&l))?;
         if ids.is_empty() || !vessels.data().iter().any(|&v| v) {
@@ -200,16 +217,18 @@ pub fn run(args: &TerritoriesArgs) -> Result<(), CliError> {
         }
         pb.set_message(format!("{name}: centrelines"));
         let named = |e: resecta_vessels::VesselError| bad(format!("{name} vessels: {e}"));
-        let tree =
-            vessel_tree(&vessels, RootChoice::Auto, &VesselParams::default()).map_err(named)?;
+        let root = system.map_or(RootChoice::Auto, VesselSystem::root_choice);
+        let tree = vessel_tree(&vessels, root, &VesselParams::default()).map_err(named)?;
         pb.set_message(format!("{name}: territories"));
-        let t = territories(
-            &tree,
-            &liver,
-            &selection(args, name)?,
-            &TerritoryParams::default(),
-        )
-        .map_err(named)?;
+        let sel = selection(args, name)?;
+        let grouping = match &sel {
+            BranchSelection::Largest(k) => format!(
+                "couinaud-style: the {k} largest portal subtrees (an approximation, not segments I-VIII)"
+            ),
+            BranchSelection::Generation(k) => format!("generation {k}"),
+            BranchSelection::Ids(_) => "branches given".to_owned(),
+        };
+        let t = territories(&tree, &liver, &sel, &TerritoryParams::default()).map_err(named)?;
         let wide: Vec<u16> = t
             .labels
             .data()
@@ -238,7 +257,9 @@ pub fn run(args: &TerritoriesArgs) -> Result<(), CliError> {
         let r = &tree.report;
         report.systems.push(SystemReport {
             vessel: name,
+            grouping,
             root: arr(tree.nodes[tree.root].position),
+            roots: tree.roots.len(),
             edges: tree.edges.len(),
             branch_points: tree
                 .nodes

@@ -5,8 +5,8 @@ use std::sync::Arc;
 
 use resecta_geom::{Grid, LabelMap, MeshBvh, Real, Role, RoleMap, TriMesh, Vec3, Volume};
 use resecta_vessels::{
-    Crossing, CutBranch, RiskAssessment, RiskModel, RiskRegions, RootChoice, VesselParams,
-    VesselSystem, VesselTree, vessel_tree,
+    Crossing, CutBranch, RiskAssessment, RiskModel, RiskRegions, VesselParams, VesselSystem,
+    VesselTree, vessel_tree,
 };
 use serde::Serialize;
 
@@ -30,15 +30,11 @@ impl Vascular {
     /// at the ascending grid offsets `liver`.
     pub fn build(labels: &LabelMap, roles: &RoleMap, liver: &[usize]) -> Self {
         let systems = [
-            (VesselSystem::Portal, Role::Portal, RootChoice::Auto),
-            (
-                VesselSystem::Hepatic,
-                Role::Hepatic,
-                RootChoice::EveryComponent,
-            ),
+            (VesselSystem::Portal, Role::Portal),
+            (VesselSystem::Hepatic, Role::Hepatic),
         ];
         let mut trees: Vec<(VesselSystem, VesselTree)> = Vec::new();
-        for (system, role, root) in systems {
+        for (system, role) in systems {
             let wanted = roles.labels(role);
             if wanted.is_empty() {
                 continue;
@@ -49,7 +45,9 @@ impl Vascular {
             }
             let tree = Volume::from_vec(labels.grid().clone(), data)
                 .map_err(resecta_vessels::VesselError::from)
-                .and_then(|mask| vessel_tree(&mask, root, &VesselParams::default()));
+                .and_then(|mask| {
+                    vessel_tree(&mask, system.root_choice(), &VesselParams::default())
+                });
             match tree {
                 Ok(t) => trees.push((system, t)),
                 Err(e) => return Self::Failed(format!("{} tree: {e}", system.name())),

@@ -31,6 +31,15 @@ impl VesselSystem {
             VesselSystem::Hepatic => "hepatic",
         }
     }
+
+    /// How its trees are rooted: the portal vein at its trunk (the widest end), the hepatic
+    /// veins at each of their ostia (one tree per component).
+    pub fn root_choice(self) -> crate::graph::RootChoice {
+        match self {
+            VesselSystem::Portal => crate::graph::RootChoice::Auto,
+            VesselSystem::Hepatic => crate::graph::RootChoice::EveryComponent,
+        }
+    }
 }
 
 /// One system's tree and the nearest centreline point of every liver voxel.

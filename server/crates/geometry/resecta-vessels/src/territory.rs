@@ -16,6 +16,37 @@ pub enum BranchSelection {
     /// Every edge of generation `k`, plus every terminal edge of a lower generation (a vessel
     /// that ends before generation `k` keeps its territory).
     Generation(u32),
+    /// `k` branches found by splitting the largest: starting from the edges leaving the roots,
+    /// the branch with the longest centreline (itself and its descendants) that has children is
+    /// replaced by its children until there are `k` (or none can split). With `k = 8` on a
+    /// portal tree this is a Couinaud-style grouping: an approximation of the eight segments
+    /// from the tree's shape, not an anatomical labelling of segments I–VIII.
+    Largest(usize),
+}
+
+/// The [`BranchSelection::Largest`] branches of `tree`, ids ascending.
+fn largest(tree: &VesselTree, k: usize) -> Vec<usize> {
+    let n = tree.edges.len();
+    // Centreline length of each subtree (children come after parents: sum backwards).
+    let mut weight: Vec<f64> = tree.edges.iter().map(|e| e.length_mm).collect();
+    for e in tree.edges.iter().rev() {
+        if let Some(p) = e.parent {
+            weight[p] += weight[e.id];
+        }
+    }
+    let mut chosen: Vec<usize> = (0..n).filter(|&e| tree.edges[e].parent.is_none()).collect();
+    while chosen.len() < k {
+        let split = chosen
+            .iter()
+            .enumerate()
+            .filter(|(_, e)| !tree.edges[**e].children.is_empty())
+            .max_by(|a, b| weight[*a.1].total_cmp(&weight[*b.1]).then(b.1.cmp(a.1)));
+        let Some((at, &e)) = split else { break };
+        chosen.swap_remove(at);
+        chosen.extend(tree.edges[e].children.iter().copied());
+    }
+    chosen.sort_unstable();
+    chosen
 }
 
 /// Parameters of [`territories`].
@@ -175,6 +206,7 @@ pub fn territories(
             v.dedup();
             v
         }
+        BranchSelection::Largest(k) => largest(tree, *k),
         BranchSelection::Generation(k) => tree
             .edges
             .iter()

@@ -332,3 +332,32 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn largest_branches_split_the_longest_subtree_first() {
+    let c = &y_cases()[0];
+    let tree = vessel_tree(
+        &y_mask(&c.grid, &c.y),
+        RootChoice::Auto,
+        &VesselParams::default(),
+    )
+    .unwrap();
+    let liver = mask(&c.grid, |p| in_box(p, c.lo, c.hi));
+    let run = |sel: BranchSelection| {
+        territories(&tree, &liver, &sel, &TerritoryParams::default()).unwrap()
+    };
+    let branches = |t: &resecta_vessels::Territories| -> Vec<Option<usize>> {
+        t.territories.iter().map(|t| t.branch).collect()
+    };
+    // One: the trunk with everything below it; two or more: the trunk splits into the Y's arms
+    // and nothing splits further.
+    assert_eq!(
+        branches(&run(BranchSelection::Largest(1))),
+        vec![None, Some(0)]
+    );
+    let two = run(BranchSelection::Largest(2));
+    let eight = run(BranchSelection::Largest(8));
+    assert_eq!(branches(&two), branches(&eight));
+    assert_eq!(two.labels, run(BranchSelection::Generation(2)).labels);
+    assert_eq!(two.territories.len(), 3);
+}
