@@ -111,6 +111,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._unsupported = None
         self._drawingCurve = None
         self._handle = None
+        self._resectogramInView = False
 
     def setup(self) -> None:
         ScriptedLoadableModuleWidget.setup(self)
@@ -129,7 +130,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             status=self._showStatus, error=self._showError, progress=self._showProgress,
             model_built=self._showModelBuilt, models=self._refreshTumours,
             resections=self._refreshResections, volumes=self._showVolumes,
-            metrics=self._showMetrics,
+            metrics=self._showMetrics, resectogram=self._showResectogram,
             margin=self._showMargin, session=self._sessionChanged)
 
         # Main-thread delivery of worker results (network calls never run on this thread).
@@ -162,6 +163,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.roleTable.horizontalHeader().setStretchLastSection(True)
         self.ui.volumeTable.horizontalHeader().setStretchLastSection(True)
         self.ui.metricsTable.horizontalHeader().setStretchLastSection(True)
+        self.ui.cutVesselTable.horizontalHeader().setStretchLastSection(True)
         # Only this module's end-point lists, never the control grids (also markups lists).
         self.ui.endPointSelector.addAttribute("vtkMRMLMarkupsFiducialNode", END_POINT_ATTRIBUTE, "1")
 
@@ -195,12 +197,15 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self.ui.savePlanButton.connect("clicked(bool)", self.onSavePlan)
         self.ui.loadPlanButton.connect("clicked(bool)", self.onLoadPlan)
         self.ui.exportModelsButton.connect("clicked(bool)", self.onExportModels)
+        self.ui.showRiskButton.connect("clicked(bool)", self.onShowRisk)
+        self.ui.resectogramButton.connect("toggled(bool)", self.onResectogram)
 
         self.initializeParameterNode()
         self._updateButtons()
 
     def cleanup(self) -> None:
         """The panel goes away (application exit or module reload): give everything back."""
+        self.ui.resectogramButton.checked = False
         self._releaseShortcuts()
         self.removeObservers()
         self._observedSegmentation = self._handle = self._drawingCurve = None
@@ -218,6 +223,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._takeShortcuts()
 
     def exit(self) -> None:
+        self.ui.resectogramButton.checked = False  # it follows the plan while the panel shows
         self._releaseShortcuts()
         self.setParameterNode(None)
 
@@ -249,6 +255,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         self._lentShortcuts = []
 
     def onSceneStartClose(self, caller, event) -> None:
+        self.ui.resectogramButton.checked = False
         self._drawingCurve = None
         self._observeHandle(None)
         self.setParameterNode(None)
@@ -433,6 +440,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
             self._parameterNode.marginMm = params.margin_mm
             self._parameterNode.bandMm = params.band_mm
             self._editTimer.stop()  # the values came from the server: nothing to send
+        if self.ui.resectogramButton.checked:
+            self.onResectogram(True)
         self._updateButtons()
 
     def onMarginBandChanged(self, _value=None) -> None:
@@ -539,6 +548,25 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
         with slicer.util.tryWithErrorDisplay(_("Could not undo the deformation.")):
             self.logic.undo_deformation(self._currentResection())
 
+    # --- vascular risk --------------------------------------------------------------------------
+
+    def onShowRisk(self) -> None:
+        with slicer.util.tryWithErrorDisplay(_("Could not show the risk map.")):
+            self.logic.show_risk()
+
+    def onResectogram(self, checked) -> None:
+        """Pressed: the current resection's resectogram in the Red view, following the plan."""
+        self._resectogramInView = False
+        name = self._currentResection() if checked else None
+        with slicer.util.tryWithErrorDisplay(_("Could not show the resectogram.")):
+            self.logic.follow_resectogram(name)
+
+    def _showResectogram(self, gram) -> None:
+        if not self._resectogramInView:  # once: later refreshes keep the user's pan and zoom
+            self._resectogramInView = True
+            with slicer.util.tryWithErrorDisplay(_("Could not show the resectogram.")):
+                self.logic.show_resectogram_in("Red")
+
     def onJumpToWorst(self) -> None:
         self.logic.jump_to_worst_point()
 
@@ -615,6 +643,11 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                     item.setForeground(qt.QBrush(qt.QColor(margin.RED)))
                 widget.setItem(row, col, item)
         self.ui.flrLabel.text = "\n".join(table.messages)
+        vessels = self.ui.cutVesselTable
+        vessels.setRowCount(len(table.cut_vessels))
+        for row, v in enumerate(table.cut_vessels):
+            for col, text in enumerate(v.cells()):
+                vessels.setItem(row, col, qt.QTableWidgetItem(text))
 
     def _showMetrics(self, rows) -> None:
         widget = self.ui.metricsTable
@@ -646,7 +679,8 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                                              and self.ui.segmentationSelector.currentNode() is not None)
         self.ui.cancelBuildButton.enabled = building
         self.ui.newResectionButton.enabled = ready and self.ui.tumorComboBox.count > 0
-        for button in (self.ui.deleteResectionButton, self.ui.exportModelsButton):
+        for button in (self.ui.deleteResectionButton, self.ui.exportModelsButton,
+                       self.ui.showRiskButton, self.ui.resectogramButton):
             button.enabled = hasSession and hasResection
         for button in (self.ui.moveGroupButton, self.ui.translateButton, self.ui.rotateButton):
             button.enabled = hasSession and hasResection and kind == "bezier"

@@ -57,6 +57,21 @@ def phantom_truth(phantom):
     return ph.truth_from_phantom_json(json.loads((phantom.parent / "truth.json").read_text()))
 
 
+#: The roles of the demo phantom (`resecta phantom` without a preset: liver, tumours, a portal
+#: and a hepatic vessel on an oblique 0.8×0.8×2.5 mm grid).
+DEMO_ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3], "hepatic": [4]}
+
+
+@pytest.fixture(scope="session")
+def demo_phantom(tmp_path_factory):
+    import subprocess
+
+    out = tmp_path_factory.mktemp("demo")
+    subprocess.run([resecta_bin(), "phantom", "--out", str(out), "--json"], check=True,
+                   capture_output=True)
+    return out / "phantom.nii.gz"
+
+
 @pytest.fixture
 def dispatcher():
     from ResectaLib.dispatch import ThreadDispatcher

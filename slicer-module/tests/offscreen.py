@@ -23,9 +23,9 @@ from vtk.util import numpy_support
 import slicer
 
 #: What each view type's factory instantiates (of the managers a Slicer view registers, those
-#: that draw models; no volumes or segmentations in these scenes).
+#: that draw models and segmentations; a slice view's volumes come from `vtkMRMLSliceLogic`).
 THREE_D_MANAGERS = ("vtkMRMLCameraDisplayableManager", "vtkMRMLViewDisplayableManager",
-                    "vtkMRMLModelDisplayableManager")
+                    "vtkMRMLModelDisplayableManager", "vtkMRMLSegmentationsDisplayableManager3D")
 SLICE_MANAGERS = ("vtkMRMLModelSliceDisplayableManager",)
 #: Markups (control grids) in a view that asks for them, with Slicer's markups logic.
 MARKUPS_MANAGER = "vtkMRMLMarkupsDisplayableManager"
@@ -153,10 +153,21 @@ class _View:
         self.window.Finalize()
 
 
+def register_segmentation_converters() -> None:
+    """Labelmap → closed surface for segmentations in 3D, as Slicer's Segmentations module
+    registers it on start-up."""
+    factory = slicer.vtkSegmentationConverterFactory.GetInstance()
+    if not factory.GetConverterRules():
+        factory.RegisterConverterRule(slicer.vtkBinaryLabelmapToClosedSurfaceConversionRule())
+        factory.RegisterConverterRule(slicer.vtkClosedSurfaceToBinaryLabelmapConversionRule())
+
+
 class ThreeDView(_View):
-    """A 3D view (`vtkMRMLViewNode`) with Slicer's camera, view and model displayable managers."""
+    """A 3D view (`vtkMRMLViewNode`) with Slicer's camera, view, model and segmentation
+    displayable managers."""
 
     def __init__(self, scene, size=(320, 240), box=False, background=None, markups=False):
+        register_segmentation_converters()
         node = scene.AddNewNodeByClass("vtkMRMLViewNode")
         node.SetLayoutName("1")
         node.SetBoxVisible(box)
@@ -212,9 +223,11 @@ class ThreeDView(_View):
 
 class SliceView(_View):
     """A slice view (`vtkMRMLSliceNode`) with Slicer's model slice displayable manager: model
-    intersections drawn on a black background (no volume), as in a Slicer slice view."""
+    intersections drawn on a black background, as in a Slicer slice view. With `volumes`, the
+    layers of its slice composite node too: `vtkMRMLSliceLogic` reslices and blends them and
+    the image is drawn under everything, as `qMRMLSliceWidget` does."""
 
-    def __init__(self, scene, orientation="Axial", layout="Red", size=(320, 240)):
+    def __init__(self, scene, orientation="Axial", layout="Red", size=(320, 240), volumes=False):
         if scene.GetDefaultNodeByClass("vtkMRMLSliceNode") is None:  # Axial, Sagittal, Coronal
             slicer.vtkMRMLSliceNode.AddDefaultSliceOrientationPresets(scene)
         node = scene.CreateNodeByClass("vtkMRMLSliceNode")
@@ -227,6 +240,24 @@ class SliceView(_View):
         self.slice_node = node
         super().__init__(scene, size, slicer.vtkMRMLSliceViewDisplayableManagerFactory,
                          SLICE_MANAGERS, node)
+        self.slice_logic = self.image_mapper = None
+        if volumes:
+            self.slice_logic = slicer.vtkMRMLSliceLogic()
+            self.slice_logic.SetMRMLApplicationLogic(self.app_logic)
+            self.slice_logic.SetMRMLScene(scene)
+            self.slice_logic.SetSliceNode(node)  # finds or makes the composite node
+            self.image_mapper = vtk.vtkImageMapper()
+            self.image_mapper.SetColorWindow(255)
+            self.image_mapper.SetColorLevel(127.5)
+            image = vtk.vtkActor2D()
+            image.SetMapper(self.image_mapper)
+            self.renderer.AddViewProp(image)
+
+    def render(self) -> np.ndarray:
+        if self.slice_logic is not None:  # the blend's output changes with the layers
+            self.slice_logic.UpdatePipeline()
+            self.image_mapper.SetInputConnection(self.slice_logic.GetImageDataConnection())
+        return super().render()
 
     def show(self, center, field_of_view_mm: float):
         """Centres the slice on RAS `center` (its plane goes through it), `field_of_view_mm`

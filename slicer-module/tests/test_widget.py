@@ -272,3 +272,45 @@ def test_panel_draws_ds_and_cp_resections(app, planning_server, phantom):
     assert not app.errors and not app.dialogs
     w.cleanup()
     assert w.Observations == [], f"observers left: {w.Observations}"
+
+
+def test_panel_shows_the_vascular_risk(app, planning_server, demo_phantom):
+    """A session of the demo phantom followed by the panel: the volume table's risk rows and
+    the cut vessels, *Show risk* makes the segmentations, *Resectogram* puts it in the Red
+    view and follows the plan until the panel is left."""
+    from resecta_client import Client
+
+    from ResectaLib import risk
+    from conftest import DEMO_ROLES
+
+    scene = app.scene
+    for cls in ("vtkMRMLSliceNode", "vtkMRMLSliceCompositeNode"):  # Slicer's Red view
+        scene.AddNewNodeByClass(cls).SetLayoutName("Red")
+    w = _widget(app)
+    w.enter()
+    with Client(planning_server.grpc_addr) as other:
+        remote = other.create_session("risk")
+        remote.upload_label_map_file(demo_phantom, DEMO_ROLES)
+        remote.init_from_end_point("r1", (0.0, 30.0, 0.0))
+        w._parameterNode.sessionId = remote.id
+        _connect(app, w, planning_server)
+        app.wait(lambda: w.ui.cutVesselTable.rowCount == 1, 30)
+        labels = [w.ui.volumeTable.item(r, 0).text() for r in range(w.ui.volumeTable.rowCount)]
+        assert labels[-3:] == ["Functional remnant", "Devascularised", "Congested"]
+        assert w.ui.cutVesselTable.item(0, 0).text() == "portal"
+        assert w.ui.cutVesselTable.item(0, 2).text() == "r1"
+        assert w.ui.showRiskButton.enabled and w.ui.resectogramButton.enabled
+
+        w.ui.showRiskButton.emit("clicked", True)
+        app.wait(lambda: app.errors or scene.GetFirstNodeByName(risk.RISK_NODE), 60)
+        w.ui.resectogramButton.checked = True
+        app.wait(lambda: app.errors or scene.GetFirstNodeByName(risk.RESECTOGRAM_NODE), 30)
+        composite = next(n for n in risk._nodes(scene, "vtkMRMLSliceCompositeNode")
+                         if n.GetLayoutName() == "Red")
+        assert composite.GetBackgroundVolumeID() == \
+            scene.GetFirstNodeByName(risk.RESECTOGRAM_NODE).GetID()
+        assert w.logic.resectogram_resection == "r1"
+        w.exit()
+        assert not w.ui.resectogramButton.checked and w.logic.resectogram_resection is None
+    assert not app.errors and not app.dialogs
+    w.cleanup()

@@ -17,7 +17,12 @@ Callbacks (all optional, all on the main thread): `status(text)`, `error(excepti
 `progress(fraction, stage)`, `model_built(info)`, `models()` (model nodes added or removed),
 `resections()` (resections added or removed), `volumes(VolumeTable)`, `metrics(rows)` (each
 resection's kind and Sec. 7.4 metrics, `volumetry.MetricRow`s), `margin(MarginIndicator)`,
-`session()` (the server session was opened or forgotten).
+`session()` (the server session was opened or forgotten), `resectogram(Resectogram)` (the
+resectogram shown was refreshed).
+
+The vascular risk (`risk.py`): cut vessels follow every volume report; `show_risk` fetches the
+risk map once; `follow_resectogram` shows a resection's resectogram and refetches it after each
+plan change (at most one request in flight, the latest plan wins).
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ from typing import Any, Callable
 import numpy as np
 import vtk
 
-from . import margin, models, planfile, preview, segmentation, traces, volumetry
+from . import margin, models, planfile, preview, risk, segmentation, traces, volumetry
 from .dispatch import ThreadDispatcher
 from .edits import EditCommands
 from .gridsync import GridSync
@@ -64,6 +69,9 @@ class PlanningLogic:
         self._building = False
         self._centroids: dict[str, np.ndarray] = {}
         self._threads: list[threading.Thread] = []
+        self.resectogram_resection: str | None = None
+        self._resectogram_busy = False
+        self._resectogram_version = -1
 
     # --- plumbing -----------------------------------------------------------------------------
 
@@ -208,6 +216,7 @@ class PlanningLogic:
         self.margin_state = margin.NONE
         self.volume_table = volumetry.EMPTY
         self.metrics_table = ()
+        self.resectogram_resection = None
         return had
 
     def forget_session(self) -> None:
@@ -362,12 +371,14 @@ class PlanningLogic:
         self._update_margin()
         if applied.volumes is not None:
             self._set_volumes(applied.volumes)
+        self._refresh_resectogram()
 
     def _set_volumes(self, volumes) -> None:
         self.volume_table = volumetry.table(volumes)
         self._emit("volumes", self.volume_table)
         self.metrics_table = volumetry.metric_rows(volumes, self.resection_kinds())
         self._emit("metrics", self.metrics_table)
+        risk.update_cut_vessels(self.scene, getattr(volumes, "risk", None))
 
     def _update_margin(self) -> None:
         state = margin.indicator(self.verdicts)
@@ -545,6 +556,55 @@ class PlanningLogic:
         node.GetPolyData().Modified()
         node.GetDisplayNode().SetVisibility(True)
         return node
+
+    # --- vascular risk ------------------------------------------------------------------------
+
+    def show_risk(self, on_done: Callable | None = None) -> None:
+        """Fetches the risk map (worker) and fills the segmentations "Resecta risk" and
+        "Resecta territories"; `on_done(RiskMap)`."""
+        sess = self._need_session()
+
+        def done(risk_map):
+            risk.update_risk(self.scene, risk_map)
+            self._status(f"Risk map of plan version {risk_map.plan_version} shown")
+
+        self.call(sess.risk_map, done, on_done)
+
+    def follow_resectogram(self, name: str | None) -> None:
+        """Shows resection `name`'s resectogram and keeps it current after plan changes
+        (None: stops following; the nodes stay)."""
+        self.resectogram_resection = name or None
+        self._resectogram_version = -1
+        if self.resectogram_resection:
+            self._need_session()
+            self._refresh_resectogram()
+
+    def _refresh_resectogram(self) -> None:
+        """Fetches the followed resectogram when the plan changed since the last request,
+        unless one is on its way (its answer asks again)."""
+        name, sess, watch = self.resectogram_resection, self.session, self.watch
+        if not name or sess is None or watch is None or self._resectogram_busy \
+                or watch.scene.plan_version == self._resectogram_version \
+                or name not in self.surfaces():
+            return
+        self._resectogram_busy = True
+        self._resectogram_version = watch.scene.plan_version
+
+        def done(gram):
+            self._resectogram_busy = False
+            if self.session is sess and self.resectogram_resection == gram.resection:
+                risk.update_resectogram(self.scene, gram)
+                self._emit("resectogram", gram)
+            self._refresh_resectogram()
+
+        def failed(_exc):
+            self._resectogram_busy = False
+
+        self.call(lambda: sess.resectogram(name), done, on_error=failed)
+
+    def show_resectogram_in(self, layout: str = "Red") -> None:
+        """Puts the resectogram into slice view `layout` (MRML: its composite and slice node)."""
+        risk.show_resectogram_in(self.scene, layout)
 
     # --- volumes, plans, exports ----------------------------------------------------------------
 

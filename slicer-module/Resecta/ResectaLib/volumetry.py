@@ -1,9 +1,11 @@
 """The volumetry table as plain rows (the Widget draws them; tests compare them).
 
 Rows: total functional liver, then each resection's resected volume, then all resected together
-and the future liver remnant (FLR), each with ml and % of the total; an FLR warning when the
-remnant falls below the threshold, and the reason when a cut does not divide the liver (then the
-remnant is unknown, shown as "—").
+and the future liver remnant (FLR), each with ml and % of the total; with the vascular risk
+analysis, the functional remnant (the remnant that keeps portal supply and hepatic drainage) and
+the devascularised and congested volumes. An FLR warning when the remnant (the functional one when
+there is risk) falls below the threshold, the reason when a cut does not divide the liver (then
+the remnant is unknown, shown as "—") or when there is no risk analysis, and the cut vessels.
 """
 
 from __future__ import annotations
@@ -27,11 +29,22 @@ class Row:
 
 
 @dataclasses.dataclass(frozen=True)
+class CutVesselRow:
+    system: str
+    radius_mm: float
+    resection: str
+
+    def cells(self) -> tuple[str, str, str]:
+        return self.system, f"{self.radius_mm:.1f} mm", self.resection
+
+
+@dataclasses.dataclass(frozen=True)
 class VolumeTable:
     rows: tuple[Row, ...]
     plan_version: int
     flr_warning: bool
     messages: tuple[str, ...]
+    cut_vessels: tuple[CutVesselRow, ...] = ()
 
     def row(self, label: str) -> Row:
         for r in self.rows:
@@ -61,13 +74,27 @@ def table(volumes) -> VolumeTable:
     if len(volumes.resections) != 1:
         rows.append(Row("Resected (all)", volumes.resected_ml, pct(volumes.resected_ml)))
     flr = bool(volumes.flr_warning)
+    risk = getattr(volumes, "risk", None)
     remnant_pct = volumes.remnant_pct if volumes.remnant_pct is not None else pct(volumes.remnant_ml)
-    rows.append(Row("Remnant (FLR)", volumes.remnant_ml, remnant_pct, warning=flr))
-    if flr:
+    rows.append(Row("Remnant (FLR)", volumes.remnant_ml, remnant_pct, warning=flr and risk is None))
+    vessels = ()
+    if risk is not None:
+        rows += [Row("Functional remnant", risk.functional_remnant_ml,
+                     risk.functional_remnant_pct, warning=flr),
+                 Row("Devascularised", risk.devascularised_ml, pct(risk.devascularised_ml)),
+                 Row("Congested", risk.congested_ml, pct(risk.congested_ml))]
+        vessels = tuple(CutVesselRow(v.system, v.radius_mm, v.resection)
+                        for v in risk.cut_vessels)
+    if flr and risk is not None:
+        messages.append(f"FLR warning: functional remnant {risk.functional_remnant_pct:.1f} % < "
+                        f"{volumes.flr_threshold_pct:g} % of the liver")
+    elif flr:
         messages.append(f"FLR warning: remnant {remnant_pct:.1f} % < "
                         f"{volumes.flr_threshold_pct:g} % of the liver")
+    if getattr(volumes, "risk_unavailable", ""):
+        messages.append(f"No risk analysis: {volumes.risk_unavailable}")
     return VolumeTable(tuple(rows), int(getattr(volumes, "plan_version", 0)), flr,
-                       tuple(messages))
+                       tuple(messages), vessels)
 
 
 # --- plan metrics (thesis Sec. 7.4) ----------------------------------------------------------
