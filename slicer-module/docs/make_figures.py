@@ -47,10 +47,13 @@ EXAMPLE = {
 ROLE_ROWS = [("Liver", "parenchyma"), ("Tumour", "tumor"), ("Portal vein", "portal"),
              ("Hepatic veins", "hepatic")]
 VOLUME_ROWS = [("Total liver", "1523.4", "100.0"), ("Resected by r1", "412.8", "27.1"),
-               ("Remnant (FLR)", "1110.6", "72.9")]
+               ("Remnant (FLR)", "1110.6", "72.9"), ("Functional remnant", "1071.3", "70.3"),
+               ("Devascularised", "39.3", "2.6"), ("Congested", "0.0", "0.0")]
 METRIC_ROWS = [("r1", "Bézier", "+1.4 mm", "0.0031 mm⁻¹")]
+VESSEL_ROWS = [("portal", "5.1 mm", "r1")]
 TABLES = {"roleTable": (("Segment", "Role"), ROLE_ROWS), "volumeTable": (("", "ml", "%"), VOLUME_ROWS),
-          "metricsTable": (("", "kind", "margin dev.", "median |H|"), METRIC_ROWS)}
+          "metricsTable": (("", "kind", "margin dev.", "median |H|"), METRIC_ROWS),
+          "cutVesselTable": (("cut vessel", "radius", "resection"), VESSEL_ROWS)}
 
 
 def _text(w, prop):
