@@ -4,6 +4,7 @@
 //! index→RAS affine ([`Grid`]); meshes ([`TriMesh`]) are validated at construction.
 
 pub mod bvh;
+pub mod crop;
 pub mod edt;
 pub mod error;
 pub mod grid;

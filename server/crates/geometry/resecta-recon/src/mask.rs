@@ -7,6 +7,7 @@ use rayon::prelude::*;
 use resecta_geom::{Grid, LabelMap, Real, Role, RoleMap, Volume, distance_transform};
 
 use crate::ReconError;
+pub use resecta_geom::crop::{bounds, bounds_where, padded, sub_volume, sub_volume_map};
 
 /// Voxels whose label is one of `labels`. Fails naming the labels that do not occur at all.
 pub fn select(labels: &LabelMap, wanted: &[u16]) -> Result<Volume<bool>, ReconError> {
@@ -37,7 +38,7 @@ pub fn select_cropped(
     ) -> Option<Result<Volume<bool>, ReconError>> {
         let (lo, hi) = bounds_where(labels, &is)?;
         let (lo, hi) = padded(labels.grid(), lo, hi, pad);
-        Some(sub_volume_map(labels, lo, hi, &is))
+        Some(sub_volume_map(labels, lo, hi, &is).map_err(ReconError::from))
     }
     let cropped = match Wanted::new(wanted)? {
         Wanted::One(one) => with(labels, pad, |l| l == one),
@@ -81,90 +82,11 @@ pub(crate) fn absent(labels: &LabelMap, wanted: &[u16]) -> ReconError {
     }
 }
 
-/// Index bounds `[lo, hi)` of the set voxels, or `None` for an empty mask.
-pub fn bounds(mask: &Volume<bool>) -> Option<([usize; 3], [usize; 3])> {
-    bounds_where(mask, |b| b)
-}
-
-/// Index bounds `[lo, hi)` of the voxels where `is` holds, or `None` where it never does.
-pub fn bounds_where<T: Copy + Sync>(
-    vol: &Volume<T>,
-    is: impl Fn(T) -> bool + Sync,
-) -> Option<([usize; 3], [usize; 3])> {
-    let [nx, ny, _] = vol.grid().dims();
-    vol.data()
-        .par_chunks(nx)
-        .enumerate()
-        .filter_map(|(r, row)| {
-            // A branch-free test first (it vectorises); most rows hold nothing.
-            if !row.iter().fold(false, |any, &v| any | is(v)) {
-                return None;
-            }
-            let first = row.iter().position(|&v| is(v))?;
-            let last = row.iter().rposition(|&v| is(v))?;
-            let (j, k) = (r % ny, r / ny);
-            Some(([first, j, k], [last + 1, j + 1, k + 1]))
-        })
-        .reduce_with(|(alo, ahi), (blo, bhi)| {
-            (
-                [alo[0].min(blo[0]), alo[1].min(blo[1]), alo[2].min(blo[2])],
-                [ahi[0].max(bhi[0]), ahi[1].max(bhi[1]), ahi[2].max(bhi[2])],
-            )
-        })
-}
-
-/// `[lo, hi)` grown by `pad` voxels on every side, within `grid`.
-pub fn padded(grid: &Grid, lo: [usize; 3], hi: [usize; 3], pad: usize) -> ([usize; 3], [usize; 3]) {
-    let dims = grid.dims();
-    (
-        lo.map(|v| v.saturating_sub(pad)),
-        [0, 1, 2].map(|a| (hi[a] + pad).min(dims[a])),
-    )
-}
-
-/// The sub-volume `[lo, hi)` of `vol`, with its grid moved so world positions are unchanged.
-pub fn sub_volume<T: Copy + Send + Sync>(
-    vol: &Volume<T>,
-    lo: [usize; 3],
-    hi: [usize; 3],
-) -> Result<Volume<T>, ReconError> {
-    sub_volume_map(vol, lo, hi, |v| v)
-}
-
-/// [`sub_volume`] with `f` applied to every value.
-pub fn sub_volume_map<T: Copy + Sync, U: Copy + Send>(
-    vol: &Volume<T>,
-    lo: [usize; 3],
-    hi: [usize; 3],
-    f: impl Fn(T) -> U + Sync,
-) -> Result<Volume<U>, ReconError> {
-    let g = vol.grid();
-    let [nx, ny, _] = g.dims();
-    let dims = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
-    let origin = g.index_to_world(resecta_geom::Vec3::new(
-        lo[0] as Real,
-        lo[1] as Real,
-        lo[2] as Real,
-    ));
-    let grid = Grid::new(dims, g.spacing(), origin, g.direction())?;
-    let src = vol.data();
-    let data: Vec<U> = (0..dims[1] * dims[2])
-        .into_par_iter()
-        .flat_map_iter(|r| {
-            let (j, k) = (lo[1] + r % dims[1], lo[2] + r / dims[1]);
-            src[lo[0] + nx * (j + ny * k)..][..dims[0]]
-                .iter()
-                .map(|&v| f(v))
-        })
-        .collect();
-    Ok(Volume::from_vec(grid, data)?)
-}
-
 /// The mask cropped to its set voxels plus `pad` voxels of margin (within the volume).
 pub fn crop(mask: &Volume<bool>, pad: usize) -> Result<Volume<bool>, ReconError> {
     let (lo, hi) = bounds(mask).ok_or(ReconError::EmptyMask)?;
     let (lo, hi) = padded(mask.grid(), lo, hi, pad);
-    sub_volume(mask, lo, hi)
+    Ok(sub_volume(mask, lo, hi)?)
 }
 
 /// Face-connected (6-neighbour) components, largest first (ties: first voxel in memory
@@ -308,7 +230,7 @@ impl Components {
         keep: impl Fn(u32) -> bool + Sync,
     ) -> Result<Volume<bool>, ReconError> {
         let (lo, hi) = padded(self.ids.grid(), lo, hi, 1);
-        sub_volume_map(&self.ids, lo, hi, keep)
+        Ok(sub_volume_map(&self.ids, lo, hi, keep)?)
     }
 }
 

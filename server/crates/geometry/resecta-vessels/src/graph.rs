@@ -508,7 +508,14 @@ pub fn vessel_tree(
         return Err(resecta_geom::GeomError::NonOrthogonalGrid.into());
     }
     let min_voxels = params.min_component_voxels.max(1);
-    let t = thin(mask, min_voxels)?;
+    // Thinned on the mask's bounding box: the rest of the grid is background either way.
+    let Some((lo, hi)) = resecta_geom::crop::bounds(mask) else {
+        return Err(VesselError::EmptyVesselMask {
+            specks: 0,
+            min_voxels,
+        });
+    };
+    let t = thin(&resecta_geom::crop::sub_volume(mask, lo, hi)?, min_voxels)?;
     if t.component_voxels.is_empty() {
         return Err(VesselError::EmptyVesselMask {
             specks: t.specks,

@@ -9,11 +9,11 @@
 //! point is disconnected is devascularised, whose nearest hepatic point is disconnected is
 //! congested. The functional remnant is the remnant that is neither.
 
-use resecta_geom::{Grid, MeshBvh, NO_FEATURE, Ray, Vec3, distance_transform_with_nearest};
+use resecta_geom::{Grid, MeshBvh, NO_FEATURE, Ray, Vec3};
 
 use crate::error::VesselError;
 use crate::graph::VesselTree;
-use crate::territory::{rasterise, sample_step};
+use crate::territory::{nearest_features, rasterise, sample_step};
 
 /// Which vascular system a tree belongs to.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -150,23 +150,17 @@ impl RiskModel {
             if hits.is_empty() {
                 return Err(VesselError::NoCentreline);
             }
-            let mut mask = vec![false; grid.len()];
+            let mut index = std::collections::HashMap::with_capacity(hits.len());
             let mut features = Vec::with_capacity(hits.len());
             let mut offsets: Vec<(&usize, _)> = hits.iter().collect();
             offsets.sort_unstable_by_key(|(o, _)| **o);
-            let mut index = std::collections::HashMap::with_capacity(hits.len());
             for (&o, h) in offsets {
-                mask[o] = true;
                 index.insert(o, features.len() as u32);
                 features.push((h.edge as u32, h.arc_mm as f32));
             }
-            let near = distance_transform_with_nearest(grid, &mask)?;
-            let nearest = liver
-                .iter()
-                .map(|&o| {
-                    let f = near.nearest.data()[o];
-                    index.get(&(f as usize)).copied().unwrap_or(NO_FEATURE)
-                })
+            let nearest = nearest_features(grid, hits.keys().copied(), liver)?
+                .into_iter()
+                .map(|f| f.and_then(|f| index.get(&f).copied()).unwrap_or(NO_FEATURE))
                 .collect();
             systems.push(SystemModel {
                 system,

@@ -2,7 +2,7 @@
 
 use std::collections::HashMap;
 
-use resecta_geom::{NO_FEATURE, Vec3, Volume, distance_transform_with_nearest};
+use resecta_geom::{Grid, NO_FEATURE, Vec3, Volume, distance_transform_with_nearest};
 
 use crate::error::VesselError;
 use crate::graph::VesselTree;
@@ -161,6 +161,49 @@ pub(crate) fn rasterise(tree: &VesselTree, step: f64) -> HashMap<usize, Centreli
     hits
 }
 
+/// For each grid offset of `targets`, the grid offset of its nearest voxel of `features` (exact
+/// Euclidean, through the EDT; `None` without features). The EDT runs on the bounding box of
+/// both: every feature lies in it, so nothing outside could be nearer.
+pub(crate) fn nearest_features(
+    grid: &Grid,
+    features: impl Iterator<Item = usize> + Clone,
+    targets: &[usize],
+) -> Result<Vec<Option<usize>>, VesselError> {
+    let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+    for o in features.clone().chain(targets.iter().copied()) {
+        let ijk = grid.ijk(o);
+        for a in 0..3 {
+            lo[a] = lo[a].min(ijk[a]);
+            hi[a] = hi[a].max(ijk[a] + 1);
+        }
+    }
+    if lo[0] == usize::MAX {
+        return Ok(vec![None; targets.len()]);
+    }
+    let dims = [0, 1, 2].map(|a| hi[a] - lo[a]);
+    let origin = grid.index_to_world(Vec3::new(lo[0] as f64, lo[1] as f64, lo[2] as f64));
+    let sub = Grid::new(dims, grid.spacing(), origin, grid.direction())?;
+    let to_sub = |o: usize| {
+        let ijk = grid.ijk(o);
+        sub.offset([ijk[0] - lo[0], ijk[1] - lo[1], ijk[2] - lo[2]])
+    };
+    let mut mask = vec![false; sub.len()];
+    for o in features {
+        mask[to_sub(o)] = true;
+    }
+    let near = distance_transform_with_nearest(&sub, &mask)?;
+    Ok(targets
+        .iter()
+        .map(|&o| {
+            let f = near.nearest.data()[to_sub(o)];
+            (f != NO_FEATURE).then(|| {
+                let ijk = sub.ijk(f as usize);
+                grid.offset([ijk[0] + lo[0], ijk[1] + lo[1], ijk[2] + lo[2]])
+            })
+        })
+        .collect())
+}
+
 /// The sampling step of [`TerritoryParams::sample_mm`] on `grid`.
 pub(crate) fn sample_step(
     grid: &resecta_geom::Grid,
@@ -229,19 +272,13 @@ pub fn territories(
     if hits.is_empty() {
         return Err(VesselError::NoCentreline);
     }
-    let mut mask = vec![false; grid.len()];
-    for &o in hits.keys() {
-        mask[o] = true;
-    }
-    let nearest = distance_transform_with_nearest(grid, &mask)?;
+    let inside: Vec<usize> = (0..grid.len()).filter(|&o| liver.data()[o]).collect();
+    let nearest = nearest_features(grid, hits.keys().copied(), &inside)?;
     let n_terr = selected.len() + 1;
     let mut voxels = vec![0usize; n_terr];
     let mut labels = vec![0u32; grid.len()];
-    for (o, (&inside, &f)) in liver.data().iter().zip(nearest.nearest.data()).enumerate() {
-        if !inside || f == NO_FEATURE {
-            continue;
-        }
-        let t = hits.get(&(f as usize)).map_or(0, |h| owner[h.edge]);
+    for (&o, f) in inside.iter().zip(nearest) {
+        let t = f.and_then(|f| hits.get(&f)).map_or(0, |h| owner[h.edge]);
         labels[o] = t + 1;
         voxels[t as usize] += 1;
     }
