@@ -2,6 +2,7 @@
 //! class, with the liver boundary, the portal territories it passes through, the vessels it
 //! cuts and its worst point (Slicer-Liver's view of a cut, from the planner's own samples).
 
+use rayon::prelude::*;
 use resecta_geom::{Real, Vec3};
 use resecta_margin::{MarginClass, MarginSettings};
 use resecta_vessels::VesselSystem;
@@ -38,25 +39,33 @@ pub struct Resectogram {
     pub band_mm: Real,
 }
 
-/// Bilinear interpolation of per-sample values on the ru×rv grid at (a, b) in sample units;
-/// non-finite corners are left out (the nearest finite corner's value when all weights vanish).
-fn bilinear(values: &[Real], rv: usize, a: Real, b: Real, ru: usize) -> Real {
-    let (a0, b0) = (
-        (a.floor() as usize).min(ru.saturating_sub(2)),
-        (b.floor() as usize).min(rv.saturating_sub(2)),
-    );
-    let (fa, fb) = (a - a0 as Real, b - b0 as Real);
-    let (a1, b1) = ((a0 + 1).min(ru - 1), (b0 + 1).min(rv - 1));
+/// Where pixel centres fall between the samples along one axis of `n` samples: the lower
+/// sample, the weight of the upper one, and the nearest sample, for each of `pixels`.
+fn axis_weights(pixels: usize, n: usize) -> Vec<(usize, Real, usize)> {
+    (0..pixels)
+        .map(|i| {
+            let x = (i as Real + 0.5) / pixels as Real * (n - 1) as Real;
+            let lo = (x.floor() as usize).min(n.saturating_sub(2));
+            (lo, x - lo as Real, (x.round() as usize).min(n - 1))
+        })
+        .collect()
+}
+
+/// Bilinear interpolation of per-sample values (sample `a·rv + b`) between samples `a0..=a0+1`
+/// and `b0..=b0+1`; non-finite corners are left out (the nearest corner's value when all
+/// weights vanish).
+fn bilinear(values: &[Real], rv: usize, (a0, fa): (usize, Real), (b0, fb): (usize, Real)) -> Real {
+    let (a1, b1) = ((a0 + 1).min(values.len() / rv - 1), (b0 + 1).min(rv - 1));
     let corners = [
-        (a0, b0, (1.0 - fa) * (1.0 - fb)),
-        (a1, b0, fa * (1.0 - fb)),
-        (a0, b1, (1.0 - fa) * fb),
-        (a1, b1, fa * fb),
+        (a0 * rv + b0, (1.0 - fa) * (1.0 - fb)),
+        (a1 * rv + b0, fa * (1.0 - fb)),
+        (a0 * rv + b1, (1.0 - fa) * fb),
+        (a1 * rv + b1, fa * fb),
     ];
     let (mut sum, mut w) = (0.0, 0.0);
     let mut nearest = (Real::NEG_INFINITY, Real::INFINITY);
-    for (i, j, wt) in corners {
-        let x = values[i * rv + j];
+    for (k, wt) in corners {
+        let x = values[k];
         if x.is_finite() {
             sum += wt * x;
             w += wt;
@@ -99,7 +108,7 @@ impl Planner {
         let points = state.surface.points();
         let sample_territory: Vec<u32> = match model {
             Some(m) => points
-                .iter()
+                .par_iter()
                 .zip(&state.inside)
                 .map(|(p, &ins)| {
                     if ins > 0.0 {
@@ -112,23 +121,24 @@ impl Planner {
                 .collect(),
             None => vec![0; points.len()],
         };
+        let (cols, rows) = (axis_weights(width, ru), axis_weights(height, rv));
         let mut classes = vec![0u8; width * height];
         let mut territories = vec![0u32; width * height];
-        for j in 0..height {
-            let b = (j as Real + 0.5) / height as Real * (rv - 1) as Real;
-            for i in 0..width {
-                let a = (i as Real + 0.5) / width as Real * (ru - 1) as Real;
-                let d = bilinear(&state.margins.distance, rv, a, b, ru);
-                let ins = bilinear(&state.inside, rv, a, b, ru);
-                let class = settings.classify(d, ins);
-                let k = j * width + i;
-                classes[k] = class as u8;
-                if class != MarginClass::Outside {
-                    let (na, nb) = (a.round() as usize, b.round() as usize);
-                    territories[k] = sample_territory[na.min(ru - 1) * rv + nb.min(rv - 1)];
+        classes
+            .par_chunks_mut(width)
+            .zip(territories.par_chunks_mut(width))
+            .zip(rows.par_iter())
+            .for_each(|((class_row, territory_row), &(b0, fb, nb))| {
+                for (i, &(a0, fa, na)) in cols.iter().enumerate() {
+                    let d = bilinear(&state.margins.distance, rv, (a0, fa), (b0, fb));
+                    let ins = bilinear(&state.inside, rv, (a0, fa), (b0, fb));
+                    let class = settings.classify(d, ins);
+                    class_row[i] = class as u8;
+                    if class != MarginClass::Outside {
+                        territory_row[i] = sample_territory[na * rv + nb];
+                    }
                 }
-            }
-        }
+            });
         let cut_vessels = match model {
             Some(m) => {
                 let surface = [CutMesh {
@@ -143,7 +153,7 @@ impl Planner {
                     .iter()
                     .fold(0.0, |m: Real, &s| m.max(s));
                 let x = crossings(m, &surface, &|p: &Vec3| anatomy.inside_level(p), reach)?;
-                cut_vessels(&m.regions(&x).cut, &surface)
+                cut_vessels(&m.cut_branches(&x), &surface)
             }
             None => Vec::new(),
         };

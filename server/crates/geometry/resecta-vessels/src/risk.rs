@@ -9,6 +9,7 @@
 //! point is disconnected is devascularised, whose nearest hepatic point is disconnected is
 //! congested. The functional remnant is the remnant that is neither.
 
+use rayon::prelude::*;
 use resecta_geom::{Grid, MeshBvh, NO_FEATURE, Ray, Vec3};
 
 use crate::error::VesselError;
@@ -250,51 +251,66 @@ impl RiskModel {
     pub fn crossings(
         &self,
         bvhs: &[&MeshBvh],
-        inside: &dyn Fn(&Crossing) -> bool,
+        inside: &(dyn Fn(&Crossing) -> bool + Sync),
     ) -> Vec<Crossing> {
-        let mut out = Vec::new();
-        for s in &self.systems {
-            for e in &s.tree.edges {
-                for (k, bvh) in bvhs.iter().enumerate() {
-                    if let Some(c) = first_crossing(e, bvh, &|c: Crossing| {
-                        let c = Crossing {
-                            system: s.system,
-                            surface: k,
-                            ..c
-                        };
-                        inside(&c).then_some(c)
-                    }) {
-                        out.push(c);
-                    }
-                }
-            }
-        }
-        out
+        let work: Vec<(&SystemModel, &crate::graph::Edge, usize)> = self
+            .systems
+            .iter()
+            .flat_map(|s| {
+                s.tree
+                    .edges
+                    .iter()
+                    .flat_map(move |e| (0..bvhs.len()).map(move |k| (s, e, k)))
+            })
+            .collect();
+        work.par_iter()
+            .filter_map(|&(s, e, k)| {
+                first_crossing(e, bvhs[k], &|c: Crossing| {
+                    let c = Crossing {
+                        system: s.system,
+                        surface: k,
+                        ..c
+                    };
+                    inside(&c).then_some(c)
+                })
+            })
+            .collect()
     }
 
-    /// The liver voxels (the order given to [`RiskModel::new`]) that lose their supply or
-    /// drainage by the cuts `crossings`, and the cut branches.
-    pub fn regions(&self, crossings: &[Crossing]) -> RiskRegions {
-        let mut lost: [Option<Vec<bool>>; 2] = [None, None];
+    /// Per edge of `s`'s tree: the arc length of its cut nearest the root (∞ uncut), the
+    /// crossing there, and whether an ancestor is cut.
+    fn cuts<'a>(
+        s: &SystemModel,
+        crossings: &'a [Crossing],
+    ) -> (Vec<f64>, Vec<Option<&'a Crossing>>, Vec<bool>) {
+        let edges = &s.tree.edges;
+        let mut cut_at = vec![f64::INFINITY; edges.len()];
+        let mut first: Vec<Option<&Crossing>> = vec![None; edges.len()];
+        for c in crossings.iter().filter(|c| c.system == s.system) {
+            if let Some(a) = cut_at.get_mut(c.edge)
+                && c.arc_mm < *a
+            {
+                *a = c.arc_mm;
+                first[c.edge] = Some(c);
+            }
+        }
+        // Parents come first.
+        let mut cut_above = vec![false; edges.len()];
+        for e in edges {
+            if let Some(p) = e.parent {
+                cut_above[e.id] = cut_above[p] || cut_at[p].is_finite();
+            }
+        }
+        (cut_at, first, cut_above)
+    }
+
+    /// The branches the cuts `crossings` cut (their crossing nearest the root), largest radius
+    /// first.
+    pub fn cut_branches(&self, crossings: &[Crossing]) -> Vec<CutBranch> {
         let mut cut = Vec::new();
         for s in &self.systems {
-            let edges = &s.tree.edges;
-            // Nearest cut to the root per edge, then whether an ancestor is cut (parents first).
-            let mut cut_at = vec![f64::INFINITY; edges.len()];
-            let mut first: Vec<Option<&Crossing>> = vec![None; edges.len()];
-            for c in crossings.iter().filter(|c| c.system == s.system) {
-                if let Some(a) = cut_at.get_mut(c.edge)
-                    && c.arc_mm < *a
-                {
-                    *a = c.arc_mm;
-                    first[c.edge] = Some(c);
-                }
-            }
-            let mut cut_above = vec![false; edges.len()];
-            for e in edges {
-                if let Some(p) = e.parent {
-                    cut_above[e.id] = cut_above[p] || cut_at[p].is_finite();
-                }
+            let (_, first, cut_above) = Self::cuts(s, crossings);
+            for e in &s.tree.edges {
                 if let Some(c) = first[e.id] {
                     cut.push(CutBranch {
                         crossing: *c,
@@ -303,6 +319,23 @@ impl RiskModel {
                     });
                 }
             }
+        }
+        cut.sort_by(|a, b| {
+            b.crossing
+                .radius_mm
+                .total_cmp(&a.crossing.radius_mm)
+                .then(a.crossing.system.cmp(&b.crossing.system))
+                .then(a.crossing.edge.cmp(&b.crossing.edge))
+        });
+        cut
+    }
+
+    /// The liver voxels (the order given to [`RiskModel::new`]) that lose their supply or
+    /// drainage by the cuts `crossings`, and the cut branches.
+    pub fn regions(&self, crossings: &[Crossing]) -> RiskRegions {
+        let mut lost: [Option<Vec<bool>>; 2] = [None, None];
+        for s in &self.systems {
+            let (cut_at, _, cut_above) = Self::cuts(s, crossings);
             let disconnected: Vec<bool> = s
                 .features
                 .iter()
@@ -313,7 +346,7 @@ impl RiskModel {
                 .collect();
             let per_voxel: Vec<bool> = s
                 .nearest
-                .iter()
+                .par_iter()
                 .map(|&f| disconnected.get(f as usize).copied().unwrap_or(false))
                 .collect();
             let slot = &mut lost[usize::from(s.system == VesselSystem::Hepatic)];
@@ -322,16 +355,9 @@ impl RiskModel {
                 None => *slot = Some(per_voxel),
             }
         }
-        cut.sort_by(|a, b| {
-            b.crossing
-                .radius_mm
-                .total_cmp(&a.crossing.radius_mm)
-                .then(a.crossing.system.cmp(&b.crossing.system))
-                .then(a.crossing.edge.cmp(&b.crossing.edge))
-        });
         let [devascularised, congested] = lost;
         RiskRegions {
-            cut,
+            cut: self.cut_branches(crossings),
             devascularised,
             congested,
         }
