@@ -25,9 +25,9 @@ def cut_trunk(resecta, tmp_path):
     return labels, path
 
 
-def test_cutting_the_trunk_devascularises_the_whole_remnant(resecta, cut_trunk):
+def test_cutting_the_trunk_devascularises_the_whole_remnant(resecta, cut_trunk, tmp_path):
     labels, plan = cut_trunk
-    r = resecta("plan", labels, plan, "--json").json()
+    r = resecta("plan", labels, plan, "--out-dir", tmp_path / "out", "--json").json()
     assert r["complete"] and r["has_portal"] and not r["has_hepatic"]
     (c,) = r["cut_vessels"]
     assert c["system"] == "portal" and c["generation"] == 1 and abs(c["point"][0] + 15) < 1.5
@@ -35,6 +35,19 @@ def test_cutting_the_trunk_devascularises_the_whole_remnant(resecta, cut_trunk):
     assert r["devascularised_ml"] == pytest.approx(r["remnant_ml"], rel=0.02)
     assert r["functional_remnant_ml"] == pytest.approx(r["remnant_ml"] - r["at_risk_ml"])
     assert r["flr_warning"] is True and r["remnant_pct"] > r["flr_threshold_pct"]
+    # The risk map written beside: its devascularised voxels are the remnant's, in RAS.
+    import nibabel as nib  # noqa: PLC0415
+
+    img = nib.load(str(tmp_path / "out" / "risk.nii.gz"))
+    cls = np.asarray(img.dataobj)
+    ml = float(np.prod(img.header.get_zooms()[:3])) / 1000
+    assert set(np.unique(cls)) <= {0, 1, 2, 3}
+    assert (cls == 3).sum() * ml == pytest.approx(r["devascularised_ml"], rel=0.05)
+    assert (cls == 1).sum() * ml < 0.05 * r["remnant_ml"]
+    ras = nib.affines.apply_affine(img.affine, np.argwhere(cls == 3))
+    assert np.median(ras[:, 0]) > -15, "the remnant lies beyond the plane x = −15"
+    terr = np.asarray(nib.load(str(tmp_path / "out" / "risk-territories.nii.gz")).dataobj)
+    assert terr.shape == cls.shape and np.all((terr > 0) == (cls > 0))
 
 
 def test_resectogram_png(resecta, cut_trunk, tmp_path):

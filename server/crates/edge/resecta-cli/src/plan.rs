@@ -30,7 +30,9 @@ pub struct PlanArgs {
     #[arg(required = true)]
     pub plan: Option<PathBuf>,
     /// Write the resection surfaces (VTP with margin scalars), the resected label map, the
-    /// normalised plan and the report here.
+    /// normalised plan and the report here; with vessels also the risk map (`risk.nii.gz`:
+    /// 1 functional remnant, 2 resected, 3 devascularised, 4 congested, 5 both) and the portal
+    /// territories (`risk-territories.nii.gz`) on the functional liver's box.
     #[arg(long)]
     pub out_dir: Option<PathBuf>,
     /// Future-liver-remnant warning threshold (% of the functional liver).
@@ -326,6 +328,26 @@ fn write_outputs(planner: &mut Planner, dir: &Path, report: &PlanReport) -> Resu
     )
     .map_err(|e| CliError::Failed(e.to_string()))?;
     write_label_map(dir.join("resected.nii.gz"), &wide)?;
+    // With vessels: the risk classes (resecta_plan::risk_class) and portal territories per
+    // voxel of the functional liver's box.
+    if let Some(m) = planner.risk_map().map_err(plan_err)? {
+        let as_u16 = |v: Vec<u16>| {
+            Volume::from_vec(m.grid.clone(), v).map_err(|e| CliError::Failed(e.to_string()))
+        };
+        write_label_map(
+            dir.join("risk.nii.gz"),
+            &as_u16(m.classes.iter().map(|&c| u16::from(c)).collect())?,
+        )?;
+        write_label_map(
+            dir.join("risk-territories.nii.gz"),
+            &as_u16(
+                m.territories
+                    .iter()
+                    .map(|&t| u16::try_from(t).unwrap_or(u16::MAX))
+                    .collect(),
+            )?,
+        )?;
+    }
     let write = |file: &str, text: String| {
         std::fs::write(dir.join(file), text)
             .map_err(|e| CliError::Failed(format!("{}: {e}", dir.join(file).display())))
