@@ -23,7 +23,8 @@ fn tube(role: Role, radius: Real, points: &[[Real; 3]]) -> VesselSpec {
 }
 
 /// A liver of two ellipsoids on 512×512×300 voxels of 0.75×0.75×1 mm, a tumour, a portal tree
-/// (trunk, two lobar, four segmental branches) and three hepatic veins to the vena cava.
+/// (trunk, two lobar, four segmental branches) and three hepatic veins, each widening at its
+/// own ostium.
 fn spec() -> PhantomSpec {
     let p = Role::Portal;
     let h = Role::Hepatic;
@@ -60,9 +61,13 @@ fn spec() -> PhantomSpec {
             tube(p, 3.5, &[right, [40.0, 30.0, 30.0]]),
             tube(p, 3.5, &[left, [-90.0, 10.0, -10.0]]),
             tube(p, 3.5, &[left, [-50.0, 45.0, 25.0]]),
-            tube(h, 5.0, &[[-5.0, 20.0, 70.0], [60.0, 0.0, 20.0]]),
-            tube(h, 4.5, &[[-10.0, 22.0, 70.0], [-5.0, -20.0, 15.0]]),
-            tube(h, 4.5, &[[-15.0, 20.0, 70.0], [-80.0, 25.0, 25.0]]),
+            // Each hepatic vein widens at its own ostium (the tree's root).
+            tube(h, 6.5, &[[10.0, 20.0, 72.0], [14.0, 18.0, 62.0]]),
+            tube(h, 4.5, &[[14.0, 18.0, 62.0], [60.0, 0.0, 20.0]]),
+            tube(h, 6.0, &[[-10.0, 22.0, 72.0], [-10.0, 16.0, 62.0]]),
+            tube(h, 4.0, &[[-10.0, 16.0, 62.0], [-5.0, -20.0, 15.0]]),
+            tube(h, 6.0, &[[-30.0, 20.0, 72.0], [-36.0, 21.0, 62.0]]),
+            tube(h, 4.0, &[[-36.0, 21.0, 62.0], [-80.0, 25.0, 25.0]]),
         ],
         roles: RoleMap::default(),
         max_voxels: None,
@@ -149,9 +154,16 @@ fn risk(c: &mut Criterion) {
         let mut p = planner(anatomy, roles);
         let v = p.volumes().unwrap(); // one-time set-up
         if let Some(r) = &v.risk {
+            let roots: Vec<usize> = anatomy
+                .vascular()
+                .model()
+                .map(|m| m.trees().map(|(_, t)| t.roots.len()).collect())
+                .unwrap_or_default();
             eprintln!(
-                "risk: {} cut, devascularised {:.1} ml, congested {:.1} ml",
+                "risk: roots per system {roots:?}, {} cut, remnant {:.1} ml, devascularised \
+                 {:.1} ml, congested {:.1} ml",
                 r.cut_vessels.len(),
+                v.remnant_ml.unwrap_or(0.0),
                 r.devascularised_ml,
                 r.congested_ml
             );
