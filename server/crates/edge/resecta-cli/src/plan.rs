@@ -102,7 +102,8 @@ fn parse_point(s: &str) -> Result<[Real; 3], String> {
     }
 }
 
-fn parse_grid(s: &str) -> Result<[usize; 2], String> {
+/// `MxN` (or `M×N`) as two numbers.
+pub(crate) fn parse_grid(s: &str) -> Result<[usize; 2], String> {
     let (m, n) = s
         .split_once(['x', '×'])
         .ok_or_else(|| format!("expected MxN, got {s:?}"))?;

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::error::CliError;
 use crate::output::{ms, print_json, progress};
-use crate::plan::{plan_err, read_labels, read_plan};
+use crate::plan::{parse_grid, plan_err, read_labels, read_plan};
 
 #[derive(Debug, Args)]
 pub struct ResectogramArgs {
@@ -25,7 +25,7 @@ pub struct ResectogramArgs {
     #[arg(long)]
     pub resection: Option<String>,
     /// Resectogram size in samples, W×H.
-    #[arg(long, default_value = "200x200", value_parser = parse_size)]
+    #[arg(long, default_value = "200x200", value_parser = parse_grid)]
     pub size: [usize; 2],
     /// Screen pixels per sample in the PNG (1–8).
     #[arg(long, default_value_t = 2)]
@@ -33,14 +33,6 @@ pub struct ResectogramArgs {
     /// Print one JSON object on stdout.
     #[arg(long)]
     pub json: bool,
-}
-
-fn parse_size(s: &str) -> Result<[usize; 2], String> {
-    let (w, h) = s
-        .split_once(['x', '×'])
-        .ok_or_else(|| format!("expected WxH, got {s:?}"))?;
-    let p = |t: &str| t.trim().parse::<usize>().map_err(|e| format!("{t:?}: {e}"));
-    Ok([p(w)?, p(h)?])
 }
 
 #[derive(Debug, Serialize)]

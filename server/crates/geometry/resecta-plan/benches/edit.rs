@@ -7,51 +7,15 @@
 use std::sync::Arc;
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use resecta_geom::{Real, RoleMap};
-use resecta_phantom::{EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, generate};
+use resecta_geom::Real;
+use resecta_phantom::{PhantomSpec, generate};
 use resecta_plan::{Anatomy, Deformation, Plan, PlanEvent, Planner, Resection};
+
+mod common;
+use common::{edit, planar, spec_with_tumour};
 
 fn spec(dims: [usize; 3], spacing: [Real; 3]) -> PhantomSpec {
     spec_with_tumour(dims, spacing, 15.0)
-}
-
-/// The liver of [`spec`] with a tumour of radius `r` at (35, 10, 5).
-fn spec_with_tumour(dims: [usize; 3], spacing: [Real; 3], r: Real) -> PhantomSpec {
-    PhantomSpec {
-        grid: GridSpec::centred(dims, spacing, [0.0; 3], Orientation::default()),
-        liver: vec![
-            EllipsoidSpec {
-                center: [0.0, 0.0, 0.0],
-                radii: [95.0, 75.0, 65.0],
-                rotation: Orientation::EulerDeg([0.0, 0.0, 15.0]),
-            },
-            EllipsoidSpec {
-                center: [-60.0, 20.0, 10.0],
-                radii: [60.0, 50.0, 45.0],
-                rotation: Orientation::default(),
-            },
-        ],
-        tumors: vec![SphereSpec {
-            center: [35.0, 10.0, 5.0],
-            radius: r,
-        }],
-        vessels: vec![],
-        roles: RoleMap::default(),
-        max_voxels: None,
-        truth_tolerance_mm: 0.5,
-    }
-}
-
-fn planar(res: usize) -> Resection {
-    let pts = (0..16)
-        .map(|k| {
-            let (i, j) = ((k / 4) as Real / 3.0, (k % 4) as Real / 3.0);
-            [5.0, -120.0 + 240.0 * i, -110.0 + 220.0 * j]
-        })
-        .collect();
-    let mut r = Resection::new("r1", [4, 4], pts);
-    r.resolution = [res, res];
-    r
 }
 
 fn planner(s: &PhantomSpec, res: usize) -> Planner {
@@ -63,17 +27,6 @@ fn planner(s: &PhantomSpec, res: usize) -> Planner {
     })
     .unwrap();
     Planner::new(anatomy, plan).unwrap()
-}
-
-fn edit(k: u64) -> PlanEvent {
-    // Drag an inner control point back and forth, as a surgeon does.
-    let dx = if k.is_multiple_of(2) { 8.0 } else { 5.0 };
-    PlanEvent::SetControlPoint {
-        name: "r1".into(),
-        i: 1,
-        j: 2,
-        point: [dx, -40.0, 36.7],
-    }
 }
 
 fn live_edit(c: &mut Criterion) {

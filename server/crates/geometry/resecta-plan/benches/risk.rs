@@ -8,10 +8,11 @@ use std::sync::Arc;
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use resecta_geom::{Real, Role, RoleMap, Volume};
-use resecta_phantom::{
-    EllipsoidSpec, GridSpec, Orientation, PhantomSpec, SphereSpec, VesselSpec, generate,
-};
-use resecta_plan::{Anatomy, Plan, PlanEvent, Planner, Resection};
+use resecta_phantom::{PhantomSpec, VesselSpec, generate};
+use resecta_plan::{Anatomy, Plan, PlanEvent, Planner};
+
+mod common;
+use common::{edit, planar, spec_with_tumour};
 use resecta_vessels::{BranchSelection, RootChoice, TerritoryParams, VesselParams};
 
 fn tube(role: Role, radius: Real, points: &[[Real; 3]]) -> VesselSpec {
@@ -31,28 +32,6 @@ fn spec() -> PhantomSpec {
     let hilum = [-10.0, -20.0, -40.0];
     let (right, left) = ([30.0, -10.0, -20.0], [-45.0, 0.0, -25.0]);
     PhantomSpec {
-        grid: GridSpec::centred(
-            [512, 512, 300],
-            [0.75, 0.75, 1.0],
-            [0.0; 3],
-            Orientation::default(),
-        ),
-        liver: vec![
-            EllipsoidSpec {
-                center: [0.0, 0.0, 0.0],
-                radii: [95.0, 75.0, 65.0],
-                rotation: Orientation::EulerDeg([0.0, 0.0, 15.0]),
-            },
-            EllipsoidSpec {
-                center: [-60.0, 20.0, 10.0],
-                radii: [60.0, 50.0, 45.0],
-                rotation: Orientation::default(),
-            },
-        ],
-        tumors: vec![SphereSpec {
-            center: [35.0, 10.0, 5.0],
-            radius: 15.0,
-        }],
         vessels: vec![
             tube(p, 7.0, &[[-10.0, -30.0, -80.0], hilum]),
             tube(p, 5.0, &[hilum, right]),
@@ -69,39 +48,17 @@ fn spec() -> PhantomSpec {
             tube(h, 6.0, &[[-30.0, 20.0, 72.0], [-36.0, 21.0, 62.0]]),
             tube(h, 4.0, &[[-36.0, 21.0, 62.0], [-80.0, 25.0, 25.0]]),
         ],
-        roles: RoleMap::default(),
-        max_voxels: None,
-        truth_tolerance_mm: 0.5,
+        ..spec_with_tumour([512, 512, 300], [0.75, 0.75, 1.0], 15.0)
     }
-}
-
-fn planar() -> Resection {
-    let pts = (0..16)
-        .map(|k| {
-            let (i, j) = ((k / 4) as Real / 3.0, (k % 4) as Real / 3.0);
-            [5.0, -120.0 + 240.0 * i, -110.0 + 220.0 * j]
-        })
-        .collect();
-    Resection::new("r1", [4, 4], pts)
 }
 
 fn planner(anatomy: &Arc<Anatomy>, roles: &RoleMap) -> Planner {
     let mut plan = Plan::new(roles.clone());
     plan.apply(&PlanEvent::AddResection {
-        resection: planar(),
+        resection: planar(40),
     })
     .unwrap();
     Planner::new(Arc::clone(anatomy), plan).unwrap()
-}
-
-fn edit(k: u64) -> PlanEvent {
-    let dx = if k.is_multiple_of(2) { 8.0 } else { 5.0 };
-    PlanEvent::SetControlPoint {
-        name: "r1".into(),
-        i: 1,
-        j: 2,
-        point: [dx, -40.0, 36.7],
-    }
 }
 
 fn risk(c: &mut Criterion) {

@@ -23,9 +23,7 @@ use crate::plan::{Plan, PlanEvent};
 use crate::probe::{ComputeEngine, SampleProbe};
 use crate::resection::{Resection, Target, arr};
 use crate::surface::LiveSurface;
-use crate::vascular::{
-    self, CutMesh, RiskMap, RiskReport, TERRITORY_GENERATION, Vascular, crossings, risk_report,
-};
+use crate::vascular::{self, CutMesh, RiskMap, RiskReport, TERRITORY_GENERATION, Vascular};
 use resecta_vessels::VesselSystem;
 
 /// Default future-liver-remnant warning threshold (% of the total functional liver).
@@ -635,19 +633,7 @@ impl Planner {
         if !multi.complete {
             return Ok(None);
         }
-        let inside = |p: &Vec3| anatomy.inside_level(p);
-        let reach = anatomy
-            .envelope()
-            .grid()
-            .spacing()
-            .iter()
-            .fold(0.0, |m: Real, &s| m.max(s));
-        let x = crossings(model, &meshes, &inside, reach)?;
-        let remnant: Vec<f32> = resected.iter().map(|f| 1.0 - f).collect();
-        let a = model
-            .assess(&x, &remnant)
-            .map_err(|e| PlanError::InvalidArgument(format!("risk analysis: {e}")))?;
-        let report = risk_report(&a, &meshes, multi.total_mm3);
+        let (x, report) = vascular::assess(&anatomy, model, &meshes, &resected, multi.total_mm3)?;
         let regions = model.regions(&x);
         let offsets = self.volumetry_engine()?.liver().offsets();
         let territories = model.voxel_territories(VesselSystem::Portal, TERRITORY_GENERATION);
@@ -717,19 +703,8 @@ impl VolumeJob {
                     if multi.complete
                         && let Some(model) = anatomy.vascular().model()
                     {
-                        let inside = |p: &Vec3| anatomy.inside_level(p);
-                        let reach = anatomy
-                            .envelope()
-                            .grid()
-                            .spacing()
-                            .iter()
-                            .fold(0.0, |m: Real, &s| m.max(s));
-                        let x = crossings(model, meshes, &inside, reach)?;
-                        let remnant: Vec<f32> = resected.iter().map(|f| 1.0 - f).collect();
-                        let a = model.assess(&x, &remnant).map_err(|e| {
-                            PlanError::InvalidArgument(format!("risk analysis: {e}"))
-                        })?;
-                        let risk = risk_report(&a, meshes, multi.total_mm3);
+                        let (_, risk) =
+                            vascular::assess(anatomy, model, meshes, &resected, multi.total_mm3)?;
                         report.flr_warning = Some(risk.functional_remnant_pct < self.threshold);
                         report.risk = Some(risk);
                     }

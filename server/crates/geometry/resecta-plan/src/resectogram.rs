@@ -3,14 +3,14 @@
 //! cuts and its worst point (Slicer-Liver's view of a cut, from the planner's own samples).
 
 use rayon::prelude::*;
-use resecta_geom::{Real, Vec3};
+use resecta_geom::Real;
 use resecta_margin::{MarginClass, MarginSettings};
 use resecta_vessels::VesselSystem;
 use serde::Serialize;
 
 use crate::engine::Planner;
 use crate::error::PlanError;
-use crate::vascular::{CutMesh, CutVessel, TERRITORY_GENERATION, crossings, cut_vessels};
+use crate::vascular::{CutMesh, CutVessel, TERRITORY_GENERATION, cut_vessels, liver_crossings};
 
 /// Largest resectogram side in pixels.
 pub const MAX_SIDE: usize = 512;
@@ -146,13 +146,7 @@ impl Planner {
                     mesh: state.surface.mesh()?,
                     resolution: [ru, rv],
                 }];
-                let reach = anatomy
-                    .envelope()
-                    .grid()
-                    .spacing()
-                    .iter()
-                    .fold(0.0, |m: Real, &s| m.max(s));
-                let x = crossings(m, &surface, &|p: &Vec3| anatomy.inside_level(p), reach)?;
+                let x = liver_crossings(anatomy, m, &surface)?;
                 cut_vessels(&m.cut_branches(&x), &surface)
             }
             None => Vec::new(),

@@ -10,6 +10,9 @@ use resecta_vessels::{
 };
 use serde::Serialize;
 
+use crate::anatomy::Anatomy;
+use crate::error::PlanError;
+
 /// Territories drawn on a resectogram are the portal branches of this generation (with the
 /// shorter vessels that end above it): the sectors and segments of a typical portal tree.
 pub const TERRITORY_GENERATION: u32 = 2;
@@ -145,6 +148,45 @@ pub fn crossings(
         })
     };
     Ok(model.crossings(&refs, &in_liver))
+}
+
+/// The crossings of every vessel with `surfaces` inside `anatomy`'s liver (the ring reaching
+/// one voxel, the largest spacing, beyond the vessel's radius).
+pub fn liver_crossings(
+    anatomy: &Anatomy,
+    model: &RiskModel,
+    surfaces: &[CutMesh],
+) -> Result<Vec<Crossing>, PlanError> {
+    let reach = anatomy
+        .envelope()
+        .grid()
+        .spacing()
+        .iter()
+        .fold(0.0, |m: Real, &s| m.max(s));
+    Ok(crossings(
+        model,
+        surfaces,
+        &|p: &Vec3| anatomy.inside_level(p),
+        reach,
+    )?)
+}
+
+/// The cuts of `surfaces` in `anatomy`'s liver and what they put at risk, for the resected
+/// fraction of every functional voxel (the model's order) of a liver of `total_mm3`.
+pub fn assess(
+    anatomy: &Anatomy,
+    model: &RiskModel,
+    surfaces: &[CutMesh],
+    resected: &[f32],
+    total_mm3: Real,
+) -> Result<(Vec<Crossing>, RiskReport), PlanError> {
+    let x = liver_crossings(anatomy, model, surfaces)?;
+    let remnant: Vec<f32> = resected.iter().map(|f| 1.0 - f).collect();
+    let a = model
+        .assess(&x, &remnant)
+        .map_err(|e| PlanError::InvalidArgument(format!("risk analysis: {e}")))?;
+    let report = risk_report(&a, surfaces, total_mm3);
+    Ok((x, report))
 }
 
 /// (u, v) of a crossing on its surface.
