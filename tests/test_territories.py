@@ -164,3 +164,26 @@ def test_real_totalsegmentator_portal_territories_partition_the_liver(resecta, t
     assert r["liver_ml"] >= 41733 * 27 / 1000 - 1e-6
     print(f"TotalSegmentator: liver {r['liver_ml']:.1f} ml, {portal['edges']} edges, "
           + ", ".join(f"{x['ml']:.1f}" for x in t) + " ml")
+
+
+def test_a_root_given_by_a_point(resecta, test_data, tmp_path):
+    """TotalSegmentator's portal label holds the splenic vein, whose end at the spleen is the
+    widest: `--root portal=x,y,z` roots the tree at the node nearest a point instead."""
+    f = test_data / "liver" / "totalsegmentator-example" / "example_seg_v1_on_ct.nii.gz"
+    roles = '{"parenchyma":[5],"portal":[9]}'
+    auto = resecta("territories", f, "--out-dir", tmp_path / "a", "--roles", roles, "--json").json()
+    img = nib.load(str(f))
+    lab = np.asarray(img.dataobj)
+    hilum = nib.affines.apply_affine(img.affine, np.argwhere(lab == 5).mean(axis=0))
+    point = ",".join(f"{c:.2f}" for c in hilum)
+    given = resecta("territories", f, "--out-dir", tmp_path / "g", "--roles", roles,
+                    "--root", f"portal={point}", "--json").json()
+    a, g = auto["systems"][0]["root"], given["systems"][0]["root"]
+    assert np.linalg.norm(np.subtract(a, g)) > 20, (a, g)
+    assert np.linalg.norm(np.subtract(g, hilum)) < np.linalg.norm(np.subtract(a, hilum))
+    t = given["territories"]
+    assert abs(sum(x["ml"] for x in t) - given["liver_ml"]) <= 1e-3 * given["liver_ml"]
+    for bad in ["liver=0,0,0", "portal=1,2", "portal"]:
+        r = resecta("territories", f, "--out-dir", tmp_path / "b", "--roles", roles, "--root", bad,
+                    check=False)
+        assert r.code == 2, bad

@@ -91,7 +91,8 @@ pub struct InitArgs {
     pub json: bool,
 }
 
-fn parse_point(s: &str) -> Result<[Real; 3], String> {
+/// `x,y,z` as three finite numbers.
+pub(crate) fn parse_point(s: &str) -> Result<[Real; 3], String> {
     let v: Vec<Real> = s
         .split(',')
         .map(|t| t.trim().parse::<Real>().map_err(|e| format!("{t:?}: {e}")))

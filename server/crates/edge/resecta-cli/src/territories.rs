@@ -40,6 +40,11 @@ pub struct TerritoriesArgs {
     /// vessels that end sooner.
     #[arg(long, default_value_t = 2, conflicts_with_all = ["branches", "couinaud"])]
     pub order: u32,
+    /// A system's root given by a point instead of found (the end of its widest terminal
+    /// branch): `SYSTEM=x,y,z` (RAS mm), the tree's node nearest it; repeat per system. For
+    /// labels where the widest end is not the root (e.g. a portal label holding the splenic vein).
+    #[arg(long, value_parser = parse_root, allow_hyphen_values = true)]
+    pub root: Vec<(String, [Real; 3])>,
     /// Portal territories grouped Couinaud-style: the eight largest portal subtrees (the
     /// longest centrelines split first). An approximation of the eight segments from the tree's
     /// shape, not an anatomical labelling of segments I–VIII; other systems keep `--order`.
@@ -139,6 +144,18 @@ fn masked_liver(labels: &LabelMap, roles: &RoleMap, path: &Path) -> Result<Volum
     Volume::from_vec(a.clone(), data).map_err(bad)
 }
 
+fn parse_root(s: &str) -> Result<(String, [Real; 3]), String> {
+    let (system, point) = s
+        .split_once('=')
+        .ok_or_else(|| format!("expected SYSTEM=x,y,z, got {s:?}"))?;
+    if !SYSTEMS.iter().any(|(_, n, _)| *n == system) {
+        return Err(format!(
+            "{system:?} is not a vessel system (portal, hepatic, vessel)"
+        ));
+    }
+    Ok((system.to_owned(), crate::plan::parse_point(point)?))
+}
+
 /// The branches `--branches` names for `system`, the Couinaud-style grouping, or the
 /// generation rule.
 fn selection(args: &TerritoriesArgs, system: &str) -> Result<BranchSelection, CliError> {
@@ -217,7 +234,10 @@ pub fn run(args: &TerritoriesArgs) -> Result<(), CliError> {
         }
         pb.set_message(format!("{name}: centrelines"));
         let named = |e: resecta_vessels::VesselError| bad(format!("{name} vessels: {e}"));
-        let root = system.map_or(RootChoice::Auto, VesselSystem::root_choice);
+        let root = match args.root.iter().find(|(s, _)| s == name) {
+            Some((_, p)) => RootChoice::NearestTo(Vec3::from(*p)),
+            None => system.map_or(RootChoice::Auto, VesselSystem::root_choice),
+        };
         let tree = vessel_tree(&vessels, root, &VesselParams::default()).map_err(named)?;
         pb.set_message(format!("{name}: territories"));
         let sel = selection(args, name)?;
