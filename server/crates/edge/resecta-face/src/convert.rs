@@ -708,11 +708,9 @@ pub fn risk(r: &RiskReport) -> pb::RiskReport {
 }
 
 /// A resectogram request's resection and size (0 → [`DEFAULT_RESECTOGRAM_SIDE`]; the upper
-/// limit is the operation's to check).
+/// limit is the operation's to check, and an unknown name, the empty one too, is NOT_FOUND
+/// there, as for slices).
 pub fn resectogram_request(r: &pb::GetResectogramRequest) -> Wire<(String, usize, usize)> {
-    if r.resection.is_empty() {
-        return Err(WireError::invalid("resection", "is required"));
-    }
     let side = |v: u32| match v {
         0 => DEFAULT_RESECTOGRAM_SIDE,
         v => v as usize,
