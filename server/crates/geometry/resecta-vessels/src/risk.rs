@@ -59,8 +59,9 @@ struct SystemModel {
 pub struct RiskModel {
     systems: Vec<SystemModel>,
     grid: Grid,
-    /// Grid offsets of the liver voxels, ascending.
-    liver: Vec<usize>,
+    /// Grid offsets of the liver voxels, ascending (u32: the EDT's nearest features are u32
+    /// offsets too, so grids are smaller).
+    liver: Vec<u32>,
 }
 
 /// Where a resection surface cuts a vessel (the crossing nearest the root on its edge).
@@ -173,7 +174,15 @@ impl RiskModel {
         Ok(Self {
             systems,
             grid: grid.clone(),
-            liver: liver.to_vec(),
+            liver: liver
+                .iter()
+                .map(|&o| {
+                    u32::try_from(o).map_err(|_| VesselError::InvalidParameter {
+                        name: "liver voxel offsets",
+                        reason: "must be below 2^32 (the grid is too large)",
+                    })
+                })
+                .collect::<Result<_, _>>()?,
         })
     }
 
@@ -229,7 +238,7 @@ impl RiskModel {
         let o = self
             .grid
             .offset([c[0] as usize, c[1] as usize, c[2] as usize]);
-        let i = self.liver.binary_search(&o).ok()?;
+        let i = self.liver.binary_search(&u32::try_from(o).ok()?).ok()?;
         self.systems
             .iter()
             .filter(|s| s.system == system)
