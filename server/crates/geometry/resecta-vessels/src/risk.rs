@@ -191,11 +191,6 @@ impl RiskModel {
         self.systems.iter().map(|s| (s.system, &s.tree))
     }
 
-    /// Number of liver voxels the model was built for.
-    pub fn liver_voxels(&self) -> usize {
-        self.liver.len()
-    }
-
     /// Per liver voxel (the order given to [`RiskModel::new`]): 1 + the branch of generation
     /// at most `generation` above its nearest centreline point of `system` (0 without one).
     pub fn voxel_territories(&self, system: VesselSystem, generation: u32) -> Option<Vec<u32>> {

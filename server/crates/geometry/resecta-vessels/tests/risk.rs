@@ -39,12 +39,7 @@ fn setups() -> Vec<Setup> {
     y_cases()
         .into_iter()
         .map(|case| {
-            let tree = vessel_tree(
-                &y_mask(&case.grid, &case.y),
-                RootChoice::Auto,
-                &VesselParams::default(),
-            )
-            .unwrap();
+            let tree = case.tree();
             let (liver, centres): (Vec<usize>, Vec<Vec3>) = (0..case.grid.len())
                 .map(|o| (o, case.grid.voxel_center(case.grid.ijk(o))))
                 .filter(|(_, p)| in_box(*p, case.lo, case.hi))

@@ -97,13 +97,8 @@ fn y_has_one_branch_point_and_the_trunk_as_root() {
 #[test]
 fn children_split_the_box_at_the_bisector_and_partition_it() {
     for c in y_cases() {
-        let tree = vessel_tree(
-            &y_mask(&c.grid, &c.y),
-            RootChoice::Auto,
-            &VesselParams::default(),
-        )
-        .unwrap();
-        let liver = mask(&c.grid, |p| in_box(p, c.lo, c.hi));
+        let tree = c.tree();
+        let liver = c.liver();
         let t = territories(
             &tree,
             &liver,
@@ -160,13 +155,8 @@ fn children_split_the_box_at_the_bisector_and_partition_it() {
 #[test]
 fn sampling_density_moves_volumes_by_less_than_one_percent() {
     for c in y_cases() {
-        let tree = vessel_tree(
-            &y_mask(&c.grid, &c.y),
-            RootChoice::Auto,
-            &VesselParams::default(),
-        )
-        .unwrap();
-        let liver = mask(&c.grid, |p| in_box(p, c.lo, c.hi));
+        let tree = c.tree();
+        let liver = c.liver();
         let base = 0.5
             * c.grid
                 .spacing()
@@ -336,13 +326,8 @@ proptest! {
 #[test]
 fn largest_branches_split_the_longest_subtree_first() {
     let c = &y_cases()[0];
-    let tree = vessel_tree(
-        &y_mask(&c.grid, &c.y),
-        RootChoice::Auto,
-        &VesselParams::default(),
-    )
-    .unwrap();
-    let liver = mask(&c.grid, |p| in_box(p, c.lo, c.hi));
+    let tree = c.tree();
+    let liver = c.liver();
     let run = |sel: BranchSelection| {
         territories(&tree, &liver, &sel, &TerritoryParams::default()).unwrap()
     };

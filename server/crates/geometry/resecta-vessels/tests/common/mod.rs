@@ -2,6 +2,7 @@
 #![allow(clippy::unwrap_used, dead_code)] // test helpers; each test file uses a part
 
 use resecta_geom::{Grid, Mat3, Vec3, Volume};
+use resecta_vessels::{RootChoice, VesselParams, VesselTree, vessel_tree};
 
 pub fn mask(grid: &Grid, f: impl Fn(Vec3) -> bool) -> Volume<bool> {
     let data = (0..grid.len())
@@ -94,4 +95,21 @@ pub fn y_cases() -> Vec<YCase> {
             hi: Vec3::new(15.0, 8.0, 15.0),
         },
     ]
+}
+
+impl YCase {
+    /// The Y's tree, rooted automatically.
+    pub fn tree(&self) -> VesselTree {
+        vessel_tree(
+            &y_mask(&self.grid, &self.y),
+            RootChoice::Auto,
+            &VesselParams::default(),
+        )
+        .unwrap()
+    }
+
+    /// The box liver.
+    pub fn liver(&self) -> Volume<bool> {
+        mask(&self.grid, |p| in_box(p, self.lo, self.hi))
+    }
 }
