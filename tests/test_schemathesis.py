@@ -374,6 +374,9 @@ def test_schemathesis_finds_nothing(tmp_path):
                "-H", f"Authorization: Bearer {TOKEN}",
                "--checks", CHECKS, "--phases", "coverage,fuzzing",
                "--max-examples", str(MAX_EXAMPLES), "--seed", "19",
+               # No example database: Hypothesis then keeps no Pareto front, whose
+               # optimiser raised IndexError inside Hypothesis 6.170 (not a finding).
+               "--generation-database", "none",
                "--request-timeout", "30", "--suppress-health-check", "all",
                "--report", "junit", "--report-dir", str(tmp_path / "report"),
                *os.environ.get("RESECTA_SCHEMATHESIS_ARGS", "").split()]
