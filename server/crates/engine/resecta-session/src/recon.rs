@@ -81,6 +81,9 @@ fn model_options(options: &ReconOptions, default_depth: u32) -> Result<ModelOpti
 fn recon_error(e: ReconError) -> SessionError {
     match e {
         ReconError::Cancelled => SessionError::Cancelled,
+        e @ (ReconError::NormalCount { .. }
+        | ReconError::BadNormal { .. }
+        | ReconError::PointCloud(_)) => SessionError::Invalid(format!("point cloud: {e}")),
         e @ (ReconError::NoLabels
         | ReconError::LabelsAbsent { .. }
         | ReconError::EmptyMask

@@ -120,10 +120,15 @@ pub fn estimate_normals(
     })
 }
 
-/// Areas as in [`estimate_normals`], for points that come with their normals.
-pub fn point_areas(positions: &[Vec3], neighbours: usize) -> Result<Vec<Real>, PointCloudError> {
+/// Areas as in [`estimate_normals`], for points that come with their normals, and the number
+/// of distinct positions.
+pub fn point_areas(
+    positions: &[Vec3],
+    neighbours: usize,
+) -> Result<(Vec<Real>, usize), PointCloudError> {
     let hood = Neighbourhoods::new(positions, neighbours)?;
-    Ok(hood.of_input.iter().map(|&u| hood.area(u)).collect())
+    let areas = hood.of_input.iter().map(|&u| hood.area(u)).collect();
+    Ok((areas, hood.unique.len()))
 }
 
 /// Distinct positions, each input point's distinct index and the neighbours of each.

@@ -1,5 +1,6 @@
 //! Surface models from label maps (thesis ch. 6, Paper I).
 //!
+//! - [`cloud`]: PSR of point clouds with or without normals (catheter points, Paper IV).
 //! - [`psr`]: Poisson surface reconstruction from the mask's oriented points (parenchyma), its
 //!   multigrid on a [`PoissonSolver`] (CPU by default; `resecta-gpu` has the device's).
 //! - [`mcsd`]: marching cubes, decimation, windowed-sinc smoothing — 3D Slicer's method
@@ -12,6 +13,7 @@
 //!
 //! Everything is in RAS mm; masks may be oblique and anisotropic.
 
+pub mod cloud;
 pub mod mask;
 pub mod mcsd;
 pub mod models;
@@ -19,6 +21,10 @@ pub mod psr;
 pub mod quality;
 pub mod study;
 
+pub use cloud::{
+    CloudModel, CloudOptions, CloudReport, DEFAULT_CLOUD_DEPTH, NormalSource, orient_cloud,
+    reconstruct_cloud,
+};
 pub use mcsd::McsdParams;
 pub use models::{
     Dropped, ModelOptions, ParenchymaMethod, PatientModel, PatientModels, SPECK_MM3,
@@ -46,6 +52,12 @@ pub enum ReconError {
         name: &'static str,
         reason: &'static str,
     },
+    #[error("{normals} normals given for {points} points")]
+    NormalCount { points: usize, normals: usize },
+    #[error("normal {index} is zero or not finite")]
+    BadNormal { index: usize },
+    #[error("point cloud: {0}")]
+    PointCloud(#[from] resecta_pointcloud::PointCloudError),
     #[error("Poisson reconstruction: {0}")]
     Poisson(#[from] resecta_poisson::PoissonError),
     #[error("mesh filter: {0}")]
