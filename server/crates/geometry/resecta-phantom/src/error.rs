@@ -25,6 +25,12 @@ pub enum PhantomError {
     MissingRole(Role),
     #[error("grid {dims:?} holds more than {limit} voxels")]
     VoxelLimit { dims: [usize; 3], limit: u64 },
+    #[error("an atrium needs 1 to 4 veins, got {got}")]
+    VeinCount { got: usize },
+    #[error(
+        "vein[{index}] must start inside the body and end outside it, each by more than its radius"
+    )]
+    VeinPlacement { index: usize },
     #[error("grid: {0}")]
     Geom(GeomError),
 }

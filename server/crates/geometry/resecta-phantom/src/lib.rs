@@ -5,13 +5,16 @@
 //! [`generate`] labels every voxel by the shape containing its centre and returns the [`Truth`]:
 //! exact shape volumes, region volumes (closed form or with a rigorous numeric bound, see
 //! [`volume`]) and voxel counts. [`implicit`] holds the inside tests and signed distances.
+//! [`atrium`] is the left-atrium phantom of the mapping study (body ellipsoid, vein tubes).
 
+pub mod atrium;
 pub mod error;
 pub mod generate;
 pub mod implicit;
 pub mod spec;
 pub mod volume;
 
+pub use atrium::{Atrium, AtriumSpec, BODY_LABEL, SurfaceSamples, VEIN_LABELS, VeinSpec};
 pub use error::PhantomError;
 pub use generate::{LabelTruth, Phantom, ShapeTruth, Truth, generate};
 pub use implicit::Solid;

@@ -155,7 +155,7 @@ pub(crate) const PRIORITY: [Role; 5] = [
     Role::Parenchyma,
 ];
 
-fn finite(what: &str, v: &[Real]) -> Result<(), PhantomError> {
+pub(crate) fn finite(what: &str, v: &[Real]) -> Result<(), PhantomError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
@@ -163,7 +163,7 @@ fn finite(what: &str, v: &[Real]) -> Result<(), PhantomError> {
     }
 }
 
-fn positive(what: &str, v: Real) -> Result<(), PhantomError> {
+pub(crate) fn positive(what: &str, v: Real) -> Result<(), PhantomError> {
     finite(what, &[v])?;
     if v > 0.0 {
         Ok(())
@@ -175,40 +175,40 @@ fn positive(what: &str, v: Real) -> Result<(), PhantomError> {
     }
 }
 
+/// The grid of `g`, checked, with at most `max_voxels` voxels (`None`: the [`VoxelLimit`]
+/// default).
+pub(crate) fn build_grid(g: &GridSpec, max_voxels: Option<u64>) -> Result<Grid, PhantomError> {
+    finite("grid spacing", &g.spacing)?;
+    finite("grid origin", &g.origin)?;
+    let dir = g.direction.matrix("grid direction")?;
+    let limit = max_voxels.map_or_else(VoxelLimit::default, VoxelLimit);
+    Grid::with_limit(g.dims, g.spacing, Vec3::from(g.origin), dir, limit).map_err(|e| match e {
+        GeomError::TooManyVoxels { dims, limit } => PhantomError::VoxelLimit { dims, limit },
+        e @ (GeomError::EmptyDims(_)
+        | GeomError::BadSpacing(_)
+        | GeomError::BadOrigin(_)
+        | GeomError::SingularDirection
+        | GeomError::DataLength { .. }
+        | GeomError::VertexIndexOutOfRange { .. }
+        | GeomError::TooManyVertices
+        | GeomError::NonFiniteVertex(_)
+        | GeomError::AttributeLength { .. }
+        | GeomError::LabelInTwoRoles { .. }
+        | GeomError::BackgroundLabel
+        | GeomError::EmptyRole(_)
+        | GeomError::NonOrthogonalGrid
+        | GeomError::TooFewPoints { .. }
+        | GeomError::InvalidParameter { .. }
+        | GeomError::TooManyTriangles { .. }
+        | GeomError::NotClosed { .. }
+        | GeomError::EmptyMesh) => PhantomError::Geom(e),
+    })
+}
+
 impl PhantomSpec {
     /// Checks everything and builds the solids; nothing is allocated per voxel here.
     pub(crate) fn scene(&self) -> Result<Scene, PhantomError> {
-        let g = &self.grid;
-        finite("grid spacing", &g.spacing)?;
-        finite("grid origin", &g.origin)?;
-        let dir = g.direction.matrix("grid direction")?;
-        let limit = self.max_voxels.map_or_else(VoxelLimit::default, VoxelLimit);
-        let grid =
-            Grid::with_limit(g.dims, g.spacing, Vec3::from(g.origin), dir, limit).map_err(|e| {
-                match e {
-                    GeomError::TooManyVoxels { dims, limit } => {
-                        PhantomError::VoxelLimit { dims, limit }
-                    }
-                    e @ (GeomError::EmptyDims(_)
-                    | GeomError::BadSpacing(_)
-                    | GeomError::BadOrigin(_)
-                    | GeomError::SingularDirection
-                    | GeomError::DataLength { .. }
-                    | GeomError::VertexIndexOutOfRange { .. }
-                    | GeomError::TooManyVertices
-                    | GeomError::NonFiniteVertex(_)
-                    | GeomError::AttributeLength { .. }
-                    | GeomError::LabelInTwoRoles { .. }
-                    | GeomError::BackgroundLabel
-                    | GeomError::EmptyRole(_)
-                    | GeomError::NonOrthogonalGrid
-                    | GeomError::TooFewPoints { .. }
-                    | GeomError::InvalidParameter { .. }
-                    | GeomError::TooManyTriangles { .. }
-                    | GeomError::NotClosed { .. }
-                    | GeomError::EmptyMesh) => PhantomError::Geom(e),
-                }
-            })?;
+        let grid = build_grid(&self.grid, self.max_voxels)?;
         positive("truth_tolerance_mm", self.truth_tolerance_mm)?;
         if self.liver.is_empty() {
             return Err(PhantomError::NoLiver);
