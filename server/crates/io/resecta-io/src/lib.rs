@@ -7,6 +7,10 @@
 //!
 //! Meshes: VTK legacy, VTP, STL, PLY, OBJ ([`mesh`]); [`read_mesh`]/[`write_mesh`] pick the
 //! format from the extension.
+//!
+//! Point clouds (positions with optional normals): CSV/text, PLY and VTP read and written, the
+//! vertices of VTK, STL and OBJ meshes read ([`points`]); [`read_points`]/[`write_points`] pick
+//! the format from the extension.
 
 pub mod error;
 pub mod image;
@@ -14,6 +18,7 @@ pub mod mesh;
 pub mod metaimage;
 pub mod nifti;
 pub mod nrrd;
+pub mod points;
 pub mod volume_io;
 
 pub use error::{ErrorKind, IoError};
@@ -24,4 +29,8 @@ pub use mesh::{
     write_mesh, write_mesh_with, write_polylines,
 };
 pub use nrrd::{Segment, Segmentation};
+pub use points::{
+    MAX_POINTS, PointCloud, PointFormat, points_to_bytes, read_points, read_points_bytes,
+    write_points,
+};
 pub use volume_io::{ImageFormat, read_image, read_label_map, write_image, write_label_map};

@@ -179,13 +179,38 @@ fn header(c: &mut Cursor<'_>, raw: &mut RawMesh) -> Result<(Storage, Vec<Element
 }
 
 pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
+    read_with(bytes, None)
+}
+
+/// The first `vertex` element of a PLY file (positions, normals if it has `nx ny nz`) for a
+/// point cloud: elements before it are parsed past, those after it (faces) are not read, and a
+/// vertex count above `max_vertices` is refused from the header, before anything is allocated.
+pub(crate) fn read_points(bytes: &[u8], max_vertices: usize) -> Result<RawMesh, ErrorKind> {
+    read_with(bytes, Some(max_vertices))
+}
+
+/// Reads a mesh, or with `points_only` (the most vertices allowed) the vertices alone.
+fn read_with(bytes: &[u8], points_only: Option<usize>) -> Result<RawMesh, ErrorKind> {
     let mut raw = RawMesh::default();
     let mut c = Cursor::new(bytes);
     let (storage, elements) = header(&mut c, &mut raw)?;
+    if let Some(max) = points_only
+        && let Some(e) = elements.iter().find(|e| e.name == "vertex")
+        && e.count > max
+    {
+        return Err(ErrorKind::Header(format!(
+            "element vertex: {} vertices, more than the {max} a point cloud may have",
+            e.count
+        )));
+    }
+    let faces = points_only.is_none();
     let mut body = Body { c, storage };
     let mut have_vertices = false;
     for e in &elements {
-        let checked = e.name == "face" || (e.name == "vertex" && !have_vertices);
+        if have_vertices && !faces {
+            break;
+        }
+        let checked = (faces && e.name == "face") || (e.name == "vertex" && !have_vertices);
         if e.props.is_empty() && !checked {
             continue; // nothing to read, however large the count
         }
@@ -209,7 +234,7 @@ pub(crate) fn read(bytes: &[u8]) -> Result<RawMesh, ErrorKind> {
                 have_vertices = true;
                 read_vertices(&mut body, e, &mut raw)?;
             }
-            "face" => {
+            "face" if faces => {
                 let key = e
                     .props
                     .iter()

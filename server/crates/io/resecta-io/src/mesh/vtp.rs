@@ -873,6 +873,30 @@ pub(crate) fn write_lines(set: &PolylineSet, opts: &WriteOptions) -> Result<Vec<
     )
 }
 
+/// Encodes points, with their normals if given, as VTK XML PolyData with one `Verts` cell per
+/// point (what `vtkVertexGlyphFilter` makes), like [`write`].
+pub(crate) fn write_verts(
+    points: &[Vec3],
+    normals: Option<&[Vec3]>,
+    opts: &WriteOptions,
+) -> Result<Vec<u8>, ErrorKind> {
+    let n = points.len() as i64;
+    let conn: Vec<i64> = (0..n).collect();
+    let offsets: Vec<i64> = (1..=n).collect();
+    write_piece(
+        &Piece {
+            points,
+            normals,
+            point_data: &[],
+            cell_data: &[],
+            cells: Cells::Verts,
+            connectivity: &conn,
+            offsets: &offsets,
+        },
+        opts,
+    )
+}
+
 fn named(arrays: &[(String, Vec<f64>)]) -> Vec<(&str, &[f64])> {
     arrays
         .iter()
@@ -882,6 +906,7 @@ fn named(arrays: &[(String, Vec<f64>)]) -> Vec<(&str, &[f64])> {
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Cells {
+    Verts,
     Lines,
     Polys,
 }
@@ -899,9 +924,10 @@ struct Piece<'a> {
 fn write_piece(piece: &Piece<'_>, opts: &WriteOptions) -> Result<Vec<u8>, ErrorKind> {
     let n = piece.points.len();
     let cells = piece.offsets.len();
-    let (lines, polys, section) = match piece.cells {
-        Cells::Lines => (cells, 0, "Lines"),
-        Cells::Polys => (0, cells, "Polys"),
+    let (verts, lines, polys, section) = match piece.cells {
+        Cells::Verts => (cells, 0, 0, "Verts"),
+        Cells::Lines => (0, cells, 0, "Lines"),
+        Cells::Polys => (0, 0, cells, "Polys"),
     };
     let binary = opts.encoding != super::Encoding::Ascii;
     let appended = binary && opts.vtp_layout != VtpLayout::Inline;
@@ -922,7 +948,7 @@ fn write_piece(piece: &Piece<'_>, opts: &WriteOptions) -> Result<Vec<u8>, ErrorK
          byte_order=\"LittleEndian\" header_type=\"{header}\"{compressor}>\n  <PolyData>\n    \
          <FieldData>\n      <DataArray type=\"String\" Name=\"SPACE\" NumberOfTuples=\"1\" \
          format=\"ascii\">\n        82 65 83 0\n      </DataArray>\n    </FieldData>\n    \
-         <Piece NumberOfPoints=\"{n}\" NumberOfVerts=\"0\" NumberOfLines=\"{lines}\" \
+         <Piece NumberOfPoints=\"{n}\" NumberOfVerts=\"{verts}\" NumberOfLines=\"{lines}\" \
          NumberOfStrips=\"0\" NumberOfPolys=\"{polys}\">"
     );
     let normals_attr = if piece.normals.is_some() {
