@@ -106,6 +106,26 @@ pub enum PlotError {
     Render(String),
     #[error("PNG encoding failed: {0}")]
     Png(String),
+    /// A mesh picture's view or layout that cannot be drawn (this crate's words).
+    #[error("bad view: {0}")]
+    BadView(&'static str),
+    /// A mesh picture's vertex or overlay point (`what`) with a NaN or infinite coordinate.
+    #[error("mesh {mesh}, {what} {index}: coordinates must be finite")]
+    NonFiniteCoordinate {
+        mesh: usize,
+        what: &'static str,
+        index: usize,
+    },
+    /// A mesh picture's triangle naming a vertex that does not exist.
+    #[error(
+        "mesh {mesh}, triangle {triangle}: vertex {index} is out of range ({vertices} vertices)"
+    )]
+    VertexIndex {
+        mesh: usize,
+        triangle: usize,
+        index: u32,
+        vertices: usize,
+    },
 }
 
 /// Smallest and largest side in pixels (the largest bounds the RGBA pixmap to 64 MiB).

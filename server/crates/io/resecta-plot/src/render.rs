@@ -290,24 +290,26 @@ impl Figure {
     /// The figure as a PNG image (8-bit RGBA, `width × height`): the SVG of [`Self::to_svg`]
     /// rasterised by resvg with the embedded DejaVu Sans standing in for `sans-serif`.
     pub fn to_png(&self) -> Result<Vec<u8>, PlotError> {
-        let svg = self.to_svg()?;
-        let opt = usvg::Options {
-            fontdb: font_database(),
-            font_family: DEJAVU.into(),
-            ..usvg::Options::default()
-        };
-        let tree = usvg::Tree::from_str(&svg, &opt).map_err(render_err)?;
-        let mut pixmap =
-            tiny_skia::Pixmap::new(self.width, self.height).ok_or(PlotError::BadSize {
-                width: self.width,
-                height: self.height,
-            })?;
-        pixmap.fill(tiny_skia::Color::WHITE);
-        resvg::render(&tree, tiny_skia::Transform::default(), &mut pixmap.as_mut());
-        pixmap
-            .encode_png()
-            .map_err(|e| PlotError::Png(e.to_string()))
+        svg_to_png(&self.to_svg()?, self.width, self.height)
     }
+}
+
+/// An SVG document rasterised by resvg onto a white `width × height` RGBA image, with the
+/// embedded DejaVu Sans standing in for `sans-serif`, as PNG bytes.
+pub(crate) fn svg_to_png(svg: &str, width: u32, height: u32) -> Result<Vec<u8>, PlotError> {
+    let opt = usvg::Options {
+        fontdb: font_database(),
+        font_family: DEJAVU.into(),
+        ..usvg::Options::default()
+    };
+    let tree = usvg::Tree::from_str(svg, &opt).map_err(render_err)?;
+    let mut pixmap =
+        tiny_skia::Pixmap::new(width, height).ok_or(PlotError::BadSize { width, height })?;
+    pixmap.fill(tiny_skia::Color::WHITE);
+    resvg::render(&tree, tiny_skia::Transform::default(), &mut pixmap.as_mut());
+    pixmap
+        .encode_png()
+        .map_err(|e| PlotError::Png(e.to_string()))
 }
 
 /// The family name inside the embedded font files.
