@@ -9,7 +9,9 @@ mod bench_ready;
 mod bench_recon;
 mod bench_server;
 mod bezier;
+mod cloud;
 mod demo;
+mod eam;
 mod error;
 mod info;
 mod output;
@@ -44,6 +46,10 @@ enum Command {
     Reconstruct(recon::ReconstructArgs),
     /// The complete patient model: PSR liver, MCSD tumours and vessels, one mesh each.
     Models(recon::ModelsArgs),
+    /// A closed surface from a point cloud with or without normals (catheter points) by PSR.
+    ReconstructPoints(cloud::ReconstructPointsArgs),
+    /// Paper IV's sampling study: how many points, and where, a left atrium needs.
+    EamStudy(eam::EamStudyArgs),
     /// Accuracy, polygons, volume and smoothness of any mesh against a label map.
     Measure(recon::MeasureArgs),
     /// The Paper I study on one label map: PSR depths × MCSD parameters, tables and Pareto plot.
@@ -77,6 +83,8 @@ fn main() -> ExitCode {
         Command::Demo(a) => demo::run(&a),
         Command::Reconstruct(a) => recon::reconstruct(&a),
         Command::Models(a) => recon::models(&a),
+        Command::ReconstructPoints(a) => cloud::run(&a),
+        Command::EamStudy(a) => eam::run(&a),
         Command::Measure(a) => recon::measure_mesh(&a),
         Command::Evaluate(a) => recon::evaluate(&a),
         Command::Plan(a) => plan::run(&a),

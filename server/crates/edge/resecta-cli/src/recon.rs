@@ -152,9 +152,13 @@ fn read_labels(path: &Path) -> Result<LabelMap, CliError> {
 pub(crate) fn recon_err(e: resecta_recon::ReconError) -> CliError {
     use resecta_recon::ReconError as E;
     match e {
-        E::NoLabels | E::LabelsAbsent { .. } | E::EmptyMask | E::InvalidParameter { .. } => {
-            CliError::BadInput(e.to_string())
-        }
+        E::NoLabels
+        | E::LabelsAbsent { .. }
+        | E::EmptyMask
+        | E::InvalidParameter { .. }
+        | E::NormalCount { .. }
+        | E::BadNormal { .. }
+        | E::PointCloud(_) => CliError::BadInput(e.to_string()),
         E::Poisson(ref p) if !matches!(p, resecta_poisson::PoissonError::Backend { .. }) => {
             CliError::BadInput(e.to_string())
         }

@@ -22,7 +22,7 @@ pub use atrium::{MeshSplit, StudyAtrium, sample_mesh};
 pub use split::{Split, SplitSource};
 pub use study::{
     ConditionResult, NoiseModel, RunResult, StudyConfig, StudyNormals, StudyResults, add_noise,
-    draw, median_error, reconstruct_sample, run_study,
+    draw, median_error, reconstruct_sample, run_sample, run_study,
 };
 
 use resecta_geom::GeomError;

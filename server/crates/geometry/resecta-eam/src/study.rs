@@ -277,6 +277,37 @@ fn quantile(sorted: &[Real], q: Real) -> Real {
     sorted[i] * (1.0 - f) + sorted[j] * f
 }
 
+/// The sample of run (`n`, `config.upper_fractions[ui]`, `repeat`), with the configured noise
+/// if `noisy`: the one [`run_study`] reconstructs (noisy runs move the clean run's points).
+pub fn run_sample(
+    atrium: &StudyAtrium,
+    config: &StudyConfig,
+    n: usize,
+    ui: usize,
+    repeat: usize,
+    noisy: bool,
+) -> Result<OrientedPoints, EamError> {
+    let u = *config
+        .upper_fractions
+        .get(ui)
+        .ok_or_else(|| EamError::InvalidParameter {
+            name: "u",
+            reason: format!("has no index {ui}"),
+        })?;
+    let key = [n as u64, ui as u64, repeat as u64];
+    let mut sample = draw(
+        atrium,
+        n,
+        u,
+        &mut stream(config.seed, [key[0], key[1], key[2], 0]),
+    )?;
+    if let (true, Some(model)) = (noisy, config.noise) {
+        let mut rng = stream(config.seed, [key[0], key[1], key[2], 1]);
+        add_noise(&mut sample, &model, &mut rng);
+    }
+    Ok(sample)
+}
+
 /// Runs every condition and repeat (in parallel; results do not depend on the thread
 /// count), calling `progress(done, total)` after each reconstruction.
 pub fn run_study(
