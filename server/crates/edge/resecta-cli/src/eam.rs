@@ -44,13 +44,17 @@ pub struct EamStudyArgs {
     /// PSR depth.
     #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u32).range(1..=10))]
     pub depth: u32,
+    /// PSR's screening weight α (> 0); values near 0 approach the unscreened PSR of 2006 that
+    /// the thesis used.
+    #[arg(long, default_value_t = 4.0)]
+    pub screening: Real,
     /// The normals PSR gets: the reference's (the thesis) or estimated from the drawn points
     /// as for real catheter points.
     #[arg(long, value_enum, default_value_t = NormalsArg::Reference)]
     pub normals: NormalsArg,
     /// The split plane `x,y,z,nx,ny,nz` (a point and the normal towards the veins), instead
     /// of the automatic one.
-    #[arg(long, value_delimiter = ',', num_args = 6)]
+    #[arg(long, value_delimiter = ',')]
     pub plane: Option<Vec<Real>>,
     /// Label-map labels of the atrial body (and appendage).
     #[arg(long, value_delimiter = ',', default_value = "36,37")]
@@ -140,6 +144,12 @@ fn eam_err(e: EamError) -> CliError {
 /// The atrium of `args.input` and what kind of input it was.
 fn atrium(args: &EamStudyArgs) -> Result<(StudyAtrium, &'static str), CliError> {
     let plane = match &args.plane {
+        Some(v) if v.len() != 6 => {
+            return Err(CliError::BadInput(format!(
+                "--plane needs 6 numbers x,y,z,nx,ny,nz, got {}",
+                v.len()
+            )));
+        }
         Some(v) => Some(
             Split::given(Vec3::new(v[0], v[1], v[2]), Vec3::new(v[3], v[4], v[5]))
                 .map_err(eam_err)?,
@@ -189,6 +199,7 @@ pub fn run(args: &EamStudyArgs) -> Result<(), CliError> {
         noise: args.noise.then(NoiseModel::default),
         repeats: args.repeats,
         depth: args.depth,
+        screening: args.screening,
         normals: match args.normals {
             NormalsArg::Reference => StudyNormals::Reference,
             NormalsArg::Estimated => StudyNormals::Estimated,
@@ -369,8 +380,14 @@ fn pictures(
     }
     for n in wanted {
         let sample = run_sample(atrium, config, n, ui, 0, false).map_err(eam_err)?;
-        let (mesh, _) =
-            reconstruct_sample(&sample, config.depth, config.normals, solver).map_err(eam_err)?;
+        let (mesh, _) = reconstruct_sample(
+            &sample,
+            config.depth,
+            config.screening,
+            config.normals,
+            solver,
+        )
+        .map_err(eam_err)?;
         let pts = sample.positions.iter().map(|p| [p.x, p.y, p.z]).collect();
         meshes.push((
             as_arrays(&mesh),
@@ -407,12 +424,14 @@ fn markdown(r: &Report, args: &EamStudyArgs, total_s: Real) -> String {
         "# EAM sampling study: {} ({})\n\n\
          Paper IV's simulation (thesis Sec. 9.2) on one atrium: for every condition, n points \
          are drawn by area without replacement, round(n·u) of them from the upper part (the \
-         pulmonary veins' side) and the rest from the lower; PSR at depth {} with {} normals; \
+         pulmonary veins' side) and the rest from the lower; PSR at depth {} (screening {}) with \
+         {} normals; \
          error = median distance from {} area-uniform reference points to the reconstruction. \
          {} draws per condition{}; the table gives the median over draws.\n\n",
         r.atrium,
         r.input_kind,
         c.depth,
+        c.screening,
         match c.normals {
             StudyNormals::Reference => "the reference's",
             StudyNormals::Estimated => "estimated",

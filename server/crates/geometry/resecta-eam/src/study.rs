@@ -58,6 +58,9 @@ pub struct StudyConfig {
     /// Draws per condition.
     pub repeats: usize,
     pub depth: u32,
+    /// PSR's screening weight α (resecta-poisson's default 4; near 0 approaches the unscreened
+    /// PSR of 2006 the thesis used).
+    pub screening: Real,
     pub normals: StudyNormals,
     pub seed: u64,
 }
@@ -70,6 +73,7 @@ impl Default for StudyConfig {
             noise: Some(NoiseModel::default()),
             repeats: 10,
             depth: 5,
+            screening: PoissonParams::default().screening,
             normals: StudyNormals::Reference,
             seed: 2018,
         }
@@ -145,6 +149,9 @@ impl StudyConfig {
         }
         if !(1..=resecta_poisson::MAX_DEPTH).contains(&self.depth) {
             return bad("depth", "must lie in 1..=10");
+        }
+        if !(self.screening.is_finite() && self.screening > 0.0) {
+            return bad("screening", "must be a finite number > 0");
         }
         if let Some(m) = self.noise
             && !(m.mean_mm.is_finite() && m.sd_mm.is_finite() && m.sd_mm >= 0.0)
@@ -230,10 +237,11 @@ pub fn add_noise(points: &mut OrientedPoints, model: &NoiseModel, rng: &mut impl
     }
 }
 
-/// The PSR surface of a drawn sample at `depth`, and the seconds it took.
+/// The PSR surface of a drawn sample at `depth` and `screening`, and the seconds it took.
 pub fn reconstruct_sample(
     sample: &OrientedPoints,
     depth: u32,
+    screening: Real,
     normals: StudyNormals,
     solver: &PoissonSolver,
 ) -> Result<(TriMesh, Real), EamError> {
@@ -248,6 +256,7 @@ pub fn reconstruct_sample(
     };
     let params = PoissonParams {
         depth,
+        screening,
         ..PoissonParams::default()
     };
     let field = psr::field(points, &params, solver)?;
@@ -349,8 +358,13 @@ pub fn run_study(
             samples
                 .into_iter()
                 .map(|(noise, sample)| {
-                    let (mesh, time_s) =
-                        reconstruct_sample(&sample, config.depth, config.normals, solver)?;
+                    let (mesh, time_s) = reconstruct_sample(
+                        &sample,
+                        config.depth,
+                        config.screening,
+                        config.normals,
+                        solver,
+                    )?;
                     let median_error_mm = median_error(&atrium.reference, &mesh)?;
                     let k = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
                     progress(k, total);
