@@ -6,6 +6,10 @@
 use std::time::Instant;
 
 use resecta_geom::{Real, TriMesh, Vec3};
+pub use resecta_pointcloud::{
+    DEFAULT_NEIGHBOURS as DEFAULT_CLOUD_NEIGHBOURS, MAX_NEIGHBOURS as MAX_CLOUD_NEIGHBOURS,
+    MIN_NEIGHBOURS as MIN_CLOUD_NEIGHBOURS, MIN_POINTS as MIN_CLOUD_POINTS,
+};
 use resecta_pointcloud::{DEFAULT_NEIGHBOURS, NormalParams, estimate_normals, point_areas};
 use resecta_poisson::{OrientedPoints, PoissonParams, PoissonSolver};
 use serde::Serialize;

@@ -22,7 +22,8 @@ pub mod quality;
 pub mod study;
 
 pub use cloud::{
-    CloudModel, CloudOptions, CloudReport, DEFAULT_CLOUD_DEPTH, NormalSource, orient_cloud,
+    CloudModel, CloudOptions, CloudReport, DEFAULT_CLOUD_DEPTH, DEFAULT_CLOUD_NEIGHBOURS,
+    MAX_CLOUD_NEIGHBOURS, MIN_CLOUD_NEIGHBOURS, MIN_CLOUD_POINTS, NormalSource, orient_cloud,
     reconstruct_cloud,
 };
 pub use mcsd::McsdParams;
