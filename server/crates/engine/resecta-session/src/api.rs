@@ -5,6 +5,10 @@ use std::collections::BTreeMap;
 
 use resecta_geom::{Real, RoleMap};
 use resecta_plan::{PlanEvent, Resection, Target, Verdict, VolumeReport};
+pub use resecta_recon::{
+    CloudReport, DEFAULT_CLOUD_DEPTH, DEFAULT_CLOUD_NEIGHBOURS, MAX_CLOUD_NEIGHBOURS,
+    MIN_CLOUD_NEIGHBOURS, MIN_CLOUD_POINTS, NormalSource,
+};
 
 pub use crate::labelmap::{MAX_EXTENT_MM, MAX_ORIGIN_MM, SPACING_MM};
 pub use crate::sessions::MAX_DISPLAY_NAME;
@@ -48,6 +52,8 @@ pub struct Limits {
     pub max_voxels: u64,
     pub max_upload_bytes: u64,
     pub max_memory_bytes: u64,
+    pub max_cloud_points: usize,
+    pub max_cloud_depth: u32,
 }
 
 /// Where a session is in the workflow.
@@ -285,6 +291,40 @@ pub enum ReconstructEvent {
         /// The vessel speck volume used (mm³).
         min_component_mm3: Real,
     },
+}
+
+/// A point cloud to close into a surface (`ReconstructPoints`).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct PointCloud {
+    /// RAS mm.
+    pub positions: Vec<[Real; 3]>,
+    /// Outward normals, one per point, of any non-zero length; `None`: estimated.
+    pub normals: Option<Vec<[Real; 3]>>,
+    /// PSR depth, `1..=ServiceConfig::max_cloud_depth`; `None`: [`DEFAULT_CLOUD_DEPTH`].
+    pub depth: Option<u32>,
+    /// Neighbours per point for normals and areas,
+    /// [`MIN_CLOUD_NEIGHBOURS`]`..=`[`MAX_CLOUD_NEIGHBOURS`] and fewer than the distinct
+    /// points; `None`: [`DEFAULT_CLOUD_NEIGHBOURS`].
+    pub neighbours: Option<usize>,
+    /// The client decodes zstd-compressed mesh payloads (used when the server compresses).
+    pub allow_zstd: bool,
+    /// The client decodes quantised positions and normals (used when the server quantises).
+    pub allow_quantized: bool,
+}
+
+/// The closed surface of a point cloud.
+#[derive(Debug, Clone)]
+pub struct CloudSurface {
+    /// The mesh in the `resecta-delta` format (magic `RSMS`): positions, vertex normals,
+    /// triangles.
+    pub mesh: Vec<u8>,
+    pub vertices: usize,
+    pub triangles: usize,
+    /// Volume enclosed by the mesh, ml.
+    pub volume_ml: Real,
+    /// Neighbours per point used.
+    pub neighbours: usize,
+    pub report: CloudReport,
 }
 
 /// What a surface shows.

@@ -55,6 +55,7 @@ pub(crate) enum Use {
     LabelMap,
     Plan,
     Reconstruction,
+    PointCloud,
     Upload,
     Watcher,
 }
@@ -65,6 +66,7 @@ impl Use {
             Use::LabelMap => "the label map",
             Use::Plan => "the plan's surfaces",
             Use::Reconstruction => "the reconstruction",
+            Use::PointCloud => "the point cloud's reconstruction",
             Use::Upload => "the upload",
             Use::Watcher => "the watch stream",
         }
@@ -346,6 +348,33 @@ pub(crate) fn reconstruction_bytes(voxels: u64, depth: u32) -> u64 {
         .saturating_add(voxels.saturating_mul(BYTES_PER_VOXEL))
 }
 
+/// Bytes per point of a cloud while its normals and areas are computed (positions, normals and
+/// areas copied, the k-d tree, the merged duplicates) besides its neighbour lists.
+const BYTES_PER_CLOUD_POINT: u64 = 256;
+/// Bytes per neighbour of a point (index and distance, both directions of the graph).
+const BYTES_PER_CLOUD_NEIGHBOUR: u64 = 32;
+/// Bytes of the surface per face-cell of the finest grid (a closed surface crossing the whole
+/// bounding cube cuts about 6·4^d cells; vertices, normals, triangles and the encoded copy).
+const BYTES_PER_SURFACE_CELL: u64 = 256;
+
+/// What reconstructing a cloud of `points` points with `neighbours` neighbours at depth `depth`
+/// holds at its peak: the point work, the Poisson grid hierarchy
+/// ([`resecta_poisson::bytes_needed`]) and the surface.
+pub(crate) fn cloud_bytes(points: usize, depth: u32, neighbours: usize) -> u64 {
+    // Depths are checked (at most the solver's 10) before this; beyond 12 the grid alone
+    // would not fit any budget, and the estimate saturates.
+    if depth > resecta_poisson::MAX_DEPTH + 2 {
+        return u64::MAX;
+    }
+    let points = points as u64;
+    let per_point = BYTES_PER_CLOUD_POINT
+        .saturating_add((neighbours as u64).saturating_mul(BYTES_PER_CLOUD_NEIGHBOUR));
+    let cells = 6u64 << (2 * depth);
+    resecta_poisson::bytes_needed(depth, 0)
+        .saturating_add(points.saturating_mul(per_point))
+        .saturating_add(cells.saturating_mul(BYTES_PER_SURFACE_CELL))
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use std::sync::Barrier;
@@ -463,5 +492,11 @@ pub(crate) mod tests {
             "saturates, never wraps"
         );
         assert!(watcher_bytes(250_000) > watcher_bytes(0));
+        // A cloud: the grid dominates at depth 8, the points at a million.
+        assert!(cloud_bytes(1000, 8, 10) > 5 * cloud_bytes(1000, 7, 10));
+        assert!(cloud_bytes(1_000_000, 5, 10) > 500_000_000);
+        assert!(cloud_bytes(1000, 5, 64) > cloud_bytes(1000, 5, 10));
+        assert_eq!(cloud_bytes(usize::MAX, 8, 64), u64::MAX, "saturates");
+        assert_eq!(cloud_bytes(10, 40, 10), u64::MAX, "never overflows");
     }
 }

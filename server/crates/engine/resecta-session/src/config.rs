@@ -35,6 +35,11 @@ pub struct ServiceConfig {
     pub volumes_during_drags_per_s: f64,
     /// Depth of the parenchyma's screened Poisson reconstruction when a call names none.
     pub psr_depth: u32,
+    /// Most points of one point cloud ([`Service::reconstruct_points`](crate::Service::reconstruct_points)).
+    pub max_cloud_points: usize,
+    /// Largest PSR depth of a point cloud (depths are `1..=max_cloud_depth`; at most 10, the
+    /// solver's): the dense grid of depth d holds (2^d + 1)³ nodes.
+    pub max_cloud_depth: u32,
     /// Capabilities reported by [`Service::info`](crate::Service::info) (the edges add theirs,
     /// e.g. "tls").
     pub capabilities: Vec<String>,
@@ -43,8 +48,8 @@ pub struct ServiceConfig {
     pub compute_engine: ComputeEngine,
     /// What [`Service::info`](crate::Service::info) reports of `compute_engine`.
     pub compute: ComputeInfo,
-    /// Solves the parenchyma's Poisson system in reconstructions (the CPU's by default); a
-    /// device failure reruns that reconstruction on the CPU.
+    /// Solves the Poisson systems of reconstructions and point clouds (the CPU's by default);
+    /// a device failure reruns that reconstruction on the CPU.
     pub poisson_solver: PoissonSolver,
 }
 
@@ -65,6 +70,8 @@ impl Default for ServiceConfig {
             volumes_max_interval: Duration::from_secs(1),
             volumes_during_drags_per_s: 4.0,
             psr_depth: 7,
+            max_cloud_points: 1_000_000,
+            max_cloud_depth: 8,
             capabilities: Vec::new(),
             compute_engine: ComputeEngine::cpu(),
             compute: ComputeInfo::default(),

@@ -1,7 +1,8 @@
 //! The planning server's operation layer (issue #6): patient sessions over a
 //! [`resecta_store::SessionStore`], label-map upload, reconstruction, resection edits with plan
-//! versions, volumetry, plan import/export, model export, slice projections, and per-session
-//! watch streams of mesh snapshots and deltas. The gRPC and HTTP edges call [`Service`] and map
+//! versions, volumetry, plan import/export, model export, slice projections, per-session
+//! watch streams of mesh snapshots and deltas, and point clouds closed into surfaces (no
+//! session). The gRPC and HTTP edges call [`Service`] and map
 //! [`SessionError::kind`] to their status codes; no algorithm lives here.
 
 pub mod api;

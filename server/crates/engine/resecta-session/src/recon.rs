@@ -1,22 +1,24 @@
 //! Reconstruction: the surface models of a session's label map, built off the runtime with
-//! progress events, then stored and shown to watchers.
+//! progress events, then stored and shown to watchers; and the closed surface of a point cloud,
+//! which needs no session.
 
 use std::sync::Arc;
 
-use resecta_delta::{SurfaceFrame, encode_mesh};
-use resecta_geom::{Real, Role};
+use resecta_delta::{EncodeOptions, SurfaceFrame, encode_mesh};
+use resecta_geom::{Real, Role, Vec3};
 use resecta_recon::{
-    McsdParams, ModelOptions, ParenchymaMethod, PoissonError, ReconError, SPECK_MM3,
-    patient_models, patient_models_with,
+    CloudOptions, McsdParams, ModelOptions, ParenchymaMethod, PoissonError, PoissonSolver,
+    ReconError, SPECK_MM3, patient_models, patient_models_with, reconstruct_cloud,
 };
 use tokio::sync::mpsc;
 
 use crate::api::{
-    DECIMATION, DroppedComponents, ModelInfo, PSR_DEPTHS, ReconMethod, ReconOptions,
-    ReconstructEvent, SMOOTHING, Surface, SurfaceKind,
+    CloudSurface, DECIMATION, DEFAULT_CLOUD_DEPTH, DEFAULT_CLOUD_NEIGHBOURS, DroppedComponents,
+    MAX_CLOUD_NEIGHBOURS, MIN_CLOUD_NEIGHBOURS, ModelInfo, PSR_DEPTHS, PointCloud, ReconMethod,
+    ReconOptions, ReconstructEvent, SMOOTHING, Surface, SurfaceKind,
 };
-use crate::budget::{Charge, Use, reconstruction_bytes};
-use crate::error::{Missing, Result, SessionError};
+use crate::budget::{Charge, Use, cloud_bytes, reconstruction_bytes};
+use crate::error::{Missing, Quota, Result, SessionError};
 use crate::log;
 use crate::pools::{self, Priority};
 use crate::service::Service;
@@ -96,6 +98,130 @@ fn recon_error(e: ReconError) -> SessionError {
             SessionError::Precondition(Missing::Other, format!("reconstruction: {e}"))
         }
     }
+}
+
+/// The options of a point cloud's reconstruction, or [`SessionError::Invalid`] naming the
+/// quantity out of range and the limit (`max_points`, `max_depth`: the server's
+/// `max_cloud_points` and `max_cloud_depth`).
+fn cloud_options(cloud: &PointCloud, max_points: usize, max_depth: u32) -> Result<CloudOptions> {
+    let n = cloud.positions.len();
+    if n > max_points {
+        return Err(SessionError::Invalid(format!(
+            "the cloud has {n} points, more than max_cloud_points ({max_points})"
+        )));
+    }
+    if let Some(normals) = &cloud.normals
+        && normals.len() != n
+    {
+        return Err(SessionError::Invalid(format!(
+            "{} normals given for {n} points",
+            normals.len()
+        )));
+    }
+    let depth = cloud.depth.unwrap_or(DEFAULT_CLOUD_DEPTH);
+    if !(1..=max_depth).contains(&depth) {
+        return Err(SessionError::Invalid(format!(
+            "depth {depth} is outside 1..={max_depth} (max_cloud_depth)"
+        )));
+    }
+    let neighbours = cloud.neighbours.unwrap_or(DEFAULT_CLOUD_NEIGHBOURS);
+    if !(MIN_CLOUD_NEIGHBOURS..=MAX_CLOUD_NEIGHBOURS).contains(&neighbours) {
+        return Err(SessionError::Invalid(format!(
+            "neighbours {neighbours} is outside {MIN_CLOUD_NEIGHBOURS}..={MAX_CLOUD_NEIGHBOURS}"
+        )));
+    }
+    Ok(CloudOptions { depth, neighbours })
+}
+
+/// The server's mesh encoding (`server`) less what the client does not decode.
+fn cloud_encoding(
+    server: &EncodeOptions,
+    allow_zstd: bool,
+    allow_quantized: bool,
+) -> EncodeOptions {
+    EncodeOptions {
+        quantise: server.quantise.filter(|_| allow_quantized),
+        zstd_level: server.zstd_level.filter(|_| allow_zstd),
+    }
+}
+
+/// A failed point-cloud reconstruction as the operation's error: the cloud cannot give a
+/// surface (invalid), or its grid does not fit the solver's memory limit.
+fn cloud_error(e: ReconError) -> SessionError {
+    // Point-cloud errors name themselves ("point cloud: …"); the others get the prefix.
+    let invalid = |e: &ReconError| {
+        SessionError::Invalid(if matches!(e, ReconError::PointCloud(_)) {
+            e.to_string()
+        } else {
+            format!("point cloud: {e}")
+        })
+    };
+    match e {
+        ReconError::Cancelled => SessionError::Cancelled,
+        ReconError::Poisson(PoissonError::MemoryBudget { .. }) => {
+            SessionError::Quota(Quota::Memory, format!("point cloud: {e}"))
+        }
+        ReconError::Poisson(PoissonError::Backend { .. }) => SessionError::Internal(e.to_string()),
+        ReconError::Poisson(
+            PoissonError::EmptyMask
+            | PoissonError::TooFewPoints { .. }
+            | PoissonError::DepthOutOfRange { .. }
+            | PoissonError::LengthMismatch { .. }
+            | PoissonError::BadSample { .. }
+            | PoissonError::DegenerateBounds { .. }
+            | PoissonError::BadParameter { .. }
+            | PoissonError::SingularGrid,
+        )
+        | ReconError::NoLabels
+        | ReconError::LabelsAbsent { .. }
+        | ReconError::EmptyMask
+        | ReconError::InvalidParameter { .. }
+        | ReconError::NormalCount { .. }
+        | ReconError::BadNormal { .. }
+        | ReconError::PointCloud(_)
+        | ReconError::Filter(_)
+        | ReconError::Isosurface(_)
+        | ReconError::Metrics(_)
+        | ReconError::Geometry(_) => invalid(&e),
+    }
+}
+
+/// The closed surface of `cloud` solved by `solver` (on the CPU again if the device fails),
+/// encoded with `encode`.
+fn close_cloud(
+    cloud: PointCloud,
+    options: &CloudOptions,
+    solver: &PoissonSolver,
+    encode: &EncodeOptions,
+) -> Result<CloudSurface> {
+    let positions: Vec<Vec3> = cloud.positions.iter().map(|&p| p.into()).collect();
+    drop(cloud.positions);
+    let normals: Option<Vec<Vec3>> = cloud
+        .normals
+        .map(|n| n.into_iter().map(Vec3::from).collect());
+    let built = match reconstruct_cloud(&positions, normals.as_deref(), options, solver) {
+        Err(ReconError::Poisson(e @ PoissonError::Backend { .. })) => {
+            tracing::warn!(error = %e, "Poisson solver failed: closing the point cloud on the CPU");
+            reconstruct_cloud(
+                &positions,
+                normals.as_deref(),
+                options,
+                &PoissonSolver::cpu(),
+            )
+        }
+        other => other,
+    }
+    .map_err(cloud_error)?;
+    let (topology, frame) = SurfaceFrame::from_trimesh(&built.mesh);
+    let mesh = encode_mesh(&topology, &frame, encode).map_err(internal)?;
+    Ok(CloudSurface {
+        mesh,
+        vertices: built.mesh.vertices().len(),
+        triangles: built.mesh.triangles().len(),
+        volume_ml: built.mesh.signed_volume() / 1000.0,
+        neighbours: options.neighbours,
+        report: built.report,
+    })
 }
 
 /// The fraction reported once `done` models are built: the parenchyma (first, Poisson or the
@@ -197,6 +323,44 @@ impl Service {
             let _ = tx.send(end).await;
         });
         Ok(rx)
+    }
+
+    /// The closed surface of a point cloud (normals estimated where missing, then screened
+    /// Poisson and marching cubes; thesis ch. 9) with how it was built. Needs no session and
+    /// keeps nothing. The limits (`max_cloud_points`, `max_cloud_depth`, the neighbourhood
+    /// range) are checked first, then the memory its grid needs is reserved from the budget
+    /// for as long as the work runs; the work runs on the background pool, as
+    /// reconstructions do, with the service's Poisson solver. The mesh is encoded as the
+    /// models are (`ServiceConfig::encode`), less the encodings the client does not decode.
+    pub async fn reconstruct_points(&self, cloud: PointCloud) -> Result<CloudSurface> {
+        let options = cloud_options(
+            &cloud,
+            self.config.max_cloud_points,
+            self.config.max_cloud_depth,
+        )?;
+        let memory = self.budget.reserve(
+            Use::PointCloud,
+            cloud_bytes(cloud.positions.len(), options.depth, options.neighbours),
+        )?;
+        let encode = cloud_encoding(&self.config.encode, cloud.allow_zstd, cloud.allow_quantized);
+        let solver = self.config.poisson_solver.clone();
+        let started = std::time::Instant::now();
+        let points = cloud.positions.len();
+        // The reservation goes with the job: it is held until the work ends, even when the
+        // caller has gone away meanwhile.
+        let surface = pools::run(Priority::Background, move || {
+            let _memory = memory;
+            close_cloud(cloud, &options, &solver, &encode)
+        })
+        .await??;
+        tracing::info!(
+            points,
+            depth = surface.report.depth,
+            vertices = surface.vertices,
+            ms = started.elapsed().as_secs_f64() * 1e3,
+            "point cloud closed"
+        );
+        Ok(surface)
     }
 
     async fn install_models(
@@ -340,6 +504,99 @@ mod tests {
         let e = recon_error(ReconError::EmptyMask);
         assert!(matches!(e, SessionError::Precondition(Missing::Other, _)));
         assert!(e.to_string().contains("reconstruction"), "{e}");
+    }
+
+    fn cloud(n: usize) -> PointCloud {
+        PointCloud {
+            positions: vec![[0.0; 3]; n],
+            ..PointCloud::default()
+        }
+    }
+
+    fn cloud_invalid(c: &PointCloud) -> String {
+        match cloud_options(c, 100, 8) {
+            Err(SessionError::Invalid(m)) => m,
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn cloud_options_default_and_refuse_by_name_and_limit() {
+        let o = cloud_options(&cloud(100), 100, 8).unwrap();
+        assert_eq!(
+            (o.depth, o.neighbours),
+            (DEFAULT_CLOUD_DEPTH, DEFAULT_CLOUD_NEIGHBOURS)
+        );
+        let o = cloud_options(
+            &PointCloud {
+                depth: Some(8),
+                neighbours: Some(64),
+                ..cloud(4)
+            },
+            100,
+            8,
+        )
+        .unwrap();
+        assert_eq!((o.depth, o.neighbours), (8, 64));
+        let m = cloud_invalid(&cloud(101));
+        assert!(
+            m.contains("101 points") && m.contains("max_cloud_points (100)"),
+            "{m}"
+        );
+        for depth in [0, 9, u32::MAX] {
+            let m = cloud_invalid(&PointCloud {
+                depth: Some(depth),
+                ..cloud(10)
+            });
+            assert!(m.contains("max_cloud_depth") && m.contains("1..=8"), "{m}");
+        }
+        for k in [0, 2, 65] {
+            let m = cloud_invalid(&PointCloud {
+                neighbours: Some(k),
+                ..cloud(10)
+            });
+            assert!(m.contains("neighbours") && m.contains("3..=64"), "{m}");
+        }
+        let m = cloud_invalid(&PointCloud {
+            normals: Some(vec![[0.0, 0.0, 1.0]; 9]),
+            ..cloud(10)
+        });
+        assert!(m.contains("9 normals given for 10 points"), "{m}");
+    }
+
+    #[test]
+    fn cloud_encoding_drops_what_the_client_does_not_decode() {
+        let server = EncodeOptions::quantised().with_zstd(3);
+        assert_eq!(cloud_encoding(&server, true, true), server);
+        assert_eq!(
+            cloud_encoding(&server, false, false),
+            EncodeOptions::exact()
+        );
+        assert_eq!(
+            cloud_encoding(&server, true, false),
+            EncodeOptions::exact().with_zstd(3)
+        );
+        let exact = EncodeOptions::exact();
+        assert_eq!(cloud_encoding(&exact, true, true), exact);
+    }
+
+    #[test]
+    fn cloud_failures_are_invalid_but_memory_and_devices() {
+        let e = cloud_error(ReconError::BadNormal { index: 3 });
+        assert!(matches!(e, SessionError::Invalid(_)), "{e:?}");
+        assert!(e.to_string().starts_with("point cloud: "), "{e}");
+
+        let e = cloud_error(ReconError::Poisson(PoissonError::MemoryBudget {
+            depth: 10,
+            needed: 2,
+            limit: 1,
+        }));
+        assert!(matches!(e, SessionError::Quota(Quota::Memory, _)), "{e:?}");
+        let e = cloud_error(ReconError::Poisson(PoissonError::Backend {
+            backend: "wgpu",
+            reason: "lost".into(),
+        }));
+        assert!(matches!(e, SessionError::Internal(_)), "{e:?}");
     }
 
     #[test]

@@ -15,9 +15,9 @@
 //! sessions held, the session and memory quotas as reservations, idle selection; no store),
 //! `sessions` (creating, listing, deleting, expiring sessions over the store), `log` (records,
 //! blobs, replay, rollback: the storage format), `edits` (plan changes and imports), `volumes`
-//! (volumetry; `VolumeTiming` says when it is recomputed), `recon` (reconstruction); `state`
-//! is what a session holds in memory. This module keeps restoring, opening, upload and the
-//! read-only exports.
+//! (volumetry; `VolumeTiming` says when it is recomputed), `recon` (reconstruction, point
+//! clouds); `state` is what a session holds in memory. This module keeps restoring, opening,
+//! upload and the read-only exports.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -110,6 +110,8 @@ impl Service {
                 max_voxels: self.config.max_voxels,
                 max_upload_bytes: self.config.max_upload_bytes,
                 max_memory_bytes: self.config.max_memory_bytes,
+                max_cloud_points: self.config.max_cloud_points,
+                max_cloud_depth: self.config.max_cloud_depth,
             },
             compute: self.config.compute.clone(),
         }

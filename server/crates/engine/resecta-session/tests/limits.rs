@@ -1,7 +1,7 @@
 //! The operation layer's limits (issue #19): the memory budget admits plans, watchers,
-//! reconstructions and uploads before their work starts and takes them back on every path;
-//! a stored session that cannot be restored is listed as damaged; idle expiry spares watched
-//! sessions.
+//! reconstructions, point clouds and uploads before their work starts and takes them back on
+//! every path; a stored session that cannot be restored is listed as damaged; idle expiry
+//! spares watched sessions.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 mod common;
@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use common::{config, init_op, loaded_session};
 use resecta_plan::PlanEvent;
-use resecta_session::api::{EditOp, ReconOptions, SessionState};
+use resecta_session::api::{EditOp, PointCloud, ReconOptions, SessionState};
 use resecta_session::{ErrorKind, Service, ServiceConfig};
 use resecta_store::{Blob, MemoryStore, SessionStore, StoreOptions};
 
@@ -144,6 +144,41 @@ async fn reconstructions_are_admitted_by_their_grid() {
             );
         }
         assert!(done);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn point_clouds_are_admitted_by_their_grid_and_give_it_back() {
+    // Room for a depth-6 grid (65³ nodes, about 5 MiB with the rest) but not a depth-8 one
+    // (257³ nodes, about 300 MiB).
+    let service = service_with(
+        memory_store(),
+        ServiceConfig {
+            max_memory_bytes: 64 << 20,
+            ..config()
+        },
+    );
+    let positions: Vec<[f64; 3]> = (0..400)
+        .map(|k| {
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / 400.0;
+            let (r, t) = ((1.0 - z * z).sqrt(), 2.399_963 * k as f64);
+            [10.0 * r * t.cos(), 10.0 * r * t.sin(), 10.0 * z]
+        })
+        .collect();
+    let cloud = |depth| PointCloud {
+        positions: positions.clone(),
+        depth: Some(depth),
+        ..PointCloud::default()
+    };
+    let e = service.reconstruct_points(cloud(8)).await.unwrap_err();
+    assert_eq!(e.code(), "MEMORY_QUOTA", "{e}");
+    assert!(
+        e.to_string().contains("the point cloud's reconstruction"),
+        "{e}"
+    );
+    // Depth 6 fits, and each call gives its reservation back: many in a row all run.
+    for _ in 0..3 {
+        service.reconstruct_points(cloud(6)).await.unwrap();
     }
 }
 

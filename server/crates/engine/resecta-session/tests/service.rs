@@ -11,8 +11,8 @@ use resecta_geom::RoleMap;
 use resecta_margin::FAR_TOLERANCE_MM;
 use resecta_plan::{PlanEvent, SliceAxis, label_slice};
 use resecta_session::api::{
-    EditOp, FileFormat, LabelMapSource, ModelInfo, RawLabelMap, ReconMethod, ReconOptions,
-    ReconstructEvent, SessionState, SurfaceKind, WatchBody, WatchEvent,
+    EditOp, FileFormat, LabelMapSource, ModelInfo, NormalSource, PointCloud, RawLabelMap,
+    ReconMethod, ReconOptions, ReconstructEvent, SessionState, SurfaceKind, WatchBody, WatchEvent,
 };
 use resecta_session::{ErrorKind, Service, ServiceConfig, WatchStream};
 mod common;
@@ -1288,4 +1288,242 @@ async fn a_failing_poisson_solver_leaves_the_reconstruction_to_the_cpu() {
         models.push(models_of(&service, &id, ReconOptions::default()).await);
     }
     assert_eq!(format!("{:?}", models[0]), format!("{:?}", models[1]));
+}
+
+/// `n` points evenly spread on the sphere of `radius` mm about `centre` (a Fibonacci lattice),
+/// with their outward normals.
+fn fibonacci_sphere(n: usize, radius: f64, centre: [f64; 3]) -> (Vec<[f64; 3]>, Vec<[f64; 3]>) {
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    (0..n)
+        .map(|k| {
+            let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
+            let r = (1.0 - z * z).sqrt();
+            let t = golden * k as f64;
+            let u = [r * t.cos(), r * t.sin(), z];
+            (std::array::from_fn(|a| centre[a] + radius * u[a]), u)
+        })
+        .unzip()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn point_clouds_close_into_their_sphere_with_or_without_normals() {
+    let service = Service::new(
+        Arc::new(MemoryStore::new(StoreOptions::default())),
+        config(),
+    );
+    let centre = [10.0, -20.0, 30.0];
+    let (positions, normals) = fibonacci_sphere(2000, 20.0, centre);
+    for given in [false, true] {
+        let cloud = PointCloud {
+            positions: positions.clone(),
+            normals: given.then(|| normals.clone()),
+            depth: Some(6),
+            ..PointCloud::default()
+        };
+        let surface = service.reconstruct_points(cloud.clone()).await.unwrap();
+        let r = &surface.report;
+        assert_eq!((r.points, r.distinct, r.depth), (2000, 2000, 6));
+        assert_eq!(surface.neighbours, 10);
+        let source = if given {
+            NormalSource::Given
+        } else {
+            NormalSource::Estimated
+        };
+        assert_eq!(r.normals, source);
+        assert_eq!(r.components.is_some(), !given, "{r:?}");
+        let (topology, frame) = decode_mesh(&surface.mesh, &DecodeLimits::default()).unwrap();
+        assert_eq!(frame.positions.len(), surface.vertices);
+        assert_eq!(topology.triangles.len(), surface.triangles);
+        assert_eq!(frame.normals.len(), surface.vertices, "vertex normals");
+        let mut worst: f64 = 0.0;
+        for (p, n) in frame.positions.iter().zip(&frame.normals) {
+            let d: [f64; 3] = std::array::from_fn(|a| f64::from(p[a]) - centre[a]);
+            let len = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+            worst = worst.max((len - 20.0).abs());
+            let outward: f64 = (0..3).map(|a| d[a] * f64::from(n[a])).sum::<f64>() / len;
+            assert!(outward > 0.5, "normal {n:?} at {p:?} is not outward");
+        }
+        assert!(
+            worst < 0.3,
+            "a vertex {worst} mm off the sphere (normals given: {given})"
+        );
+        let ball_ml = 4.0 / 3.0 * std::f64::consts::PI * 20f64.powi(3) / 1000.0;
+        assert!(
+            (surface.volume_ml / ball_ml - 1.0).abs() < 0.03,
+            "{} ml",
+            surface.volume_ml
+        );
+        // The same cloud gives the same bytes (both faces send the same answer).
+        let again = service.reconstruct_points(cloud).await.unwrap();
+        assert_eq!(again.mesh, surface.mesh);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn point_clouds_beyond_the_limits_or_malformed_are_invalid_by_name() {
+    let config = ServiceConfig {
+        max_cloud_points: 500,
+        max_cloud_depth: 6,
+        ..config()
+    };
+    let service = Service::new(Arc::new(MemoryStore::new(StoreOptions::default())), config);
+    assert_eq!(
+        (
+            service.info().limits.max_cloud_points,
+            service.info().limits.max_cloud_depth
+        ),
+        (500, 6)
+    );
+    let (positions, normals) = fibonacci_sphere(400, 20.0, [0.0; 3]);
+    let base = PointCloud {
+        positions: positions.clone(),
+        depth: Some(4),
+        ..PointCloud::default()
+    };
+    let mut nan = base.clone();
+    nan.positions[7][1] = f64::NAN;
+    let mut zero = PointCloud {
+        normals: Some(normals.clone()),
+        ..base.clone()
+    };
+    if let Some(n) = zero.normals.as_mut() {
+        n[3] = [0.0; 3];
+    }
+    let cases = [
+        (
+            fibonacci_sphere(501, 20.0, [0.0; 3]).0,
+            None,
+            None,
+            None,
+            "max_cloud_points (500)",
+        ),
+        (positions.clone(), None, Some(7), None, "max_cloud_depth"),
+        (positions.clone(), None, Some(0), None, "max_cloud_depth"),
+        (positions.clone(), None, None, Some(65), "neighbours 65"),
+        (
+            positions.clone(),
+            Some(normals[..399].to_vec()),
+            None,
+            None,
+            "399 normals given for 400 points",
+        ),
+        (
+            positions[..3].to_vec(),
+            None,
+            None,
+            None,
+            "3 distinct points given, at least 4",
+        ),
+        (
+            vec![[1.0, 2.0, 3.0]; 50],
+            None,
+            None,
+            None,
+            "1 distinct points given",
+        ),
+        (
+            positions[..8].to_vec(),
+            None,
+            None,
+            None,
+            "neighbours 10 out of range",
+        ),
+        (nan.positions, None, None, None, "point 7 is not finite"),
+        (
+            positions.clone(),
+            zero.normals,
+            None,
+            None,
+            "normal 3 is zero",
+        ),
+        (
+            (0..20).map(|k| [k as f64, 2.0 * k as f64, 0.0]).collect(),
+            None,
+            None,
+            None,
+            "one line",
+        ),
+    ];
+    for (positions, normals, depth, neighbours, expected) in cases {
+        let cloud = PointCloud {
+            positions,
+            normals,
+            depth: depth.or(Some(4)),
+            neighbours,
+            ..PointCloud::default()
+        };
+        let e = service.reconstruct_points(cloud).await.unwrap_err();
+        assert_eq!(e.kind(), ErrorKind::InvalidArgument, "{e}");
+        assert_eq!(e.code(), "INVALID_ARGUMENT");
+        assert!(
+            e.to_string().contains(expected),
+            "{e} (expected {expected:?})"
+        );
+        assert!(!e.to_string().contains("point cloud: point cloud"), "{e}");
+    }
+    // At the limits it works.
+    service.reconstruct_points(base).await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn point_cloud_meshes_are_encoded_as_the_client_allows() {
+    let config = ServiceConfig {
+        encode: resecta_delta::EncodeOptions::quantised().with_zstd(3),
+        ..config()
+    };
+    let service = Service::new(Arc::new(MemoryStore::new(StoreOptions::default())), config);
+    let cloud = PointCloud {
+        positions: fibonacci_sphere(500, 10.0, [0.0; 3]).0,
+        depth: Some(4),
+        ..PointCloud::default()
+    };
+    let flags = |allow_zstd, allow_quantized| {
+        let service = &service;
+        let cloud = PointCloud {
+            allow_zstd,
+            allow_quantized,
+            ..cloud.clone()
+        };
+        async move {
+            let s = service.reconstruct_points(cloud).await.unwrap();
+            resecta_delta::inspect(&s.mesh).unwrap().flags
+        }
+    };
+    use resecta_delta::flags::{NORMALS_OCT16, POSITIONS_U16, ZSTD};
+    assert_eq!(
+        flags(false, false).await & (ZSTD | POSITIONS_U16 | NORMALS_OCT16),
+        0
+    );
+    let all = flags(true, true).await;
+    assert_eq!(
+        all & (POSITIONS_U16 | NORMALS_OCT16),
+        POSITIONS_U16 | NORMALS_OCT16
+    );
+    assert_eq!(
+        flags(true, false).await & (POSITIONS_U16 | NORMALS_OCT16),
+        0
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_failing_poisson_solver_leaves_the_point_cloud_to_the_cpu() {
+    let mut failing = config();
+    failing.poisson_solver = resecta_poisson::PoissonSolver::new(FailingSolver);
+    let cloud = PointCloud {
+        positions: fibonacci_sphere(300, 15.0, [0.0; 3]).0,
+        depth: Some(5),
+        ..PointCloud::default()
+    };
+    let mut meshes = Vec::new();
+    for config in [config(), failing] {
+        let service = Service::new(Arc::new(MemoryStore::new(StoreOptions::default())), config);
+        meshes.push(
+            service
+                .reconstruct_points(cloud.clone())
+                .await
+                .unwrap()
+                .mesh,
+        );
+    }
+    assert_eq!(meshes[0], meshes[1]);
 }
