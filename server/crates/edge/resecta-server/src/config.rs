@@ -152,6 +152,10 @@ struct FileLimits {
     max_memory_bytes: Option<u64>,
     /// Seconds; 0 never expires.
     idle_expiry_s: Option<u64>,
+    /// Points of one ReconstructPoints cloud.
+    max_cloud_points: Option<usize>,
+    /// PSR depth of a ReconstructPoints cloud, 1..=10.
+    max_cloud_depth: Option<u32>,
 }
 
 /// Certificate chain and key, PEM files.
@@ -265,6 +269,20 @@ impl ServerConfig {
         if let Some(s) = l.idle_expiry_s {
             service.idle_expiry = (s > 0).then(|| Duration::from_secs(s));
         }
+        if let Some(v) = l.max_cloud_points {
+            service.max_cloud_points = v;
+        }
+        if let Some(v) = l.max_cloud_depth {
+            let depths = resecta_session::api::PSR_DEPTHS;
+            if !depths.contains(&v) {
+                return Err(ServerError::Config(format!(
+                    "[limits] max_cloud_depth {v} is outside {}..={}",
+                    depths.start(),
+                    depths.end()
+                )));
+            }
+            service.max_cloud_depth = v;
+        }
         if access.requires_token() {
             service.capabilities.push("auth".into());
         }
@@ -354,6 +372,32 @@ mod tests {
         );
         assert_eq!(c.service.max_sessions, 3);
         assert_eq!(c.service.idle_expiry, None);
+    }
+
+    #[test]
+    fn point_cloud_limits_come_from_the_file_and_are_checked() {
+        let dir = tempfile::tempdir().unwrap();
+        let config = |text: &str| ServeArgs {
+            config: Some(write(dir.path(), "c.toml", text)),
+            ..ServeArgs::default()
+        };
+        let d = ServerConfig::resolve(&ServeArgs::default())
+            .unwrap()
+            .service;
+        assert_eq!((d.max_cloud_points, d.max_cloud_depth), (1_000_000, 8));
+        let c = ServerConfig::resolve(&config(
+            "[limits]\nmax_cloud_points = 5000\nmax_cloud_depth = 6\n",
+        ))
+        .unwrap()
+        .service;
+        assert_eq!((c.max_cloud_points, c.max_cloud_depth), (5000, 6));
+        for depth in [0, 11] {
+            let e =
+                ServerConfig::resolve(&config(&format!("[limits]\nmax_cloud_depth = {depth}\n")))
+                    .unwrap_err()
+                    .to_string();
+            assert!(e.contains("max_cloud_depth") && e.contains("1..=10"), "{e}");
+        }
     }
 
     #[test]
