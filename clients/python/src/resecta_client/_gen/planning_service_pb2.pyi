@@ -32,7 +32,7 @@ class GetServerInfoRequest(_message.Message):
     def __init__(self) -> None: ...
 
 class ServerLimits(_message.Message):
-    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm", "max_label_slice_side", "max_label_slice_pixel_mm", "max_traces", "min_trace_points", "max_trace_points", "min_ds_traces", "slice_tolerance_mm", "max_deformations", "max_deformation_radius_mm", "max_deformation_offset_mm", "max_resectogram_side")
+    __slots__ = ("max_voxels", "max_sessions", "max_upload_bytes", "max_chunk_bytes", "max_message_bytes", "max_resections", "max_control_points", "max_resolution", "session_idle_timeout_s", "max_memory_bytes", "min_control_points", "min_resolution", "max_margin_mm", "max_band_mm", "max_name_bytes", "max_coordinate_mm", "max_rotation_deg", "max_display_name_chars", "max_plan_bytes", "min_psr_depth", "max_psr_depth", "min_spacing_mm", "max_spacing_mm", "max_extent_mm", "max_origin_mm", "max_label_slice_side", "max_label_slice_pixel_mm", "max_traces", "min_trace_points", "max_trace_points", "min_ds_traces", "slice_tolerance_mm", "max_deformations", "max_deformation_radius_mm", "max_deformation_offset_mm", "max_resectogram_side", "max_cloud_points", "max_cloud_depth")
     MAX_VOXELS_FIELD_NUMBER: _ClassVar[int]
     MAX_SESSIONS_FIELD_NUMBER: _ClassVar[int]
     MAX_UPLOAD_BYTES_FIELD_NUMBER: _ClassVar[int]
@@ -69,6 +69,8 @@ class ServerLimits(_message.Message):
     MAX_DEFORMATION_RADIUS_MM_FIELD_NUMBER: _ClassVar[int]
     MAX_DEFORMATION_OFFSET_MM_FIELD_NUMBER: _ClassVar[int]
     MAX_RESECTOGRAM_SIDE_FIELD_NUMBER: _ClassVar[int]
+    MAX_CLOUD_POINTS_FIELD_NUMBER: _ClassVar[int]
+    MAX_CLOUD_DEPTH_FIELD_NUMBER: _ClassVar[int]
     max_voxels: int
     max_sessions: int
     max_upload_bytes: int
@@ -105,7 +107,9 @@ class ServerLimits(_message.Message):
     max_deformation_radius_mm: float
     max_deformation_offset_mm: float
     max_resectogram_side: int
-    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ..., max_traces: _Optional[int] = ..., min_trace_points: _Optional[int] = ..., max_trace_points: _Optional[int] = ..., min_ds_traces: _Optional[int] = ..., slice_tolerance_mm: _Optional[float] = ..., max_deformations: _Optional[int] = ..., max_deformation_radius_mm: _Optional[float] = ..., max_deformation_offset_mm: _Optional[float] = ..., max_resectogram_side: _Optional[int] = ...) -> None: ...
+    max_cloud_points: int
+    max_cloud_depth: int
+    def __init__(self, max_voxels: _Optional[int] = ..., max_sessions: _Optional[int] = ..., max_upload_bytes: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., max_message_bytes: _Optional[int] = ..., max_resections: _Optional[int] = ..., max_control_points: _Optional[int] = ..., max_resolution: _Optional[int] = ..., session_idle_timeout_s: _Optional[int] = ..., max_memory_bytes: _Optional[int] = ..., min_control_points: _Optional[int] = ..., min_resolution: _Optional[int] = ..., max_margin_mm: _Optional[float] = ..., max_band_mm: _Optional[float] = ..., max_name_bytes: _Optional[int] = ..., max_coordinate_mm: _Optional[float] = ..., max_rotation_deg: _Optional[float] = ..., max_display_name_chars: _Optional[int] = ..., max_plan_bytes: _Optional[int] = ..., min_psr_depth: _Optional[int] = ..., max_psr_depth: _Optional[int] = ..., min_spacing_mm: _Optional[float] = ..., max_spacing_mm: _Optional[float] = ..., max_extent_mm: _Optional[float] = ..., max_origin_mm: _Optional[float] = ..., max_label_slice_side: _Optional[int] = ..., max_label_slice_pixel_mm: _Optional[float] = ..., max_traces: _Optional[int] = ..., min_trace_points: _Optional[int] = ..., max_trace_points: _Optional[int] = ..., min_ds_traces: _Optional[int] = ..., slice_tolerance_mm: _Optional[float] = ..., max_deformations: _Optional[int] = ..., max_deformation_radius_mm: _Optional[float] = ..., max_deformation_offset_mm: _Optional[float] = ..., max_resectogram_side: _Optional[int] = ..., max_cloud_points: _Optional[int] = ..., max_cloud_depth: _Optional[int] = ...) -> None: ...
 
 class GetServerInfoResponse(_message.Message):
     __slots__ = ("server_version", "api_version", "capabilities", "limits", "compute")
@@ -458,6 +462,36 @@ class GetRiskMapResponse(_message.Message):
     territories_zstd: bytes
     risk: _volumes_pb2.RiskReport
     def __init__(self, plan_version: _Optional[int] = ..., dims: _Optional[_Iterable[int]] = ..., spacing: _Optional[_Iterable[float]] = ..., origin: _Optional[_Iterable[float]] = ..., direction: _Optional[_Iterable[float]] = ..., classes_zstd: _Optional[bytes] = ..., territories_zstd: _Optional[bytes] = ..., risk: _Optional[_Union[_volumes_pb2.RiskReport, _Mapping]] = ...) -> None: ...
+
+class ReconstructPointsRequest(_message.Message):
+    __slots__ = ("positions", "normals", "depth", "neighbours", "allow_zstd", "allow_quantized")
+    POSITIONS_FIELD_NUMBER: _ClassVar[int]
+    NORMALS_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_FIELD_NUMBER: _ClassVar[int]
+    NEIGHBOURS_FIELD_NUMBER: _ClassVar[int]
+    ALLOW_ZSTD_FIELD_NUMBER: _ClassVar[int]
+    ALLOW_QUANTIZED_FIELD_NUMBER: _ClassVar[int]
+    positions: _containers.RepeatedScalarFieldContainer[float]
+    normals: _containers.RepeatedScalarFieldContainer[float]
+    depth: int
+    neighbours: int
+    allow_zstd: bool
+    allow_quantized: bool
+    def __init__(self, positions: _Optional[_Iterable[float]] = ..., normals: _Optional[_Iterable[float]] = ..., depth: _Optional[int] = ..., neighbours: _Optional[int] = ..., allow_zstd: _Optional[bool] = ..., allow_quantized: _Optional[bool] = ...) -> None: ...
+
+class ReconstructPointsResponse(_message.Message):
+    __slots__ = ("mesh", "vertex_count", "triangle_count", "volume_ml", "report")
+    MESH_FIELD_NUMBER: _ClassVar[int]
+    VERTEX_COUNT_FIELD_NUMBER: _ClassVar[int]
+    TRIANGLE_COUNT_FIELD_NUMBER: _ClassVar[int]
+    VOLUME_ML_FIELD_NUMBER: _ClassVar[int]
+    REPORT_FIELD_NUMBER: _ClassVar[int]
+    mesh: bytes
+    vertex_count: int
+    triangle_count: int
+    volume_ml: float
+    report: _reconstruction_pb2.PointCloudReport
+    def __init__(self, mesh: _Optional[bytes] = ..., vertex_count: _Optional[int] = ..., triangle_count: _Optional[int] = ..., volume_ml: _Optional[float] = ..., report: _Optional[_Union[_reconstruction_pb2.PointCloudReport, _Mapping]] = ...) -> None: ...
 
 class WatchRequest(_message.Message):
     __slots__ = ("session_id", "since_seq", "allow_zstd", "allow_quantized")

@@ -120,6 +120,11 @@ class PlanningServiceStub:
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapRequest.SerializeToString,
                 response_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapResponse.FromString,
                 _registered_method=True)
+        self.ReconstructPoints = channel.unary_unary(
+                '/resecta.v1.PlanningService/ReconstructPoints',
+                request_serializer=resecta_dot_v1_dot_planning__service__pb2.ReconstructPointsRequest.SerializeToString,
+                response_deserializer=resecta_dot_v1_dot_planning__service__pb2.ReconstructPointsResponse.FromString,
+                _registered_method=True)
         self.Watch = channel.unary_stream(
                 '/resecta.v1.PlanningService/Watch',
                 request_serializer=resecta_dot_v1_dot_planning__service__pb2.WatchRequest.SerializeToString,
@@ -268,6 +273,17 @@ class PlanningServiceServicer:
         context.set_details('Method not implemented!')
         raise NotImplementedError('Method not implemented!')
 
+    def ReconstructPoints(self, request, context):
+        """The closed surface of a point cloud (e.g. the points a mapping catheter collected on an
+        atrium), with or without normals: normals estimated where missing, then screened Poisson
+        reconstruction and marching cubes. Needs no session and keeps nothing. INVALID_ARGUMENT
+        for a malformed cloud or one beyond `ServerLimits.max_cloud_points` /
+        `max_cloud_depth`; RESOURCE_EXHAUSTED when the server's memory budget has no room for it.
+        """
+        context.set_code(grpc.StatusCode.UNIMPLEMENTED)
+        context.set_details('Method not implemented!')
+        raise NotImplementedError('Method not implemented!')
+
     def Watch(self, request, context):
         """Follows a session: a snapshot first (or, with `since_seq`, the events after it when the
         server still has them), then a delta per plan change and volumes when they are recomputed.
@@ -363,6 +379,11 @@ def add_PlanningServiceServicer_to_server(servicer, server):
                     servicer.GetRiskMap,
                     request_deserializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapRequest.FromString,
                     response_serializer=resecta_dot_v1_dot_planning__service__pb2.GetRiskMapResponse.SerializeToString,
+            ),
+            'ReconstructPoints': grpc.unary_unary_rpc_method_handler(
+                    servicer.ReconstructPoints,
+                    request_deserializer=resecta_dot_v1_dot_planning__service__pb2.ReconstructPointsRequest.FromString,
+                    response_serializer=resecta_dot_v1_dot_planning__service__pb2.ReconstructPointsResponse.SerializeToString,
             ),
             'Watch': grpc.unary_stream_rpc_method_handler(
                     servicer.Watch,
@@ -807,6 +828,33 @@ class PlanningService:
             '/resecta.v1.PlanningService/GetRiskMap',
             resecta_dot_v1_dot_planning__service__pb2.GetRiskMapRequest.SerializeToString,
             resecta_dot_v1_dot_planning__service__pb2.GetRiskMapResponse.FromString,
+            options,
+            channel_credentials,
+            insecure,
+            call_credentials,
+            compression,
+            wait_for_ready,
+            timeout,
+            metadata,
+            _registered_method=True)
+
+    @staticmethod
+    def ReconstructPoints(request,
+            target,
+            options=(),
+            channel_credentials=None,
+            call_credentials=None,
+            insecure=False,
+            compression=None,
+            wait_for_ready=None,
+            timeout=None,
+            metadata=None):
+        return grpc.experimental.unary_unary(
+            request,
+            target,
+            '/resecta.v1.PlanningService/ReconstructPoints',
+            resecta_dot_v1_dot_planning__service__pb2.ReconstructPointsRequest.SerializeToString,
+            resecta_dot_v1_dot_planning__service__pb2.ReconstructPointsResponse.FromString,
             options,
             channel_credentials,
             insecure,

@@ -26,15 +26,17 @@ _sym_db = _symbol_database.Default()
 from . import surface_pb2 as resecta_dot_v1_dot_surface__pb2
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1fresecta/v1/reconstruction.proto\x12\nresecta.v1\x1a\x18resecta/v1/surface.proto\"\xf2\x01\n\x12ReconstructOptions\x12\x16\n\tpsr_depth\x18\x01 \x01(\rH\x00\x88\x01\x01\x12\x16\n\tsmoothing\x18\x02 \x01(\x01H\x01\x88\x01\x01\x12\x17\n\ndecimation\x18\x03 \x01(\x01H\x02\x88\x01\x01\x12\x1d\n\x10split_components\x18\x04 \x01(\x08H\x03\x88\x01\x01\x12\x1e\n\x11min_component_mm3\x18\x05 \x01(\x01H\x04\x88\x01\x01\x42\x0c\n\n_psr_depthB\x0c\n\n_smoothingB\r\n\x0b_decimationB\x13\n\x11_split_componentsB\x14\n\x12_min_component_mm3\"6\n\x13ReconstructProgress\x12\r\n\x05stage\x18\x01 \x01(\t\x12\x10\n\x08\x66raction\x18\x02 \x01(\x01\"\xc2\x01\n\tModelInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12%\n\x04kind\x18\x02 \x01(\x0e\x32\x17.resecta.v1.SurfaceKind\x12\r\n\x05label\x18\x03 \x01(\r\x12\x16\n\x0etriangle_count\x18\x04 \x01(\x04\x12\x14\n\x0cvertex_count\x18\x05 \x01(\x04\x12\x11\n\tvolume_ml\x18\x06 \x01(\x01\x12\x30\n\x06method\x18\x07 \x01(\x0e\x32 .resecta.v1.ReconstructionMethod\"\x84\x01\n\x0fReconstructDone\x12\x13\n\x0bmodel_count\x18\x01 \x01(\r\x12\x11\n\telapsed_s\x18\x02 \x01(\x01\x12.\n\x07\x64ropped\x18\x03 \x03(\x0b\x32\x1d.resecta.v1.DroppedComponents\x12\x19\n\x11min_component_mm3\x18\x04 \x01(\x01\"\\\n\x11\x44roppedComponents\x12%\n\x04kind\x18\x01 \x01(\x0e\x32\x17.resecta.v1.SurfaceKind\x12\r\n\x05\x63ount\x18\x02 \x01(\r\x12\x11\n\tvolume_ml\x18\x03 \x01(\x01*|\n\x14ReconstructionMethod\x12%\n!RECONSTRUCTION_METHOD_UNSPECIFIED\x10\x00\x12\x1e\n\x1aRECONSTRUCTION_METHOD_MCSD\x10\x01\x12\x1d\n\x19RECONSTRUCTION_METHOD_PSR\x10\x02\x62\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x1fresecta/v1/reconstruction.proto\x12\nresecta.v1\x1a\x18resecta/v1/surface.proto\"\xf2\x01\n\x12ReconstructOptions\x12\x16\n\tpsr_depth\x18\x01 \x01(\rH\x00\x88\x01\x01\x12\x16\n\tsmoothing\x18\x02 \x01(\x01H\x01\x88\x01\x01\x12\x17\n\ndecimation\x18\x03 \x01(\x01H\x02\x88\x01\x01\x12\x1d\n\x10split_components\x18\x04 \x01(\x08H\x03\x88\x01\x01\x12\x1e\n\x11min_component_mm3\x18\x05 \x01(\x01H\x04\x88\x01\x01\x42\x0c\n\n_psr_depthB\x0c\n\n_smoothingB\r\n\x0b_decimationB\x13\n\x11_split_componentsB\x14\n\x12_min_component_mm3\"6\n\x13ReconstructProgress\x12\r\n\x05stage\x18\x01 \x01(\t\x12\x10\n\x08\x66raction\x18\x02 \x01(\x01\"\xc2\x01\n\tModelInfo\x12\x0c\n\x04name\x18\x01 \x01(\t\x12%\n\x04kind\x18\x02 \x01(\x0e\x32\x17.resecta.v1.SurfaceKind\x12\r\n\x05label\x18\x03 \x01(\r\x12\x16\n\x0etriangle_count\x18\x04 \x01(\x04\x12\x14\n\x0cvertex_count\x18\x05 \x01(\x04\x12\x11\n\tvolume_ml\x18\x06 \x01(\x01\x12\x30\n\x06method\x18\x07 \x01(\x0e\x32 .resecta.v1.ReconstructionMethod\"\x84\x01\n\x0fReconstructDone\x12\x13\n\x0bmodel_count\x18\x01 \x01(\r\x12\x11\n\telapsed_s\x18\x02 \x01(\x01\x12.\n\x07\x64ropped\x18\x03 \x03(\x0b\x32\x1d.resecta.v1.DroppedComponents\x12\x19\n\x11min_component_mm3\x18\x04 \x01(\x01\"\\\n\x11\x44roppedComponents\x12%\n\x04kind\x18\x01 \x01(\x0e\x32\x17.resecta.v1.SurfaceKind\x12\r\n\x05\x63ount\x18\x02 \x01(\r\x12\x11\n\tvolume_ml\x18\x03 \x01(\x01\"\xdc\x02\n\x10PointCloudReport\x12\x0e\n\x06points\x18\x01 \x01(\r\x12\x10\n\x08\x64istinct\x18\x02 \x01(\r\x12)\n\x07normals\x18\x03 \x01(\x0e\x32\x18.resecta.v1.NormalSource\x12\x17\n\ncomponents\x18\x04 \x01(\rH\x00\x88\x01\x01\x12\x17\n\ndegenerate\x18\x05 \x01(\rH\x01\x88\x01\x01\x12\x17\n\nspacing_mm\x18\x06 \x01(\x01H\x02\x88\x01\x01\x12\x18\n\x10sampled_area_mm2\x18\x07 \x01(\x01\x12\r\n\x05\x64\x65pth\x18\x08 \x01(\r\x12\x12\n\nneighbours\x18\t \x01(\r\x12\x0f\n\x07\x63\x65ll_mm\x18\n \x01(\x01\x12\x11\n\tnormals_s\x18\x0b \x01(\x01\x12\x0f\n\x07solve_s\x18\x0c \x01(\x01\x12\x11\n\tsurface_s\x18\r \x01(\x01\x42\r\n\x0b_componentsB\r\n\x0b_degenerateB\r\n\x0b_spacing_mm*|\n\x14ReconstructionMethod\x12%\n!RECONSTRUCTION_METHOD_UNSPECIFIED\x10\x00\x12\x1e\n\x1aRECONSTRUCTION_METHOD_MCSD\x10\x01\x12\x1d\n\x19RECONSTRUCTION_METHOD_PSR\x10\x02*c\n\x0cNormalSource\x12\x1d\n\x19NORMAL_SOURCE_UNSPECIFIED\x10\x00\x12\x17\n\x13NORMAL_SOURCE_GIVEN\x10\x01\x12\x1b\n\x17NORMAL_SOURCE_ESTIMATED\x10\x02\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'resecta.v1.reconstruction_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_RECONSTRUCTIONMETHOD']._serialized_start=800
-  _globals['_RECONSTRUCTIONMETHOD']._serialized_end=924
+  _globals['_RECONSTRUCTIONMETHOD']._serialized_start=1151
+  _globals['_RECONSTRUCTIONMETHOD']._serialized_end=1275
+  _globals['_NORMALSOURCE']._serialized_start=1277
+  _globals['_NORMALSOURCE']._serialized_end=1376
   _globals['_RECONSTRUCTOPTIONS']._serialized_start=74
   _globals['_RECONSTRUCTOPTIONS']._serialized_end=316
   _globals['_RECONSTRUCTPROGRESS']._serialized_start=318
@@ -45,4 +47,6 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_RECONSTRUCTDONE']._serialized_end=704
   _globals['_DROPPEDCOMPONENTS']._serialized_start=706
   _globals['_DROPPEDCOMPONENTS']._serialized_end=798
+  _globals['_POINTCLOUDREPORT']._serialized_start=801
+  _globals['_POINTCLOUDREPORT']._serialized_end=1149
 # @@protoc_insertion_point(module_scope)

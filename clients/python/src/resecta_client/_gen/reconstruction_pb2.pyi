@@ -14,9 +14,18 @@ class ReconstructionMethod(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     RECONSTRUCTION_METHOD_UNSPECIFIED: _ClassVar[ReconstructionMethod]
     RECONSTRUCTION_METHOD_MCSD: _ClassVar[ReconstructionMethod]
     RECONSTRUCTION_METHOD_PSR: _ClassVar[ReconstructionMethod]
+
+class NormalSource(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    NORMAL_SOURCE_UNSPECIFIED: _ClassVar[NormalSource]
+    NORMAL_SOURCE_GIVEN: _ClassVar[NormalSource]
+    NORMAL_SOURCE_ESTIMATED: _ClassVar[NormalSource]
 RECONSTRUCTION_METHOD_UNSPECIFIED: ReconstructionMethod
 RECONSTRUCTION_METHOD_MCSD: ReconstructionMethod
 RECONSTRUCTION_METHOD_PSR: ReconstructionMethod
+NORMAL_SOURCE_UNSPECIFIED: NormalSource
+NORMAL_SOURCE_GIVEN: NormalSource
+NORMAL_SOURCE_ESTIMATED: NormalSource
 
 class ReconstructOptions(_message.Message):
     __slots__ = ("psr_depth", "smoothing", "decimation", "split_components", "min_component_mm3")
@@ -79,3 +88,33 @@ class DroppedComponents(_message.Message):
     count: int
     volume_ml: float
     def __init__(self, kind: _Optional[_Union[_surface_pb2.SurfaceKind, str]] = ..., count: _Optional[int] = ..., volume_ml: _Optional[float] = ...) -> None: ...
+
+class PointCloudReport(_message.Message):
+    __slots__ = ("points", "distinct", "normals", "components", "degenerate", "spacing_mm", "sampled_area_mm2", "depth", "neighbours", "cell_mm", "normals_s", "solve_s", "surface_s")
+    POINTS_FIELD_NUMBER: _ClassVar[int]
+    DISTINCT_FIELD_NUMBER: _ClassVar[int]
+    NORMALS_FIELD_NUMBER: _ClassVar[int]
+    COMPONENTS_FIELD_NUMBER: _ClassVar[int]
+    DEGENERATE_FIELD_NUMBER: _ClassVar[int]
+    SPACING_MM_FIELD_NUMBER: _ClassVar[int]
+    SAMPLED_AREA_MM2_FIELD_NUMBER: _ClassVar[int]
+    DEPTH_FIELD_NUMBER: _ClassVar[int]
+    NEIGHBOURS_FIELD_NUMBER: _ClassVar[int]
+    CELL_MM_FIELD_NUMBER: _ClassVar[int]
+    NORMALS_S_FIELD_NUMBER: _ClassVar[int]
+    SOLVE_S_FIELD_NUMBER: _ClassVar[int]
+    SURFACE_S_FIELD_NUMBER: _ClassVar[int]
+    points: int
+    distinct: int
+    normals: NormalSource
+    components: int
+    degenerate: int
+    spacing_mm: float
+    sampled_area_mm2: float
+    depth: int
+    neighbours: int
+    cell_mm: float
+    normals_s: float
+    solve_s: float
+    surface_s: float
+    def __init__(self, points: _Optional[int] = ..., distinct: _Optional[int] = ..., normals: _Optional[_Union[NormalSource, str]] = ..., components: _Optional[int] = ..., degenerate: _Optional[int] = ..., spacing_mm: _Optional[float] = ..., sampled_area_mm2: _Optional[float] = ..., depth: _Optional[int] = ..., neighbours: _Optional[int] = ..., cell_mm: _Optional[float] = ..., normals_s: _Optional[float] = ..., solve_s: _Optional[float] = ..., surface_s: _Optional[float] = ...) -> None: ...

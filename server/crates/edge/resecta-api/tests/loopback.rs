@@ -212,6 +212,12 @@ impl PlanningService for Fake {
     ) -> Result<Response<GetRiskMapResponse>, Status> {
         Err(Status::unimplemented("get_risk_map"))
     }
+    async fn reconstruct_points(
+        &self,
+        _: Request<ReconstructPointsRequest>,
+    ) -> Result<Response<ReconstructPointsResponse>, Status> {
+        Err(Status::unimplemented("reconstruct_points"))
+    }
     type WatchStream = BoxStream<WatchResponse>;
     async fn watch(
         &self,

@@ -408,6 +408,7 @@ fn service_has_the_operations_with_their_stream_kinds() {
         ("GetLabelSlice", (false, false)),
         ("GetResectogram", (false, false)),
         ("GetRiskMap", (false, false)),
+        ("ReconstructPoints", (false, false)),
         ("Watch", (false, true)),
     ];
     assert_eq!(kinds, expected.into_iter().collect());

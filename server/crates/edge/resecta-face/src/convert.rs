@@ -11,14 +11,16 @@ use resecta_io::mesh::MeshFormat;
 use resecta_plan::resection::ResectionKind;
 
 use crate::info::saturating_u32;
+use resecta_plan::resection::MAX_COORDINATE_MM;
 use resecta_plan::{
     CutVessel, Deformation, Group, IncompleteCut, LabelSlice, PlanEvent, Resection, Resectogram,
     RiskMap, RiskReport, SliceAxis, SlicePositions, SliceProjections, Target, Verdict,
     VolumeReport,
 };
 use resecta_session::api::{
-    DEFAULT_GRID, DataType, EditOp, EditOutcome, FileFormat, LabelMapSummary, ModelInfo,
-    ReconMethod, ReconOptions, ReconstructEvent, SessionInfo, SessionState, Surface, SurfaceKind,
+    CloudSurface, DEFAULT_GRID, DataType, EditOp, EditOutcome, FileFormat, LabelMapSummary,
+    ModelInfo, NormalSource, PointCloud, ReconMethod, ReconOptions, ReconstructEvent, SessionInfo,
+    SessionState, Surface, SurfaceKind,
 };
 
 use crate::error::WireError;
@@ -470,6 +472,109 @@ pub fn reconstruct_options(r: &pb::ReconstructRequest) -> Wire<ReconOptions> {
     }
     options.split_components = o.split_components.unwrap_or(false);
     Ok(options)
+}
+
+/// `values` as x, y, z triples: a multiple of 3 values, each finite and, when `bound` is
+/// given, within ±`bound`.
+fn triples(field: &str, values: &[f64], bound: Option<Real>) -> Wire<Vec<[Real; 3]>> {
+    if values.len() % 3 != 0 {
+        return Err(WireError::invalid(
+            field,
+            format!(
+                "needs x, y, z per point: {} values is not a multiple of 3",
+                values.len()
+            ),
+        ));
+    }
+    if let Some(k) = values.iter().position(|v| !v.is_finite()) {
+        return Err(WireError::invalid(
+            format!("{field}[{k}]"),
+            "must be finite",
+        ));
+    }
+    if let Some(b) = bound
+        && let Some(k) = values.iter().position(|v| v.abs() > b)
+    {
+        return Err(WireError::invalid(
+            format!("{field}[{k}]"),
+            format!("must be within ±{b} mm (max_coordinate_mm)"),
+        ));
+    }
+    Ok(values.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+/// The point cloud of a `ReconstructPointsRequest`: positions as x, y, z triples, finite and
+/// within the coordinate range; normals empty (estimated) or one finite triple per point;
+/// depth and neighbours 0 for the defaults. Their ranges and the server's limits are the
+/// operation's to check.
+pub fn point_cloud(r: pb::ReconstructPointsRequest) -> Wire<PointCloud> {
+    let positions = triples("positions", &r.positions, Some(MAX_COORDINATE_MM))?;
+    let normals = if r.normals.is_empty() {
+        None
+    } else {
+        if r.normals.len() != r.positions.len() {
+            return Err(WireError::invalid(
+                "normals",
+                format!(
+                    "must be empty or hold as many values as positions: {} values for {}",
+                    r.normals.len(),
+                    r.positions.len()
+                ),
+            ));
+        }
+        Some(triples("normals", &r.normals, None)?)
+    };
+    let given = |v: u32| (v != 0).then_some(v);
+    Ok(PointCloud {
+        positions,
+        normals,
+        depth: given(r.depth),
+        neighbours: given(r.neighbours).map(|k| k as usize),
+        allow_zstd: r.allow_zstd,
+        allow_quantized: r.allow_quantized,
+    })
+}
+
+/// The answer of `ReconstructPoints`, or [`WireError::MessageTooLarge`] when its mesh does not
+/// fit the largest message.
+pub fn point_cloud_surface(s: CloudSurface) -> Wire<pb::ReconstructPointsResponse> {
+    use prost::Message;
+    let r = &s.report;
+    let count = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+    let report = pb::PointCloudReport {
+        points: count(r.points),
+        distinct: count(r.distinct),
+        normals: match r.normals {
+            NormalSource::Given => pb::NormalSource::Given,
+            NormalSource::Estimated => pb::NormalSource::Estimated,
+        } as i32,
+        components: r.components.map(count),
+        degenerate: r.degenerate.map(count),
+        spacing_mm: r.spacing_mm,
+        sampled_area_mm2: r.sampled_area_mm2,
+        depth: r.depth,
+        neighbours: count(s.neighbours),
+        cell_mm: r.cell_mm,
+        normals_s: r.normals_s,
+        solve_s: r.solve_s,
+        surface_s: r.surface_s,
+    };
+    let answer = pb::ReconstructPointsResponse {
+        mesh: s.mesh,
+        vertex_count: s.vertices as u64,
+        triangle_count: s.triangles as u64,
+        volume_ml: s.volume_ml,
+        report: Some(report),
+    };
+    let len = answer.encoded_len();
+    if len > crate::MAX_MESSAGE_BYTES {
+        return Err(WireError::MessageTooLarge(format!(
+            "the surface needs {len} bytes, more than the largest message ({} bytes); ask for \
+             a smaller depth",
+            crate::MAX_MESSAGE_BYTES
+        )));
+    }
+    Ok(answer)
 }
 
 /// The refusal of slices of a model (only resections are sliced so far).

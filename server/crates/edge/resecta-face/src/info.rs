@@ -26,7 +26,9 @@ pub mod limits {
         SLICE_TOLERANCE_MM,
     };
     pub use resecta_session::api::{
-        DEFAULT_GRID, MAX_DISPLAY_NAME, MAX_EXTENT_MM, MAX_ORIGIN_MM, SPACING_MM,
+        DEFAULT_CLOUD_DEPTH, DEFAULT_CLOUD_NEIGHBOURS, DEFAULT_GRID, MAX_CLOUD_NEIGHBOURS,
+        MAX_DISPLAY_NAME, MAX_EXTENT_MM, MAX_ORIGIN_MM, MIN_CLOUD_NEIGHBOURS, MIN_CLOUD_POINTS,
+        SPACING_MM,
     };
 
     pub use crate::MAX_MESSAGE_BYTES;
@@ -91,6 +93,8 @@ pub fn server_info(service: &Service) -> pb::GetServerInfoResponse {
             max_deformation_radius_mm: MAX_RADIUS_MM,
             max_deformation_offset_mm: MAX_OFFSET_MM,
             max_resectogram_side: saturating_u32(MAX_RESECTOGRAM_SIDE),
+            max_cloud_points: saturating_u32(info.limits.max_cloud_points),
+            max_cloud_depth: info.limits.max_cloud_depth,
         }),
     }
 }

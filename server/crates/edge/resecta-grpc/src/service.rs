@@ -321,6 +321,17 @@ impl PlanningService for Planning {
         ))
     }
 
+    async fn reconstruct_points(
+        &self,
+        request: Request<pb::ReconstructPointsRequest>,
+    ) -> Result<Response<pb::ReconstructPointsResponse>, Status> {
+        let cloud = convert::point_cloud(request.into_inner()).or_status()?;
+        let surface = self.service.reconstruct_points(cloud).await.or_status()?;
+        Ok(Response::new(
+            convert::point_cloud_surface(surface).or_status()?,
+        ))
+    }
+
     type WatchStream = BoxStream<pb::WatchResponse>;
 
     async fn watch(

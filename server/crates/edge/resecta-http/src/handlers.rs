@@ -374,6 +374,19 @@ pub async fn risk_map(
     Ok(axum::Json(convert::risk_map(m.plan_version, &m.value)?))
 }
 
+// ---- point clouds --------------------------------------------------------------------------
+
+/// `ReconstructPoints`: the body is the `ReconstructPointsRequest` (positions and normals as
+/// JSON arrays of numbers); the mesh comes base64-encoded. No session.
+pub async fn reconstruct_points(
+    State(app): State<App>,
+    ProtoJson(req): ProtoJson<pb::ReconstructPointsRequest>,
+) -> JsonAnswer<pb::ReconstructPointsResponse> {
+    let cloud = convert::point_cloud(req)?;
+    let surface = app.service.reconstruct_points(cloud).await?;
+    Ok(axum::Json(convert::point_cloud_surface(surface)?))
+}
+
 // ---- watch ---------------------------------------------------------------------------------
 
 /// `Watch` as server-sent events: the query is the `WatchRequest` (`sinceSeq`, `allowZstd`,

@@ -34,6 +34,7 @@
 //! | `GET /v1/sessions/{id}/label-slice?axis=…&positionMm=…` | `GetLabelSlice` | → `GetLabelSliceResponse` |
 //! | `GET /v1/sessions/{id}/resectogram?resection=…&width=…&height=…` | `GetResectogram` | → `GetResectogramResponse` |
 //! | `GET /v1/sessions/{id}/risk-map` | `GetRiskMap` | → `GetRiskMapResponse` |
+//! | `POST /v1/point-clouds/reconstruct` | `ReconstructPoints` | `ReconstructPointsRequest` → `ReconstructPointsResponse` (no session) |
 //! | `GET /v1/sessions/{id}/watch?sinceSeq=…` | `Watch` | → SSE of `WatchResponse` (`snapshot`, `delta`, `volumes`), `id` = seq, `Last-Event-ID` resumes |
 //!
 //! Errors map [`resecta_session::ErrorKind`] and `resecta_face::WireError` once (see
@@ -271,6 +272,12 @@ fn table() -> Vec<Route> {
             h::risk_map,
         ),
         route(Get, "/v1/sessions/{id}/watch", Some("Watch"), h::watch),
+        route(
+            Post,
+            "/v1/point-clouds/reconstruct",
+            Some("ReconstructPoints"),
+            h::reconstruct_points,
+        ),
     ]
 }
 

@@ -311,15 +311,28 @@ fn rpc_operation(
         }
     } else {
         let needed = !rules::required(input).is_empty() || rules::required_oneof(input).is_some();
-        let empty = if needed {
-            ""
+        let session = api
+            .message(input)
+            .is_some_and(|m| m.field.iter().any(|f| json_name(f) == rules::SESSION_FIELD));
+        let notes: Vec<&str> = [
+            (session, "`sessionId` comes from the path"),
+            (
+                !needed,
+                "an empty body is the message with every field at its default",
+            ),
+        ]
+        .into_iter()
+        .filter_map(|(on, text)| on.then_some(text))
+        .collect();
+        let notes = if notes.is_empty() {
+            String::new()
         } else {
-            "; an empty body is the message with every field at its default"
+            format!(" ({})", notes.join("; "))
         };
         op.insert(
             "requestBody".into(),
             json!({"required": needed,
-                   "description": format!("The proto JSON of `{input}` (`sessionId` comes from the path{empty})."),
+                   "description": format!("The proto JSON of `{input}`{notes}."),
                    "content": {"application/json": {"schema": reference(input)}}}),
         );
     }

@@ -1312,3 +1312,112 @@ fn the_plan_document_schema_is_what_plans_take() {
     d["extra"] = json!(true);
     assert!(!reads(&d), "an unknown field was read");
 }
+
+/// `ReconstructPoints` over HTTP: a cloud of points as JSON arrays → the mesh (base64 `RSMS`)
+/// and its report; malformed clouds and clouds beyond the configured limits are 400 problems
+/// naming the field or the limit; the document states the ranges.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn point_clouds_close_over_http_and_bad_ones_are_problems() {
+    let s = serve(
+        ServiceConfig {
+            max_cloud_points: 1000,
+            max_cloud_depth: 6,
+            ..config()
+        },
+        AccessPolicy::open(),
+        HttpOptions::default(),
+    )
+    .await;
+    const PATH: &str = "/v1/point-clouds/reconstruct";
+    let sphere = |n: usize| -> Vec<f64> {
+        (0..n)
+            .flat_map(|k| {
+                let z = 1.0 - 2.0 * (k as f64 + 0.5) / n as f64;
+                let (r, t) = ((1.0 - z * z).sqrt(), 2.399_963_229_728_653 * k as f64);
+                [15.0 * r * t.cos(), 15.0 * r * t.sin(), 15.0 * z]
+            })
+            .collect()
+    };
+    let a = post_json(s.addr, PATH, &json!({"positions": sphere(600), "depth": 5})).await;
+    assert_eq!(
+        a.status,
+        StatusCode::OK,
+        "{}",
+        String::from_utf8_lossy(&a.body)
+    );
+    let v = a.json();
+    let mesh = STANDARD.decode(v["mesh"].as_str().unwrap()).unwrap();
+    let (topology, frame) = decode_mesh(&mesh, &DecodeLimits::default()).unwrap();
+    assert_eq!(v["vertexCount"], frame.positions.len().to_string());
+    assert_eq!(v["triangleCount"], topology.triangles.len().to_string());
+    assert_eq!(v["report"]["normals"], "NORMAL_SOURCE_ESTIMATED");
+    assert_eq!(v["report"]["points"], 600);
+    assert_eq!(v["report"]["depth"], 5);
+    // Malformed, or beyond this server's limits: 400 naming the field or the limit.
+    let cases = [
+        (json!({}), "0 distinct points given"),
+        (
+            json!({"positions": [1.0, 2.0]}),
+            "positions: needs x, y, z per point",
+        ),
+        (
+            json!({"positions": sphere(600), "normals": [0.0, 0.0, 1.0]}),
+            "normals: must be empty or hold as many values as positions",
+        ),
+        (
+            json!({"positions": sphere(1001)}),
+            "max_cloud_points (1000)",
+        ),
+        (
+            json!({"positions": sphere(600), "depth": 7}),
+            "max_cloud_depth",
+        ),
+        (
+            json!({"positions": sphere(600), "depth": 4_000_000_000u32}),
+            "max_cloud_depth",
+        ),
+        (
+            json!({"positions": sphere(600), "neighbours": 2}),
+            "neighbours 2",
+        ),
+        (
+            json!({"positions": [1e6, 0.0, 0.0]}),
+            "positions[0]: must be within",
+        ),
+    ];
+    for (body, expected) in cases {
+        let a = post_json(s.addr, PATH, &body).await;
+        assert_eq!(a.status, StatusCode::BAD_REQUEST, "{body}");
+        assert_eq!(a.content_type(), "application/problem+json");
+        let p = a.json();
+        assert_eq!(p["code"], "INVALID_ARGUMENT", "{p}");
+        let detail = p["detail"].as_str().unwrap();
+        assert!(
+            detail.contains(expected),
+            "{detail} (expected {expected:?})"
+        );
+    }
+    // The limits are reported, and the document states what a schema can.
+    let limits = get(s.addr, "/v1/info").await.json()["limits"].clone();
+    assert_eq!(
+        (
+            limits["maxCloudPoints"].clone(),
+            limits["maxCloudDepth"].clone()
+        ),
+        (json!(1000), json!(6))
+    );
+    let doc: Value = serde_json::from_str(resecta_http::openapi_document()).unwrap();
+    let op = &doc["paths"][PATH]["post"];
+    assert_eq!(op["operationId"], "ReconstructPoints");
+    assert_eq!(op["requestBody"]["required"], true);
+    let schema = &doc["components"]["schemas"]["resecta.v1.ReconstructPointsRequest"];
+    assert_eq!(schema["required"], json!(["positions"]));
+    assert_eq!(schema["properties"]["positions"]["minItems"], 12);
+    assert_eq!(schema["properties"]["neighbours"]["maximum"], 64);
+    assert!(
+        schema["description"]
+            .as_str()
+            .unwrap()
+            .contains("max_cloud_depth")
+    );
+}

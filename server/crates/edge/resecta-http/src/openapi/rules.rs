@@ -21,11 +21,12 @@ pub const SESSION_FIELD: &str = "sessionId";
 
 /// Enums whose zero value (`*_UNSPECIFIED`) is never valid on the wire: refused in requests
 /// (`convert::known`) or never sent. They are offered without it.
-pub const NO_ZERO: [&str; 7] = [
+pub const NO_ZERO: [&str; 8] = [
     "resecta.v1.DataType",
     "resecta.v1.LabelMapFormat",
     "resecta.v1.ControlGroup",
     "resecta.v1.ModelFormat",
+    "resecta.v1.NormalSource",
     "resecta.v1.SessionState",
     "resecta.v1.SliceAxis",
     "resecta.v1.SurfaceKind",
@@ -132,6 +133,14 @@ pub fn field(message: &str, field: &str) -> Option<Value> {
         ("GetLabelSliceRequest", "pixelMm") => {
             json!({"exclusiveMinimum": 0, "maximum": MAX_LABEL_SLICE_PIXEL_MM})
         }
+        ("ReconstructPointsRequest", "positions") => {
+            json!({"minItems": 3 * MIN_CLOUD_POINTS, "items": coordinate()})
+        }
+        ("ReconstructPointsRequest", "depth") => json!({"maximum": PSR_DEPTHS.end()}),
+        ("ReconstructPointsRequest", "neighbours") => {
+            let below: Vec<usize> = (1..MIN_CLOUD_NEIGHBOURS).collect();
+            json!({"maximum": MAX_CLOUD_NEIGHBOURS, "not": {"enum": below}})
+        }
         ("ImportPlanRequest", "planJson") => json!({
             "minLength": 1, "contentMediaType": "application/json",
             "contentSchema": {"$ref": "#/components/schemas/PlanDocument"},
@@ -167,6 +176,7 @@ pub fn required(message: &str) -> &'static [&'static str] {
         "GetSlicesRequest" => &["resection"],
         "GetLabelSliceRequest" => &["axis"],
         "GetResectogramRequest" => &["resection"],
+        "ReconstructPointsRequest" => &["positions"],
         _ => &[],
     }
 }
@@ -208,6 +218,7 @@ pub fn note(message: &str) -> Option<String> {
         "Trace" => "A trace with no length (all points equal) is refused.".to_owned(),
         "GetLabelSliceRequest" => format!("`positionMm` must lie within the label map's extent along the axis (the answer's `minPositionMm`..=`maxPositionMm`; 400 otherwise). The pixel size is raised so that neither side of the raster exceeds {MAX_LABEL_SLICE_SIDE} pixels. 409 `NO_LABEL_MAP` before a label map is loaded."),
         "GetResectogramRequest" => format!("`width` and `height` of 0 (or absent) mean {DEFAULT_RESECTOGRAM_SIDE}; at most {MAX_RESECTOGRAM_SIDE} each (400 otherwise). An unknown resection is 404; 409 `NO_LABEL_MAP` before a label map is loaded."),
+        "ReconstructPointsRequest" => format!("Also refused (400): `positions` that are not a multiple of 3 values; `normals` neither empty nor as long as `positions`; fewer than {MIN_CLOUD_POINTS} distinct points; `neighbours` not below the number of distinct points; points all on one line (without normals); a zero normal; more points than `ServerLimits.max_cloud_points`; a `depth` above `ServerLimits.max_cloud_depth` (default 8); and a cloud whose surface cannot be built (a degenerate point set). A `depth` of 0 means {DEFAULT_CLOUD_DEPTH}, `neighbours` of 0 mean {DEFAULT_CLOUD_NEIGHBOURS}. The server's memory budget may refuse a deep grid (413 `MEMORY_QUOTA`)."),
         "EditRequest" => "Every edit but init and add names an existing resection (404 otherwise); undo and redo need something to undo or redo (409 otherwise); a non-zero `baseVersion` other than the plan's version is 409 `STALE_VERSION`. Edits apply to kinds: control points and groups to Bézier resections, traces to DS and CP resections, deformations to CP resections, the resolution to Bézier and DS resections (a CP resection is sampled at its grid); translate, rotate, margin, band and target to every kind; another pairing is refused (400). A trace edit must leave a valid surface (as `Resection` says), a trace index must exist, and undoing a deformation needs one (400 otherwise).".to_owned(),
         _ => return None,
     })
