@@ -113,6 +113,20 @@ def tls_files(tmp_path: Path) -> tuple[Path, Path, Path]:
     return cert_file, key_file, ca_file
 
 
+def fibonacci_sphere(n, radius, centre=(0.0, 0.0, 0.0)):
+    """`n` points spread evenly on the sphere of `radius` mm about `centre` (a Fibonacci
+    lattice) and their outward unit normals, each an (n, 3) float64 array: a synthetic catheter
+    cloud with an exact truth."""
+    import numpy as np
+
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    r = np.sqrt(1.0 - z * z)
+    t = np.pi * (3.0 - np.sqrt(5.0)) * np.arange(n)
+    normals = np.stack([r * np.cos(t), r * np.sin(t), z], axis=1)
+    return np.asarray(centre, dtype=float) + radius * normals, normals
+
+
 def wait_for(predicate, timeout=60.0, every=0.1):
     end = time.monotonic() + timeout
     while time.monotonic() < end:

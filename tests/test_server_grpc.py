@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import requests
 
-from server_harness import (Server, generate_stubs, phantom, server, tls_files,  # noqa: F401 (fixtures)
-                            wait_for)
+from server_harness import (Server, fibonacci_sphere, generate_stubs, phantom, server,  # noqa: F401 (fixtures)
+                            tls_files, wait_for)
+from conftest import ROOT
 
 TOKEN = "e2e-token-0123456789abcdef"
 ROLES = {"parenchyma": [1], "tumor": [2], "portal": [3]}
@@ -195,6 +196,74 @@ def test_bad_input_leaves_state_unchanged(server, stubs, phantom):
     expect(grpc.StatusCode.NOT_FOUND, stub.Edit, drag(pb, "nope", 0, (0.0, 0.0, 0.0)), metadata=md())
     assert stub.GetSession(pb.GetSessionRequest(session_id=sid), metadata=md()).session.plan_version == v
     assert "nan" not in stub.ExportPlan(pb.ExportPlanRequest(session_id=sid), metadata=md()).plan_json.lower()
+
+
+def decode(mesh):
+    import sys
+    sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
+    from resecta_client.wire import decode_mesh
+    return decode_mesh(mesh)
+
+
+def test_point_clouds_close_into_their_sphere(server, stubs):
+    """ReconstructPoints without a session: 2,000 points of a 20 mm sphere, with and without
+    normals, at depth 6: every vertex within 0.3 mm of the sphere, normals outward."""
+    pb, stub = client(server, stubs)
+    centre = np.array([12.0, -30.0, 45.0])
+    points, normals = fibonacci_sphere(2000, 20.0, centre)
+    for given in (False, True):
+        r = stub.ReconstructPoints(pb.ReconstructPointsRequest(
+            positions=points.reshape(-1).tolist(),
+            normals=normals.reshape(-1).tolist() if given else [], depth=6), metadata=md())
+        mesh = decode(r.mesh)
+        p = mesh["positions"].astype(np.float64) - centre
+        d = np.linalg.norm(p, axis=1)
+        assert np.abs(d - 20.0).max() < 0.3, (given, np.abs(d - 20.0).max())
+        assert (np.einsum("ij,ij->i", p / d[:, None], mesh["normals"]) > 0.5).all()
+        assert (r.vertex_count, r.triangle_count) == (mesh["vertex_count"], mesh["triangle_count"])
+        assert abs(r.volume_ml - 4 / 3 * np.pi * 20.0 ** 3 / 1000) < 1.0, r.volume_ml
+        rep = r.report
+        assert (rep.points, rep.distinct, rep.depth, rep.neighbours) == (2000, 2000, 6, 10)
+        source = pb.NORMAL_SOURCE_GIVEN if given else pb.NORMAL_SOURCE_ESTIMATED
+        assert rep.normals == source and rep.HasField("components") != given
+    # Nothing was kept: no session appeared.
+    assert not stub.ListSessions(pb.ListSessionsRequest(), metadata=md()).sessions
+
+
+def test_bad_point_clouds_are_invalid_arguments_naming_the_problem(tmp_path, stubs):
+    """Malformed clouds and clouds beyond the configured limits (here 1000 points, depth 6) are
+    INVALID_ARGUMENT naming the field or the limit; the server goes on answering."""
+    cfg = tmp_path / "resecta.toml"
+    cfg.write_text("[limits]\nmax_cloud_points = 1000\nmax_cloud_depth = 6\n")
+    s = Server("--config", str(cfg))
+    try:
+        pb, stub = client(s, stubs)
+        limits = stub.GetServerInfo(pb.GetServerInfoRequest(), metadata=md()).limits
+        assert (limits.max_cloud_points, limits.max_cloud_depth) == (1000, 6)
+        points, normals = fibonacci_sphere(600, 15.0)
+        flat, nflat = points.reshape(-1).tolist(), normals.reshape(-1).tolist()
+        nan = list(flat)
+        nan[7] = float("nan")
+        cases = [
+            (dict(positions=flat[:-1]), "positions: needs x, y, z per point"),
+            (dict(positions=nan), "positions[7]: must be finite"),
+            (dict(positions=flat, normals=nflat[:-3]), "normals: must be empty or hold as many"),
+            (dict(positions=fibonacci_sphere(1001, 15.0)[0].reshape(-1).tolist()),
+             "max_cloud_points (1000)"),
+            (dict(positions=flat, depth=7), "max_cloud_depth"),
+            (dict(positions=flat, depth=2 ** 32 - 1), "max_cloud_depth"),
+            (dict(positions=flat, neighbours=200), "neighbours 200"),
+            (dict(positions=flat[:9]), "3 distinct points given"),
+            (dict(), "0 distinct points given"),
+        ]
+        for fields, message in cases:
+            err = expect(grpc.StatusCode.INVALID_ARGUMENT, stub.ReconstructPoints,
+                         pb.ReconstructPointsRequest(**fields), metadata=md())
+            assert message in err.details(), (message, err.details())
+        r = stub.ReconstructPoints(pb.ReconstructPointsRequest(positions=flat, depth=6), metadata=md())
+        assert r.vertex_count > 0
+    finally:
+        s.stop()
 
 
 def test_token_and_version_checks(tmp_path, stubs):

@@ -13,7 +13,8 @@ import pytest
 import requests
 
 from conftest import ROOT
-from server_harness import Server, generate_stubs, phantom, server  # noqa: F401 (fixtures)
+from server_harness import (Server, fibonacci_sphere, generate_stubs, phantom,  # noqa: F401 (fixtures)
+                            server)
 
 sys.path.insert(0, str(ROOT / "clients" / "python" / "src"))  # until the venv installs it
 from resecta_client.wire import apply_delta, decode_mesh  # noqa: E402
@@ -338,5 +339,64 @@ def test_idle_sessions_expire_and_limits_come_from_the_config_file(tmp_path):
         problem(requests.get(f"{s.http_url}/v1/sessions/{a}", timeout=10), 404, "SESSION_NOT_FOUND")
         problem(requests.get(f"{s.http_url}/v1/sessions/{b}", timeout=10), 404, "SESSION_NOT_FOUND")
         assert session(s.http_url, "d")
+    finally:
+        s.stop()
+
+
+def test_point_clouds_close_over_http(server):
+    """`POST /v1/point-clouds/reconstruct`: 2,000 points of a 20 mm sphere as JSON, with and
+    without normals → the mesh (base64 RSMS), every vertex within 0.3 mm of the sphere."""
+    points, normals = fibonacci_sphere(2000, 20.0, (0.0, 10.0, -5.0))
+    for given in (False, True):
+        body = {"positions": points.reshape(-1).tolist(), "depth": 6}
+        if given:
+            body["normals"] = normals.reshape(-1).tolist()
+        r = requests.post(f"{server.http_url}/v1/point-clouds/reconstruct", json=body, timeout=300)
+        assert r.status_code == 200, r.text
+        v = r.json()
+        mesh = decode_mesh(base64.b64decode(v["mesh"]))
+        d = np.linalg.norm(mesh["positions"].astype(np.float64) - (0.0, 10.0, -5.0), axis=1)
+        assert np.abs(d - 20.0).max() < 0.3, np.abs(d - 20.0).max()
+        assert int(v["vertexCount"]) == mesh["vertex_count"]
+        rep = v["report"]
+        assert rep["normals"] == ("NORMAL_SOURCE_GIVEN" if given else "NORMAL_SOURCE_ESTIMATED")
+        assert (rep["points"], rep["depth"], rep["neighbours"]) == (2000, 6, 10)
+        assert ("components" in rep) != given
+
+
+def test_bad_point_clouds_over_http_are_problems(tmp_path):
+    """Malformed clouds, clouds beyond the configured limits, an empty body and absurd numbers:
+    400 problem documents naming the problem, never a 5xx."""
+    cfg = tmp_path / "resecta.toml"
+    cfg.write_text("[limits]\nmax_cloud_points = 1000\nmax_cloud_depth = 6\n")
+    s = Server("--config", str(cfg))
+    url = f"{s.http_url}/v1/point-clouds/reconstruct"
+    try:
+        info = requests.get(f"{s.http_url}/v1/info", timeout=10).json()
+        assert (info["limits"]["maxCloudPoints"], info["limits"]["maxCloudDepth"]) == (1000, 6)
+        points, normals = fibonacci_sphere(600, 15.0)
+        flat, nflat = points.reshape(-1).tolist(), normals.reshape(-1).tolist()
+        cases = [
+            ({"positions": flat[:-2]}, "positions: needs x, y, z per point"),
+            ({"positions": ["NaN"] + flat[1:]}, "positions[0]: must be finite"),
+            ({"positions": flat, "normals": nflat[:3]}, "normals: must be empty or hold as many"),
+            ({"positions": flat, "normals": [0.0] * len(nflat)}, "normal 0 is zero"),
+            ({"positions": fibonacci_sphere(1001, 15.0)[0].reshape(-1).tolist()},
+             "max_cloud_points (1000)"),
+            ({"positions": flat, "depth": 7}, "max_cloud_depth"),
+            ({"positions": flat, "depth": 4294967295}, "max_cloud_depth"),
+            ({"positions": [1e300] * 12}, "max_coordinate_mm"),
+            ({"positions": [1.0, 2.0, 3.0] * 20}, "1 distinct points given"),
+            ({"positions": [float(k) for k in range(60)]}, "one line"),
+            ({}, "0 distinct points given"),
+        ]
+        for body, message in cases:
+            p = problem(requests.post(url, json=body, timeout=60), 400, "INVALID_ARGUMENT")
+            assert message in p["detail"], (message, p)
+        # An empty body, and one that is no JSON.
+        p = problem(requests.post(url, data=b"", timeout=60), 400, "INVALID_ARGUMENT")
+        assert "distinct points" in p["detail"], p
+        problem(requests.post(url, data=b"{", timeout=60), 400, "INVALID_ARGUMENT")
+        assert requests.post(url, json={"positions": flat, "depth": 6}, timeout=300).status_code == 200
     finally:
         s.stop()
