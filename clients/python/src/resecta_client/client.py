@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import grpc
+import numpy as np
 
 from . import wire
 from ._gen import label_map_pb2, reconstruction_pb2, resection_pb2
@@ -29,6 +30,7 @@ from .types import (
     ModelFormat,
     ModelInfo,
     Point,
+    PointCloudSurface,
     Reconstruction,
     Resection,
     ResectionKind,
@@ -206,6 +208,56 @@ class Client:
     def delete_session(self, session_id: str) -> None:
         """Deletes a session with its label map, models and plan."""
         self._call("DeleteSession", pb.DeleteSessionRequest(session_id=session_id))
+
+    # --- point clouds -------------------------------------------------------------------------
+
+    def reconstruct_points(
+        self,
+        positions: Any,
+        normals: Any = None,
+        depth: int = 5,
+        neighbours: int = 10,
+        *,
+        allow_zstd: bool | None = None,
+        allow_quantized: bool = False,
+        timeout: float | None = None,
+    ) -> PointCloudSurface:
+        """The closed surface of a point cloud, e.g. the points a mapping catheter collected on
+        an atrium (thesis ch. 9). Needs no session; the server keeps nothing.
+
+        `positions`: (n, 3) array-like of RAS mm points (or their x, y, z values interleaved
+        in one flat array); `normals`: outward normals likewise, one per point, of any non-zero
+        length, or None to have the server estimate them (local PCA, oriented outward).
+        `depth`: screened Poisson depth, the finest grid having 2^depth cells across the
+        points' bounding cube (1..=`ServerLimits.max_cloud_depth`, 8 by default; 5 suits a few
+        hundred catheter points, 6–7 denser clouds); `neighbours`: points per neighbourhood
+        for the normals and point areas (3..=64, fewer than the distinct points).
+
+        Returns a `PointCloudSurface`: positions, normals and triangles as numpy arrays (the
+        `RSMS` mesh decoded by `wire.decode_mesh`), the enclosed volume and the server's
+        `PointCloudReport`. Raises `InvalidArgument` for a malformed cloud (NaN, a length that
+        is not a multiple of 3, normals not one per point, fewer than 4 distinct points, all
+        points on one line) or one beyond the server's limits, `QuotaExceeded` when the
+        server's memory budget has no room for the grid. Compressed meshes are asked for when
+        the `zstandard` package is importable (`allow_zstd`), quantised ones only with
+        `allow_quantized`. `timeout` defaults to the client's, at least 300 s."""
+
+        def flat(name: str, values: Any) -> list[float]:
+            a = np.asarray(values, dtype=np.float64)
+            if a.ndim > 2 or (a.ndim == 2 and a.shape[1] != 3):
+                raise ValueError(f"{name}: expected an (n, 3) array or a flat one, got shape {a.shape}")
+            return a.reshape(-1).tolist()
+
+        request = pb.ReconstructPointsRequest(
+            positions=flat("positions", positions),
+            normals=[] if normals is None else flat("normals", normals),
+            depth=int(depth),
+            neighbours=int(neighbours),
+            allow_zstd=wire.ZSTD_AVAILABLE if allow_zstd is None else allow_zstd,
+            allow_quantized=allow_quantized,
+        )
+        wait = max(self.timeout, 300.0) if timeout is None else timeout
+        return PointCloudSurface.from_pb(self._call("ReconstructPoints", request, timeout=wait))
 
 
 class Session:

@@ -22,6 +22,7 @@ from ._gen import (
     surface_pb2,
     volumes_pb2,
 )
+from . import wire
 from .geometry import compose
 
 F64: TypeAlias = npt.NDArray[np.float64]
@@ -218,6 +219,8 @@ class ServerLimits:
     max_resolution: int
     session_idle_timeout_s: int
     max_resectogram_side: int = 0
+    max_cloud_points: int = 0
+    max_cloud_depth: int = 0
 
 
 @dataclass(frozen=True)
@@ -372,6 +375,95 @@ class Reconstruction(Sequence[ModelInfo]):
 
     def __getitem__(self, index: Any) -> Any:
         return self.models[index]
+
+
+# --- point clouds ---------------------------------------------------------------------------
+
+
+class NormalSource(_Named):
+    """Where a point cloud's normals came from: given with the points, or estimated (local
+    PCA, oriented outward over the neighbour graph)."""
+
+    UNSPECIFIED = "unspecified"
+    GIVEN = "given"
+    ESTIMATED = "estimated"
+
+    @classmethod
+    def _pb(cls) -> tuple[Any, str]:
+        return reconstruction_pb2.NormalSource, "NORMAL_SOURCE"
+
+
+def _opt(m: Any, name: str) -> Any:
+    """An optional field's value, None when absent."""
+    return getattr(m, name) if m.HasField(name) else None
+
+
+@dataclass(frozen=True)
+class PointCloudReport:
+    """How the server read and solved a point cloud: `points` given, `distinct` positions,
+    where the `normals` came from; with estimated normals the neighbour graph's `components`,
+    the `degenerate` points (collinear neighbourhoods) and the median nearest-point `spacing_mm`
+    (None with given normals); the summed point areas `sampled_area_mm2` (an estimate of the
+    surface's area), the PSR `depth` and `neighbours` used, the finest Poisson cell `cell_mm`,
+    and the server's wall times in seconds."""
+
+    points: int
+    distinct: int
+    normals: NormalSource
+    components: int | None
+    degenerate: int | None
+    spacing_mm: float | None
+    sampled_area_mm2: float
+    depth: int
+    neighbours: int
+    cell_mm: float
+    normals_s: float
+    solve_s: float
+    surface_s: float
+
+    @classmethod
+    def from_pb(cls, m: reconstruction_pb2.PointCloudReport) -> PointCloudReport:
+        return cls(
+            m.points,
+            m.distinct,
+            NormalSource.from_pb(m.normals),
+            _opt(m, "components"),
+            _opt(m, "degenerate"),
+            _opt(m, "spacing_mm"),
+            m.sampled_area_mm2,
+            m.depth,
+            m.neighbours,
+            m.cell_mm,
+            m.normals_s,
+            m.solve_s,
+            m.surface_s,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class PointCloudSurface:
+    """The closed surface of a point cloud (`Client.reconstruct_points`): `positions` (n, 3)
+    float32 RAS mm, outward unit `normals` (n, 3) float32, `triangles` (m, 3) uint32 (decoded
+    with `wire.decode_mesh`), the enclosed `volume_ml`, and the server's `report`."""
+
+    positions: F32
+    normals: F32 | None
+    triangles: wire.U32
+    volume_ml: float
+    report: PointCloudReport
+
+    @classmethod
+    def from_pb(cls, m: planning_service_pb2.ReconstructPointsResponse) -> PointCloudSurface:
+        mesh = wire.decode_mesh(m.mesh)
+        if mesh["vertex_count"] != m.vertex_count or mesh["triangle_count"] != m.triangle_count:
+            raise wire.WireError(
+                f"the mesh holds {mesh['vertex_count']} vertices and {mesh['triangle_count']} "
+                f"triangles, the answer says {m.vertex_count} and {m.triangle_count}"
+            )
+        return cls(
+            mesh["positions"], mesh["normals"], mesh["triangles"], m.volume_ml,
+            PointCloudReport.from_pb(m.report),
+        )
 
 
 # --- resections ------------------------------------------------------------------------------
