@@ -477,7 +477,7 @@ pub fn reconstruct_options(r: &pb::ReconstructRequest) -> Wire<ReconOptions> {
 /// `values` as x, y, z triples: a multiple of 3 values, each finite and, when `bound` is
 /// given, within ±`bound`.
 fn triples(field: &str, values: &[f64], bound: Option<Real>) -> Wire<Vec<[Real; 3]>> {
-    if values.len() % 3 != 0 {
+    if !values.len().is_multiple_of(3) {
         return Err(WireError::invalid(
             field,
             format!(
