@@ -245,6 +245,18 @@ pub fn reconstruct_sample(
     normals: StudyNormals,
     solver: &PoissonSolver,
 ) -> Result<(TriMesh, Real), EamError> {
+    // On a worker thread, as resecta_recon::reconstruct_cloud: the small grid's many short
+    // parallel loops then do not wake the pool from outside each time.
+    rayon::scope(|_| reconstruct_in_pool(sample, depth, screening, normals, solver))
+}
+
+fn reconstruct_in_pool(
+    sample: &OrientedPoints,
+    depth: u32,
+    screening: Real,
+    normals: StudyNormals,
+    solver: &PoissonSolver,
+) -> Result<(TriMesh, Real), EamError> {
     let t = Instant::now();
     let estimated;
     let points = match normals {
