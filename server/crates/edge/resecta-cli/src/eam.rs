@@ -122,7 +122,7 @@ const THESIS: [[[Real; 5]; 6]; 2] = [
 ];
 
 fn thesis(n: usize, u: Real, noise: bool) -> Option<Real> {
-    let row = (n % 100 == 0 && (100..=600).contains(&n)).then(|| n / 100 - 1)?;
+    let row = (n.is_multiple_of(100) && (100..=600).contains(&n)).then(|| n / 100 - 1)?;
     let col = (u * 10.0).round() as usize;
     ((u * 10.0 - col as Real).abs() < 1e-9 && (5..=9).contains(&col))
         .then(|| THESIS[usize::from(noise)][row][col - 5])
@@ -342,6 +342,9 @@ fn error_figure(r: &StudyResults) -> Figure {
     }
 }
 
+/// A picture's vertices, triangles, overlay points and title.
+type Picture = (Vec<[f64; 3]>, Vec<[u32; 3]>, Vec<[f64; 3]>, String);
+
 /// The reference and reconstructions at n = 100, 300, 600 (those of them in the study; u = 0.8
 /// where studied, as the thesis' Fig. 9.6, else the largest u), each with its points, seen from
 /// behind (the veins' side).
@@ -369,7 +372,7 @@ fn pictures(
     }
     let as_arrays =
         |m: &TriMesh| -> Vec<[f64; 3]> { m.vertices().iter().map(|v| [v.x, v.y, v.z]).collect() };
-    let mut meshes: Vec<(Vec<[f64; 3]>, Vec<[u32; 3]>, Vec<[f64; 3]>, String)> = Vec::new();
+    let mut meshes: Vec<Picture> = Vec::new();
     if let Some(m) = &atrium.reference_mesh {
         meshes.push((
             as_arrays(m),
