@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The study on the LASC'13 atria of `shared/test-data/heart` (skipped with a message when
 //! absent): b002's ground-truth labels, b003's open surface mesh.
 

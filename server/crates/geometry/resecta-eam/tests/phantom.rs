@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The study on the analytic atrium phantom: truth known exactly.
 
 use rand::SeedableRng;

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! The atrium phantom's truth checked against its own definition and closed forms.
 
 use std::f64::consts::PI;

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Normals and areas against analytic surfaces.
 
 use std::f64::consts::PI;

@@ -1,3 +1,4 @@
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Point-cloud reconstruction against analytic spheres.
 
 use std::f64::consts::PI;
