@@ -214,13 +214,7 @@ pub fn run(args: &EamStudyArgs) -> Result<(), CliError> {
     })
     .map_err(eam_err)?;
     pb.finish_and_clear();
-    std::fs::create_dir_all(&args.out_dir)
-        .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
-    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, CliError> {
-        let p = args.out_dir.join(name);
-        std::fs::write(&p, bytes).map_err(|e| CliError::Failed(format!("{}: {e}", p.display())))?;
-        Ok(p)
-    };
+    let write = crate::output::files_in(&args.out_dir)?;
     let mut files = Vec::new();
     let fig = error_figure(&study);
     files.push(write(
@@ -476,35 +470,43 @@ fn markdown(r: &Report, args: &EamStudyArgs, total_s: Real) -> String {
         if noise && c.noise.is_none() {
             continue;
         }
-        o.push_str(&format!(
-            "## Median error, mm ({}), ours / thesis Fig. 9.5\n\n| n \\ u |",
+        let title = format!(
+            "Median error, mm ({}), ours / thesis Fig. 9.5",
             if noise { "noise" } else { "no noise" }
-        ));
-        for u in &c.upper_fractions {
-            o.push_str(&format!(" {u} |"));
-        }
-        o.push_str("\n|---|");
-        o.push_str(&"---|".repeat(c.upper_fractions.len()));
-        o.push('\n');
-        for &n in &c.counts {
-            o.push_str(&format!("| {n} |"));
-            for &u in &c.upper_fractions {
-                let ours = s
-                    .conditions
-                    .iter()
-                    .find(|x| x.n == n && x.u == u && x.noise == noise);
-                let cell = match (ours, thesis(n, u, noise)) {
-                    (Some(x), Some(t)) => format!(" {:.3} / {t:.2} |", x.median_error_mm),
-                    (Some(x), None) => format!(" {:.3} |", x.median_error_mm),
-                    (None, _) => " – |".into(),
-                };
-                o.push_str(&cell);
+        );
+        table(&mut o, &title, c, |n, u| {
+            let ours = s
+                .conditions
+                .iter()
+                .find(|x| x.n == n && x.u == u && x.noise == noise);
+            match (ours, thesis(n, u, noise)) {
+                (Some(x), Some(t)) => format!("{:.3} / {t:.2}", x.median_error_mm),
+                (Some(x), None) => format!("{:.3}", x.median_error_mm),
+                (None, _) => "–".into(),
             }
-            o.push('\n');
-        }
-        o.push('\n');
+        });
     }
-    o.push_str("## Median time per reconstruction, ms (normals, Poisson solve, marching cubes)\n\n| n \\ u |");
+    let title = "Median time per reconstruction, ms (normals, Poisson solve, marching cubes)";
+    table(&mut o, title, c, |n, u| {
+        let t = s
+            .conditions
+            .iter()
+            .find(|x| x.n == n && x.u == u && !x.noise)
+            .map_or(Real::NAN, |x| x.median_time_s);
+        format!("{:.1}", 1e3 * t)
+    });
+    o.push_str(
+        "Times are measured inside the study, two reconstructions at a time on a 2-core \
+         machine; the thesis' median was 600 ms per reconstruction with I/O.\n\n\
+         ![median error against n](eam-error.png)\n\n\
+         ![reference and reconstructions](eam-reconstructions.png)\n",
+    );
+    o
+}
+
+/// A Markdown section `## title` with one row per n and one column per u.
+fn table(o: &mut String, title: &str, c: &StudyConfig, cell: impl Fn(usize, Real) -> String) {
+    o.push_str(&format!("## {title}\n\n| n \\ u |"));
     for u in &c.upper_fractions {
         o.push_str(&format!(" {u} |"));
     }
@@ -514,20 +516,9 @@ fn markdown(r: &Report, args: &EamStudyArgs, total_s: Real) -> String {
     for &n in &c.counts {
         o.push_str(&format!("| {n} |"));
         for &u in &c.upper_fractions {
-            let t = s
-                .conditions
-                .iter()
-                .find(|x| x.n == n && x.u == u && !x.noise)
-                .map_or(Real::NAN, |x| x.median_time_s);
-            o.push_str(&format!(" {:.1} |", 1e3 * t));
+            o.push_str(&format!(" {} |", cell(n, u)));
         }
         o.push('\n');
     }
-    o.push_str(
-        "\nTimes are measured inside the study, two reconstructions at a time on a 2-core \
-         machine; the thesis' median was 600 ms per reconstruction with I/O.\n\n\
-         ![median error against n](eam-error.png)\n\n\
-         ![reference and reconstructions](eam-reconstructions.png)\n",
-    );
-    o
+    o.push('\n');
 }

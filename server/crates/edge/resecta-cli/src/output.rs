@@ -2,6 +2,7 @@
 //! watches.
 
 use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
@@ -46,4 +47,15 @@ pub fn counter(json: bool, len: u64, unit: &str) -> ProgressBar {
         pb.set_style(style);
     }
     pb
+}
+
+/// Creates `dir` and returns a writer of named files in it (errors name the path).
+pub fn files_in(dir: &Path) -> Result<impl Fn(&str, &[u8]) -> Result<PathBuf, CliError>, CliError> {
+    std::fs::create_dir_all(dir)
+        .map_err(|e| CliError::Failed(format!("{}: {e}", dir.display())))?;
+    Ok(move |name: &str, bytes: &[u8]| {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).map_err(|e| CliError::Failed(format!("{}: {e}", p.display())))?;
+        Ok(p)
+    })
 }

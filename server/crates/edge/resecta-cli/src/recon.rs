@@ -565,13 +565,7 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<(), CliError> {
     };
     let run = study::run(&selected, &config, &mut tick).map_err(recon_err)?;
     bar.finish_and_clear();
-    std::fs::create_dir_all(&args.out_dir)
-        .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
-    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, CliError> {
-        let p = args.out_dir.join(name);
-        std::fs::write(&p, bytes).map_err(|e| CliError::Failed(format!("{}: {e}", p.display())))?;
-        Ok(p)
-    };
+    let write = crate::output::files_in(&args.out_dir)?;
     let json =
         serde_json::to_string_pretty(&run).map_err(|e| CliError::Failed(format!("JSON: {e}")))?;
     let figure = resecta_plot::pareto_figure(&run.study);

@@ -1309,13 +1309,7 @@ pub fn methods(args: &MethodsArgs) -> Result<(), CliError> {
         files: Vec::new(),
     };
     report.records = records;
-    std::fs::create_dir_all(&args.out_dir)
-        .map_err(|e| CliError::Failed(format!("{}: {e}", args.out_dir.display())))?;
-    let write = |name: &str, bytes: &[u8]| -> Result<PathBuf, CliError> {
-        let p = args.out_dir.join(name);
-        std::fs::write(&p, bytes).map_err(|e| CliError::Failed(format!("{}: {e}", p.display())))?;
-        Ok(p)
-    };
+    let write = crate::output::files_in(&args.out_dir)?;
     let figure = figure(&report);
     report.files = vec![
         args.out_dir.join("methods.md"),
