@@ -247,33 +247,25 @@ pub fn reconstruct_sample(
 ) -> Result<(TriMesh, Real), EamError> {
     // On a worker thread, as resecta_recon::reconstruct_cloud: the small grid's many short
     // parallel loops then do not wake the pool from outside each time.
-    rayon::scope(|_| reconstruct_in_pool(sample, depth, screening, normals, solver))
-}
-
-fn reconstruct_in_pool(
-    sample: &OrientedPoints,
-    depth: u32,
-    screening: Real,
-    normals: StudyNormals,
-    solver: &PoissonSolver,
-) -> Result<(TriMesh, Real), EamError> {
-    let t = Instant::now();
-    let estimated;
-    let points = match normals {
-        StudyNormals::Reference => sample,
-        StudyNormals::Estimated => {
-            estimated = orient_cloud(&sample.positions, None, DEFAULT_NEIGHBOURS)?.0;
-            &estimated
-        }
-    };
-    let params = PoissonParams {
-        depth,
-        screening,
-        ..PoissonParams::default()
-    };
-    let field = psr::field(points, &params, solver)?;
-    let mesh = psr::field_surface(&field, solver)?;
-    Ok((mesh, t.elapsed().as_secs_f64()))
+    rayon::scope(|_| {
+        let t = Instant::now();
+        let estimated;
+        let points = match normals {
+            StudyNormals::Reference => sample,
+            StudyNormals::Estimated => {
+                estimated = orient_cloud(&sample.positions, None, DEFAULT_NEIGHBOURS)?.0;
+                &estimated
+            }
+        };
+        let params = PoissonParams {
+            depth,
+            screening,
+            ..PoissonParams::default()
+        };
+        let field = psr::field(points, &params, solver)?;
+        let mesh = psr::field_surface(&field, solver)?;
+        Ok((mesh, t.elapsed().as_secs_f64()))
+    })
 }
 
 /// Median distance from `reference` to `mesh`, mm.

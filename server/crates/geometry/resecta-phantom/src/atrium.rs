@@ -326,19 +326,27 @@ fn capsule_point(s: &Solid, rng: &mut impl Rng) -> Vec3 {
     }
 }
 
-/// Surface area of an ellipsoid: `4π·r₀r₁r₂·E[|D⁻¹u|]` over uniform directions `u`, by a
-/// Fibonacci-lattice quadrature (relative error < 1e-6 for the aspect ratios used here).
-pub fn ellipsoid_area(radii: [Real; 3]) -> Real {
-    let n = AREA_QUADRATURE;
+/// `n` nearly uniform unit directions: the Fibonacci lattice (equal-area bands in z, golden-angle
+/// steps in longitude).
+pub fn fibonacci_sphere(n: usize) -> Vec<Vec3> {
     let golden = PI * (3.0 - 5f64.sqrt());
-    let sum: Real = (0..n)
+    (0..n)
         .map(|i| {
             let z = 1.0 - (2.0 * i as Real + 1.0) / n as Real;
             let r = (1.0 - z * z).sqrt();
             let t = golden * i as Real;
-            let u = Vec3::new(r * t.cos(), r * t.sin(), z);
-            Vec3::new(u.x / radii[0], u.y / radii[1], u.z / radii[2]).norm()
+            Vec3::new(r * t.cos(), r * t.sin(), z)
         })
+        .collect()
+}
+
+/// Surface area of an ellipsoid: `4π·r₀r₁r₂·E[|D⁻¹u|]` over uniform directions `u`, by a
+/// Fibonacci-lattice quadrature (relative error < 1e-6 for the aspect ratios used here).
+pub fn ellipsoid_area(radii: [Real; 3]) -> Real {
+    let dirs = fibonacci_sphere(AREA_QUADRATURE);
+    let sum: Real = dirs
+        .iter()
+        .map(|u| Vec3::new(u.x / radii[0], u.y / radii[1], u.z / radii[2]).norm())
         .sum();
-    4.0 * PI * radii[0] * radii[1] * radii[2] * sum / n as Real
+    4.0 * PI * radii[0] * radii[1] * radii[2] * sum / dirs.len() as Real
 }

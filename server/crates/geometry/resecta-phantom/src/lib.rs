@@ -14,7 +14,9 @@ pub mod implicit;
 pub mod spec;
 pub mod volume;
 
-pub use atrium::{Atrium, AtriumSpec, BODY_LABEL, SurfaceSamples, VEIN_LABELS, VeinSpec};
+pub use atrium::{
+    Atrium, AtriumSpec, BODY_LABEL, SurfaceSamples, VEIN_LABELS, VeinSpec, fibonacci_sphere,
+};
 pub use error::PhantomError;
 pub use generate::{LabelTruth, Phantom, ShapeTruth, Truth, generate};
 pub use implicit::Solid;

@@ -4,18 +4,14 @@
 use std::f64::consts::PI;
 
 use resecta_geom::{Real, Vec3};
+use resecta_phantom::fibonacci_sphere;
 use resecta_pointcloud::{NormalParams, PointCloudError, estimate_normals, point_areas};
 
-/// `n` points of a Fibonacci lattice on the sphere of `radius` at `centre`.
+/// `n` points of the sphere of `radius` at `centre` (Fibonacci lattice).
 fn sphere(n: usize, radius: Real, centre: Vec3) -> Vec<Vec3> {
-    let golden = PI * (3.0 - 5f64.sqrt());
-    (0..n)
-        .map(|i| {
-            let z = 1.0 - (2.0 * i as Real + 1.0) / n as Real;
-            let r = (1.0 - z * z).sqrt();
-            let t = golden * i as Real;
-            centre + Vec3::new(r * t.cos(), r * t.sin(), z) * radius
-        })
+    fibonacci_sphere(n)
+        .into_iter()
+        .map(|u| centre + u * radius)
         .collect()
 }
 

@@ -154,31 +154,24 @@ pub fn reconstruct_cloud(
     options: &CloudOptions,
     solver: &PoissonSolver,
 ) -> Result<CloudModel, ReconError> {
-    rayon::scope(|_| reconstruct_in_pool(positions, normals, options, solver))
-}
-
-fn reconstruct_in_pool(
-    positions: &[Vec3],
-    normals: Option<&[Vec3]>,
-    options: &CloudOptions,
-    solver: &PoissonSolver,
-) -> Result<CloudModel, ReconError> {
-    let (points, mut report) = orient_cloud(positions, normals, options.neighbours)?;
-    let params = PoissonParams {
-        depth: options.depth,
-        ..PoissonParams::default()
-    };
-    let t = Instant::now();
-    let f = field(&points, &params, solver)?;
-    report.solve_s = t.elapsed().as_secs_f64();
-    let t = Instant::now();
-    let mesh = field_surface(&f, solver)?;
-    report.surface_s = t.elapsed().as_secs_f64();
-    report.depth = options.depth;
-    report.cell_mm = f.cell;
-    Ok(CloudModel {
-        mesh,
-        points,
-        report,
+    rayon::scope(|_| {
+        let (points, mut report) = orient_cloud(positions, normals, options.neighbours)?;
+        let params = PoissonParams {
+            depth: options.depth,
+            ..PoissonParams::default()
+        };
+        let t = Instant::now();
+        let f = field(&points, &params, solver)?;
+        report.solve_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let mesh = field_surface(&f, solver)?;
+        report.surface_s = t.elapsed().as_secs_f64();
+        report.depth = options.depth;
+        report.cell_mm = f.cell;
+        Ok(CloudModel {
+            mesh,
+            points,
+            report,
+        })
     })
 }
