@@ -223,7 +223,8 @@ def map_case(context, case):
         voxels = dims[0] * dims[1] * dims[2]
     except (ValueError, TypeError, KeyError, IndexError):
         return case
-    if not isinstance(voxels, int) or voxels * size > 1 << 16:
+    # Generated dims may be negative (their product too): leave those to the server to refuse.
+    if not isinstance(voxels, int) or not 0 <= voxels * size <= 1 << 16:
         return case
     try:
         roles = header.get("roles") or {"parenchyma": [1], "tumor": [2]}
