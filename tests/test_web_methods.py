@@ -82,7 +82,9 @@ def test_a_ds_resection_is_drawn_on_slices(page, demo):
             assert state(page)["planVersion"] == version
     ds = wait_for_resection(page, "ds1", "r.traces.length === 3")
     assert ds["kind"] == "RESECTION_KIND_DS"
-    assert page.evaluate("window.resecta.drawing()") is None
+    # Watchers see the resection once computed, its edit is acknowledged once stored: the page
+    # drops its drawing on the acknowledgement, which may come a moment later.
+    page.wait_for_function("() => window.resecta.drawing() === null", timeout=10_000)
     for trace, z in zip(sorted(ds["traces"], key=lambda t: t[0]["z"]), slices):
         assert len(trace) >= 3 and all(abs(p["z"] - z) < 1e-6 for p in trace)
     # A fourth trace (addTrace), then the one on the first slice deleted (removeTrace) after
