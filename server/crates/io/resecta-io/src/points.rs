@@ -54,7 +54,9 @@ use std::path::Path;
 use resecta_geom::Vec3;
 
 use crate::error::{ErrorKind, IoError};
-use crate::mesh::{RawMesh, SPACE_TAG, WriteOptions, fmt_f64, obj, ply, says_lps, stl, vtk, vtp};
+use crate::mesh::{
+    MeshFormat, RawMesh, SPACE_TAG, WriteOptions, fmt_f64, obj, ply, says_lps, stl, vtk, vtp,
+};
 
 /// The most points a cloud may have (readers refuse more, before allocating for them).
 pub const MAX_POINTS: usize = 10_000_000;
@@ -161,7 +163,8 @@ impl PointFormat {
         Self::Obj,
     ];
 
-    /// The format for a file name's extension (case-insensitive).
+    /// The format for a file name's extension (case-insensitive): `.csv`, `.txt`, `.xyz`, or
+    /// any mesh format's ([`MeshFormat::from_path`]).
     pub fn from_path(path: impl AsRef<Path>) -> Result<Self, IoError> {
         let path = path.as_ref();
         let ext = path
@@ -169,31 +172,23 @@ impl PointFormat {
             .and_then(|e| e.to_str())
             .unwrap_or("")
             .to_ascii_lowercase();
-        Ok(match ext.as_str() {
-            "csv" | "txt" | "xyz" => Self::Csv,
-            "ply" => Self::Ply,
-            "vtp" => Self::Vtp,
-            "vtk" => Self::Vtk,
-            "stl" => Self::Stl,
-            "obj" => Self::Obj,
-            _ => {
-                return Err(IoError::new(
-                    path,
-                    ErrorKind::UnknownFormat(ext, EXTENSIONS),
-                ));
-            }
-        })
+        if matches!(ext.as_str(), "csv" | "txt" | "xyz") {
+            return Ok(Self::Csv);
+        }
+        MeshFormat::from_path(path)
+            .map(Self::from)
+            .map_err(|_| IoError::new(path, ErrorKind::UnknownFormat(ext, EXTENSIONS)))
     }
 
     /// The usual file extension, without the dot.
     pub fn extension(self) -> &'static str {
         match self {
             Self::Csv => "csv",
-            Self::Ply => "ply",
-            Self::Vtp => "vtp",
-            Self::Vtk => "vtk",
-            Self::Stl => "stl",
-            Self::Obj => "obj",
+            Self::Ply => MeshFormat::Ply.extension(),
+            Self::Vtp => MeshFormat::Vtp.extension(),
+            Self::Vtk => MeshFormat::Vtk.extension(),
+            Self::Stl => MeshFormat::Stl.extension(),
+            Self::Obj => MeshFormat::Obj.extension(),
         }
     }
 
@@ -202,6 +197,18 @@ impl PointFormat {
         match self {
             Self::Csv | Self::Ply | Self::Vtp => true,
             Self::Vtk | Self::Stl | Self::Obj => false,
+        }
+    }
+}
+
+impl From<MeshFormat> for PointFormat {
+    fn from(f: MeshFormat) -> Self {
+        match f {
+            MeshFormat::Ply => Self::Ply,
+            MeshFormat::Vtp => Self::Vtp,
+            MeshFormat::Vtk => Self::Vtk,
+            MeshFormat::Stl => Self::Stl,
+            MeshFormat::Obj => Self::Obj,
         }
     }
 }
