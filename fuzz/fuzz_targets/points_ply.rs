@@ -1,36 +1,11 @@
-//! Fuzz target: the PLY point-cloud reader must return Ok or a typed error, never panic or hang;
-//! an accepted cloud is 1 to MAX_POINTS finite points (normals one each, finite, non-zero) and
-//! round-trips through its own writer bit for bit.
+//! Fuzz target: the PLY point-cloud reader (checks in `common/points.rs`).
 #![no_main]
 
-use resecta_io::{MAX_POINTS, PointFormat, points_to_bytes, read_points_bytes};
+#[path = "common/points.rs"]
+mod points;
 
-fn bits(v: &[resecta_geom::Vec3]) -> Vec<[u64; 3]> {
-    v.iter()
-        .map(|p| [p.x, p.y, p.z].map(f64::to_bits))
-        .collect()
-}
-
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    let Ok(cloud) = read_points_bytes(data, PointFormat::Ply, "fuzz.ply") else {
-        return;
-    };
-    assert!((1..=MAX_POINTS).contains(&cloud.len()));
-    assert!(cloud.positions.iter().flatten().all(|c| c.is_finite()));
-    if let Some(n) = &cloud.normals {
-        assert_eq!(n.len(), cloud.len());
-        assert!(
-            n.iter()
-                .all(|v| v.iter().all(|c| c.is_finite()) && v.iter().any(|&c| c != 0.0))
-        );
-    }
-    let bytes = points_to_bytes(&cloud, PointFormat::Ply, "fuzz.ply")
-        .expect("an accepted cloud is written");
-    let back =
-        read_points_bytes(&bytes, PointFormat::Ply, "fuzz.ply").expect("a written cloud is read");
-    assert_eq!(bits(&back.positions), bits(&cloud.positions));
-    assert_eq!(
-        back.normals.as_deref().map(bits),
-        cloud.normals.as_deref().map(bits)
-    );
-});
+libfuzzer_sys::fuzz_target!(|data: &[u8]| points::check(
+    data,
+    resecta_io::PointFormat::Ply,
+    "fuzz.ply"
+));
