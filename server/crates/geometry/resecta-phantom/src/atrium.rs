@@ -136,17 +136,6 @@ impl Atrium {
         self.body.contains(p) || self.veins.iter().any(|v| v.contains(p))
     }
 
-    /// Exact distance from `p` to the atrium's surface, for points outside it (the union's
-    /// distance is the least of the parts' there); `None` inside.
-    pub fn outside_distance(&self, p: Vec3) -> Option<Real> {
-        let d = self
-            .veins
-            .iter()
-            .map(|v| v.signed_distance(p))
-            .fold(self.body.signed_distance(p), Real::min);
-        (d >= 0.0).then_some(d)
-    }
-
     /// Whether a point on part `part`'s surface lies on the union's surface (not strictly
     /// inside another part).
     fn exposed(&self, part: usize, p: Vec3) -> bool {
