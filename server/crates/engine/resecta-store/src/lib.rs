@@ -7,8 +7,16 @@
 //!
 //! The API is synchronous: the server calls it from blocking threads. Backends:
 //! [`SqliteStore`] (one embedded database file in a data directory, the default) and
-//! [`MemoryStore`] (same semantics, nothing on disk: tests and ephemeral servers). The trait
-//! leaves room for a PostgreSQL backend shared by several replicas.
+//! [`MemoryStore`] (same semantics, nothing on disk: tests and ephemeral servers).
+//!
+//! **Leases.** Several server replicas may share one store; exactly one runs a session's
+//! planner at a time. A replica [`claim`](SessionStore::claim)s a session's lease for a time
+//! and renews it while it holds the session; another replica's claim succeeds only once the
+//! lease has expired or was released. Each new holder gets a larger fencing token, and a
+//! store handle that was granted a token refuses its own later writes to that session with
+//! [`StoreError::Fenced`] once another holder has claimed it: a paused former owner can never
+//! append. Lease expiry is measured by the store's one clock (the database server's, for a
+//! shared database), never by the replicas' clocks.
 //!
 //! Error messages name ids, keys, lengths and limits, never display names, blob contents or
 //! metadata, which may identify a patient.
@@ -74,6 +82,36 @@ pub struct StoreUsage {
     pub stored_bytes: u64,
 }
 
+/// A server replica as leases name it: an id unique to the process, and the addresses at which
+/// clients reach it (shown to clients that call another replica).
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Replica {
+    pub id: String,
+    /// gRPC address, `host:port`.
+    pub grpc: String,
+    /// HTTP face's base URL, `http(s)://host:port`.
+    pub http: String,
+}
+
+/// A session's unexpired lease.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Lease {
+    pub holder: Replica,
+    /// Fencing token: larger for every new holder of the session's lease.
+    pub token: u64,
+    /// Time left until it expires, by the store's clock.
+    pub remaining_ms: u64,
+}
+
+/// The outcome of [`SessionStore::claim`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Claim {
+    /// The caller holds the lease with this fencing token.
+    Granted { token: u64 },
+    /// Another replica holds it.
+    Held(Lease),
+}
+
 /// Limits and compression of a store.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct StoreOptions {
@@ -122,6 +160,8 @@ pub enum StoreError {
         "store schema version {found} is newer than this build supports ({supported}); use a newer resecta"
     )]
     SchemaTooNew { found: i64, supported: i64 },
+    #[error("session {id} is held by another replica: this replica's lease on it has ended")]
+    Fenced { id: String },
     #[error("storage backend: {0}")]
     Backend(String),
 }
@@ -155,6 +195,30 @@ pub trait SessionStore: Send + Sync + std::fmt::Debug {
     /// Ids of sessions with `last_access_ms < before_ms`, least recently used first.
     fn idle_since(&self, before_ms: i64) -> Result<Vec<String>, StoreError>;
     fn usage(&self) -> Result<StoreUsage, StoreError>;
+
+    // ---- leases (module docs) -----------------------------------------------------------------
+
+    /// Takes session `id`'s lease for `replica` for `ttl_ms`: granted when there is no lease,
+    /// when it has expired or was released, or when `replica.id` holds it already (then it is
+    /// renewed with the same token); a new holder's token is larger than every earlier one of
+    /// the session. Once granted, this handle's writes to the session (`append`, `put_blob`,
+    /// `delete_blob`, `delete_session`) fail with [`StoreError::Fenced`] if another holder has
+    /// claimed it since. `Held` when another replica's lease is unexpired.
+    fn claim(&self, id: &str, replica: &Replica, ttl_ms: u64) -> Result<Claim, StoreError>;
+    /// Extends by `ttl_ms` the leases among `ids` that `replica_id` still holds with the
+    /// tokens this handle was granted; returns the others (taken over, released or deleted),
+    /// which this handle forgets.
+    fn renew(
+        &self,
+        replica_id: &str,
+        ids: &[String],
+        ttl_ms: u64,
+    ) -> Result<Vec<String>, StoreError>;
+    /// Ends `replica_id`'s lease on `id` at once (draining), so another replica's next claim
+    /// succeeds; `false` if it did not hold it. The token is kept: the next holder's is larger.
+    fn release(&self, id: &str, replica_id: &str) -> Result<bool, StoreError>;
+    /// The session's unexpired lease, if any.
+    fn lease(&self, id: &str) -> Result<Option<Lease>, StoreError>;
 }
 
 /// Longest session id or blob key.

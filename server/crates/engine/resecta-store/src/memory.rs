@@ -1,12 +1,13 @@
 //! In-memory backend: the semantics of [`crate::SqliteStore`] without a disk.
 
-use std::collections::BTreeMap;
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::collections::{BTreeMap, HashMap};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::{Duration, Instant};
 
 use crate::codec::{Packed, pack, unpack};
 use crate::{
-    Blob, LogRecord, SessionRecord, SessionStore, StoreError, StoreOptions, StoreUsage, check_name,
-    check_record, check_records, check_session,
+    Blob, Claim, Lease, LogRecord, Replica, SessionRecord, SessionStore, StoreError, StoreOptions,
+    StoreUsage, check_name, check_record, check_records, check_session,
 };
 
 #[derive(Debug)]
@@ -20,13 +21,21 @@ struct Session {
     rec: SessionRecord,
     blobs: BTreeMap<String, StoredBlob>,
     log: Vec<String>,
+    /// The lease's holder and expiry (`None`: never claimed).
+    lease: Option<(Replica, Instant)>,
+    /// The last token granted (kept through releases and expiry).
+    token: u64,
 }
 
-/// Sessions in memory (blobs compressed as on disk); lost when dropped.
+/// Sessions in memory (blobs compressed as on disk); lost when the last handle is dropped.
+/// [`MemoryStore::share`] gives another handle on the same sessions, as a second replica's
+/// connection to a shared database would be (its own fencing tokens).
 #[derive(Default)]
 pub struct MemoryStore {
     opts: StoreOptions,
-    sessions: Mutex<BTreeMap<String, Session>>,
+    sessions: Arc<Mutex<BTreeMap<String, Session>>>,
+    /// Tokens this handle was granted, by session.
+    fences: Mutex<HashMap<String, u64>>,
 }
 
 // Contents may be patient data: Debug shows the options and the session count only.
@@ -43,7 +52,17 @@ impl MemoryStore {
     pub fn new(opts: StoreOptions) -> Self {
         Self {
             opts,
-            sessions: Mutex::default(),
+            sessions: Arc::default(),
+            fences: Mutex::default(),
+        }
+    }
+
+    /// Another handle on the same sessions, with no leases granted to it yet.
+    pub fn share(&self) -> Self {
+        Self {
+            opts: self.opts,
+            sessions: Arc::clone(&self.sessions),
+            fences: Mutex::default(),
         }
     }
 
@@ -51,6 +70,32 @@ impl MemoryStore {
         // Every update is applied whole after its checks, so a poisoned map is still consistent.
         self.sessions.lock().unwrap_or_else(PoisonError::into_inner)
     }
+
+    fn fences(&self) -> MutexGuard<'_, HashMap<String, u64>> {
+        self.fences.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The session, for a write: `Fenced` if this handle was granted a token another holder
+    /// has since superseded.
+    fn writable<'a>(
+        &self,
+        map: &'a mut BTreeMap<String, Session>,
+        id: &str,
+    ) -> Result<&'a mut Session, StoreError> {
+        let s = get_mut(map, id)?;
+        match self.fences().get(id) {
+            Some(&token) if token != s.token => Err(StoreError::Fenced { id: id.to_owned() }),
+            _ => Ok(s),
+        }
+    }
+}
+
+/// The holder of an unexpired lease.
+fn live_holder(s: &Session, now: Instant) -> Option<(&Replica, Duration)> {
+    s.lease
+        .as_ref()
+        .filter(|(_, until)| *until > now)
+        .map(|(r, until)| (r, *until - now))
 }
 
 fn get<'a>(map: &'a BTreeMap<String, Session>, id: &str) -> Result<&'a Session, StoreError> {
@@ -79,6 +124,8 @@ impl SessionStore for MemoryStore {
                 rec: rec.clone(),
                 blobs: BTreeMap::new(),
                 log: Vec::new(),
+                lease: None,
+                token: 0,
             },
         );
         Ok(())
@@ -95,7 +142,14 @@ impl SessionStore for MemoryStore {
     }
 
     fn delete_session(&self, id: &str) -> Result<bool, StoreError> {
-        Ok(self.lock().remove(id).is_some())
+        let mut map = self.lock();
+        if !map.contains_key(id) {
+            return Ok(false);
+        }
+        self.writable(&mut map, id)?;
+        map.remove(id);
+        self.fences().remove(id);
+        Ok(true)
     }
 
     fn touch(&self, id: &str, at_ms: i64) -> Result<(), StoreError> {
@@ -114,7 +168,7 @@ impl SessionStore for MemoryStore {
             meta_json: blob.meta_json.clone(),
             packed,
         };
-        get_mut(&mut self.lock(), id)?
+        self.writable(&mut self.lock(), id)?
             .blobs
             .insert(key.to_owned(), stored);
         Ok(())
@@ -133,13 +187,17 @@ impl SessionStore for MemoryStore {
     }
 
     fn delete_blob(&self, id: &str, key: &str) -> Result<bool, StoreError> {
-        Ok(get_mut(&mut self.lock(), id)?.blobs.remove(key).is_some())
+        Ok(self
+            .writable(&mut self.lock(), id)?
+            .blobs
+            .remove(key)
+            .is_some())
     }
 
     fn append(&self, id: &str, expected_len: u64, records: &[String]) -> Result<u64, StoreError> {
         check_records(&self.opts, records)?;
         let mut map = self.lock();
-        let log = &mut get_mut(&mut map, id)?.log;
+        let log = &mut self.writable(&mut map, id)?.log;
         let actual = log.len() as u64;
         if actual != expected_len {
             return Err(StoreError::Conflict {
@@ -198,5 +256,84 @@ impl SessionStore for MemoryStore {
             sessions: map.len() as u64,
             stored_bytes,
         })
+    }
+
+    fn claim(&self, id: &str, replica: &Replica, ttl_ms: u64) -> Result<Claim, StoreError> {
+        let now = Instant::now();
+        let mut map = self.lock();
+        let s = get_mut(&mut map, id)?;
+        if let Some((holder, left)) = live_holder(s, now)
+            && holder.id != replica.id
+        {
+            return Ok(Claim::Held(Lease {
+                holder: holder.clone(),
+                token: s.token,
+                remaining_ms: left.as_millis().try_into().unwrap_or(u64::MAX),
+            }));
+        }
+        let same_holder = s.lease.as_ref().is_some_and(|(r, _)| r.id == replica.id);
+        if !same_holder {
+            s.token += 1;
+        }
+        s.lease = Some((replica.clone(), now + Duration::from_millis(ttl_ms)));
+        self.fences().insert(id.to_owned(), s.token);
+        Ok(Claim::Granted { token: s.token })
+    }
+
+    fn renew(
+        &self,
+        replica_id: &str,
+        ids: &[String],
+        ttl_ms: u64,
+    ) -> Result<Vec<String>, StoreError> {
+        let until = Instant::now() + Duration::from_millis(ttl_ms);
+        let mut map = self.lock();
+        let mut fences = self.fences();
+        let mut lost = Vec::new();
+        for id in ids {
+            let held = map.get_mut(id).and_then(|s| {
+                let token = *fences.get(id)?;
+                let (holder, _) = s.lease.as_mut()?;
+                (holder.id == replica_id && s.token == token).then_some(s)
+            });
+            match held {
+                Some(s) => {
+                    if let Some(lease) = s.lease.as_mut() {
+                        lease.1 = until;
+                    }
+                }
+                None => {
+                    fences.remove(id);
+                    lost.push(id.clone());
+                }
+            }
+        }
+        Ok(lost)
+    }
+
+    fn release(&self, id: &str, replica_id: &str) -> Result<bool, StoreError> {
+        let mut map = self.lock();
+        self.fences().remove(id);
+        let Some(s) = map.get_mut(id) else {
+            return Ok(false);
+        };
+        let now = Instant::now();
+        match s.lease.as_mut() {
+            Some((holder, until)) if holder.id == replica_id && *until > now => {
+                *until = now;
+                Ok(true)
+            }
+            _ => Ok(false),
+        }
+    }
+
+    fn lease(&self, id: &str) -> Result<Option<Lease>, StoreError> {
+        let map = self.lock();
+        let s = get(&map, id)?;
+        Ok(live_holder(s, Instant::now()).map(|(holder, left)| Lease {
+            holder: holder.clone(),
+            token: s.token,
+            remaining_ms: left.as_millis().try_into().unwrap_or(u64::MAX),
+        }))
     }
 }

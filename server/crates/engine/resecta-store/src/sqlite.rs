@@ -21,14 +21,14 @@ use rusqlite::{
 
 use crate::codec::{pack, unpack};
 use crate::{
-    Blob, LogRecord, SessionRecord, SessionStore, StoreError, StoreOptions, StoreUsage, check_name,
-    check_record, check_records, check_session,
+    Blob, Claim, Lease, LogRecord, Replica, SessionRecord, SessionStore, StoreError, StoreOptions,
+    StoreUsage, check_name, check_record, check_records, check_session,
 };
 
 /// Database file name inside the data directory.
 pub const DB_FILE: &str = "resecta.sqlite3";
-/// Schema version written to `PRAGMA user_version`.
-pub const SCHEMA_VERSION: i64 = 1;
+/// Schema version written to `PRAGMA user_version`: 1 sessions, blobs and the log; 2 leases.
+pub const SCHEMA_VERSION: i64 = 2;
 /// `PRAGMA application_id` of a resecta store ("RSST").
 const APPLICATION_ID: i64 = 0x5253_5354;
 /// SQLite's default limit on one value (SQLITE_MAX_LENGTH).
@@ -60,6 +60,18 @@ CREATE TABLE log (
 ) WITHOUT ROWID;
 ";
 
+/// Migrations from each version to the next: `MIGRATIONS[v - 1]` takes version v to v + 1.
+const MIGRATIONS: [&str; 1] = ["
+CREATE TABLE leases (
+    session_id TEXT PRIMARY KEY NOT NULL REFERENCES sessions (id) ON DELETE CASCADE,
+    holder_id TEXT NOT NULL,
+    holder_grpc TEXT NOT NULL,
+    holder_http TEXT NOT NULL,
+    token INTEGER NOT NULL,
+    expires_ms INTEGER NOT NULL
+);
+"];
+
 /// Most appends one group commit takes.
 const MAX_BATCH: usize = 256;
 
@@ -77,11 +89,15 @@ pub struct SqliteStore {
     queue_done: Condvar,
     commits: AtomicU64,
     appends: AtomicU64,
+    /// Lease tokens this handle was granted, by session.
+    fences: Mutex<HashMap<String, u64>>,
 }
 
 /// One append waiting for a group commit.
 struct PendingAppend {
     ticket: u64,
+    /// The lease token this handle holds on the session, if any.
+    fence: Option<u64>,
     id: String,
     expected_len: u64,
     records: Vec<String>,
@@ -189,6 +205,9 @@ fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
             });
         }
         tx.execute_batch(SCHEMA).map_err(db)?;
+        for m in MIGRATIONS {
+            tx.execute_batch(m).map_err(db)?;
+        }
         tx.pragma_update(None, "application_id", APPLICATION_ID)
             .map_err(db)?;
         tx.pragma_update(None, "user_version", SCHEMA_VERSION)
@@ -209,9 +228,12 @@ fn migrate(conn: &mut Connection) -> Result<(), StoreError> {
             detail: format!("schema version {version}"),
         });
     } else {
-        // A real write (the same version again), so that a store on a read-only file system
-        // or file is refused here rather than at the first acknowledged edit.
-        tx.pragma_update(None, "user_version", version)
+        for m in &MIGRATIONS[usize::try_from(version - 1).unwrap_or(0)..] {
+            tx.execute_batch(m).map_err(writable)?;
+        }
+        // A real write (the version, migrated or not), so that a store on a read-only file
+        // system or file is refused here rather than at the first acknowledged edit.
+        tx.pragma_update(None, "user_version", SCHEMA_VERSION)
             .map_err(writable)?;
     }
     tx.commit().map_err(writable)
@@ -241,7 +263,8 @@ impl SqliteStore {
             | StoreError::Conflict { .. }
             | StoreError::TooLarge { .. }
             | StoreError::Invalid { .. }
-            | StoreError::SchemaTooNew { .. }) => e,
+            | StoreError::SchemaTooNew { .. }
+            | StoreError::Fenced { .. }) => e,
         })
     }
 
@@ -286,6 +309,7 @@ impl SqliteStore {
             queue_done: Condvar::new(),
             commits: AtomicU64::new(0),
             appends: AtomicU64::new(0),
+            fences: Mutex::default(),
         })
     }
 
@@ -379,6 +403,7 @@ fn append_in_savepoint(tx: &mut Transaction<'_>, a: &PendingAppend) -> Result<u6
     if !session_exists(&sp, &a.id)? {
         return Err(not_found(&a.id));
     }
+    check_fence(&sp, &a.id, a.fence)?;
     let actual = log_len(&sp, &a.id)?;
     if actual != a.expected_len {
         return Err(StoreError::Conflict {
@@ -400,7 +425,48 @@ fn append_in_savepoint(tx: &mut Transaction<'_>, a: &PendingAppend) -> Result<u6
     Ok(new_len)
 }
 
+/// `Fenced` if `fence` (this handle's token) is no longer the session's lease token.
+fn check_fence(conn: &Connection, id: &str, fence: Option<u64>) -> Result<(), StoreError> {
+    let Some(fence) = fence else {
+        return Ok(());
+    };
+    let token: Option<i64> = conn
+        .prepare_cached("SELECT token FROM leases WHERE session_id = ?1")
+        .and_then(|mut st| st.query_row([id], |r| r.get(0)).optional())
+        .map_err(db)?;
+    if token.and_then(|t| u64::try_from(t).ok()) == Some(fence) {
+        Ok(())
+    } else {
+        Err(StoreError::Fenced { id: id.to_owned() })
+    }
+}
+
+/// Milliseconds since the Unix epoch: the lease clock of a store on one machine.
+fn now_ms() -> i64 {
+    std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_millis()).unwrap_or(i64::MAX))
+}
+
+fn ttl(ttl_ms: u64) -> i64 {
+    i64::try_from(ttl_ms)
+        .unwrap_or(i64::MAX / 4)
+        .min(i64::MAX / 4)
+}
+
 impl SqliteStore {
+    fn fence(&self, id: &str) -> Option<u64> {
+        self.fences
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get(id)
+            .copied()
+    }
+
+    fn fences(&self) -> MutexGuard<'_, HashMap<String, u64>> {
+        self.fences.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
     /// The database file.
     pub fn path(&self) -> &Path {
         &self.path
@@ -467,12 +533,18 @@ impl SessionStore for SqliteStore {
     }
 
     fn delete_session(&self, id: &str) -> Result<bool, StoreError> {
-        let conn = lock(&self.writer);
-        let n = conn
-            .prepare_cached("DELETE FROM sessions WHERE id = ?1")
+        let mut conn = lock(&self.writer);
+        let tx = conn.transaction().map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Ok(false);
+        }
+        check_fence(&tx, id, self.fence(id))?;
+        tx.prepare_cached("DELETE FROM sessions WHERE id = ?1")
             .and_then(|mut st| st.execute([id]))
             .map_err(db)?;
-        Ok(n > 0)
+        tx.commit().map_err(db)?;
+        self.fences().remove(id);
+        Ok(true)
     }
 
     fn touch(&self, id: &str, at_ms: i64) -> Result<(), StoreError> {
@@ -504,8 +576,10 @@ impl SessionStore for SqliteStore {
             });
         }
         let raw_len = to_i64("blob length", packed.raw_len)?;
-        let conn = lock(&self.writer);
-        let n = conn
+        let mut conn = lock(&self.writer);
+        let tx = conn.transaction().map_err(db)?;
+        check_fence(&tx, id, self.fence(id))?;
+        let n = tx
             .prepare_cached(
                 "INSERT INTO blobs (session_id, key, meta_json, raw_len, data)
                  SELECT id, ?2, ?3, ?4, ?5 FROM sessions WHERE id = ?1
@@ -517,7 +591,7 @@ impl SessionStore for SqliteStore {
         if n == 0 {
             return Err(not_found(id));
         }
-        Ok(())
+        tx.commit().map_err(db)
     }
 
     fn blob(&self, id: &str, key: &str) -> Result<Option<Blob>, StoreError> {
@@ -550,6 +624,7 @@ impl SessionStore for SqliteStore {
         if !session_exists(&tx, id)? {
             return Err(not_found(id));
         }
+        check_fence(&tx, id, self.fence(id))?;
         let n = tx
             .prepare_cached("DELETE FROM blobs WHERE session_id = ?1 AND key = ?2")
             .and_then(|mut st| st.execute([id, key]))
@@ -562,6 +637,7 @@ impl SessionStore for SqliteStore {
         check_records(&self.opts, records)?;
         let append = PendingAppend {
             ticket: 0,
+            fence: self.fence(id),
             id: id.to_owned(),
             expected_len,
             records: records.to_vec(),
@@ -636,6 +712,139 @@ impl SessionStore for SqliteStore {
             stored_bytes: to_u64("stored bytes", blobs)? + to_u64("stored bytes", log)?,
         })
     }
+
+    fn claim(&self, id: &str, replica: &Replica, ttl_ms: u64) -> Result<Claim, StoreError> {
+        let mut conn = lock(&self.writer);
+        let tx = conn
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Err(not_found(id));
+        }
+        let now = now_ms();
+        let row = lease_row(&tx, id)?;
+        let token = match &row {
+            Some((holder, token, expires)) if *expires > now && holder.id != replica.id => {
+                return Ok(Claim::Held(Lease {
+                    holder: holder.clone(),
+                    token: *token,
+                    remaining_ms: to_u64("lease time", expires - now)?,
+                }));
+            }
+            Some((holder, token, _)) if holder.id == replica.id => *token,
+            Some((_, token, _)) => token + 1,
+            None => 1,
+        };
+        let token_i64 = to_i64("lease token", token)?;
+        tx.prepare_cached(
+            "INSERT INTO leases (session_id, holder_id, holder_grpc, holder_http, token, expires_ms)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6) ON CONFLICT (session_id) DO UPDATE SET
+               holder_id = excluded.holder_id, holder_grpc = excluded.holder_grpc,
+               holder_http = excluded.holder_http, token = excluded.token,
+               expires_ms = excluded.expires_ms",
+        )
+        .and_then(|mut st| {
+            st.execute(params![
+                id,
+                replica.id,
+                replica.grpc,
+                replica.http,
+                token_i64,
+                now.saturating_add(ttl(ttl_ms))
+            ])
+        })
+        .map_err(db)?;
+        tx.commit().map_err(db)?;
+        self.fences().insert(id.to_owned(), token);
+        Ok(Claim::Granted { token })
+    }
+
+    fn renew(
+        &self,
+        replica_id: &str,
+        ids: &[String],
+        ttl_ms: u64,
+    ) -> Result<Vec<String>, StoreError> {
+        let until = now_ms().saturating_add(ttl(ttl_ms));
+        let mut conn = lock(&self.writer);
+        let tx = conn.transaction().map_err(db)?;
+        let mut lost = Vec::new();
+        let mut fences = self.fences();
+        for id in ids {
+            let renewed = match fences.get(id) {
+                Some(&token) => {
+                    let token = to_i64("lease token", token)?;
+                    tx.prepare_cached(
+                        "UPDATE leases SET expires_ms = ?4
+                         WHERE session_id = ?1 AND holder_id = ?2 AND token = ?3",
+                    )
+                    .and_then(|mut st| st.execute(params![id, replica_id, token, until]))
+                    .map_err(db)?
+                }
+                None => 0,
+            };
+            if renewed == 0 {
+                fences.remove(id);
+                lost.push(id.clone());
+            }
+        }
+        tx.commit().map_err(db)?;
+        Ok(lost)
+    }
+
+    fn release(&self, id: &str, replica_id: &str) -> Result<bool, StoreError> {
+        let now = now_ms();
+        let n = lock(&self.writer)
+            .prepare_cached(
+                "UPDATE leases SET expires_ms = ?3
+                 WHERE session_id = ?1 AND holder_id = ?2 AND expires_ms > ?3",
+            )
+            .and_then(|mut st| st.execute(params![id, replica_id, now]))
+            .map_err(db)?;
+        self.fences().remove(id);
+        Ok(n > 0)
+    }
+
+    fn lease(&self, id: &str) -> Result<Option<Lease>, StoreError> {
+        let mut conn = lock(&self.reader);
+        let tx = conn.transaction().map_err(db)?;
+        if !session_exists(&tx, id)? {
+            return Err(not_found(id));
+        }
+        let now = now_ms();
+        match lease_row(&tx, id)? {
+            Some((holder, token, expires)) if expires > now => Ok(Some(Lease {
+                holder,
+                token,
+                remaining_ms: to_u64("lease time", expires - now)?,
+            })),
+            _ => Ok(None),
+        }
+    }
+}
+
+/// A session's lease row: holder, token, expiry (ms since the epoch).
+fn lease_row(conn: &Connection, id: &str) -> Result<Option<(Replica, u64, i64)>, StoreError> {
+    let row: Option<(String, String, String, i64, i64)> = conn
+        .prepare_cached(
+            "SELECT holder_id, holder_grpc, holder_http, token, expires_ms FROM leases
+             WHERE session_id = ?1",
+        )
+        .and_then(|mut st| {
+            st.query_row([id], |r| {
+                Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?))
+            })
+            .optional()
+        })
+        .map_err(db)?;
+    row.map(|(id, grpc, http, token, expires)| {
+        Ok((
+            Replica { id, grpc, http },
+            to_u64("lease token", token)?,
+            expires,
+        ))
+    })
+    .transpose()
 }
 
 #[cfg(test)]
