@@ -5,8 +5,10 @@
 //! only after [`SessionStore::append`] returned, which is durable (fsynced) by contract, so a
 //! crash never loses an acknowledged edit.
 //!
-//! The API is synchronous: the server calls it from blocking threads. Backends:
-//! [`SqliteStore`] (one embedded database file in a data directory, the default) and
+//! The API is synchronous: the server calls it from blocking threads (never from inside an async
+//! context: the PostgreSQL client runs its own small runtime). Backends: [`SqliteStore`] (one
+//! embedded database file in a data directory, the default), [`PostgresStore`] (a PostgreSQL
+//! database that several replicas share, over a connection pool, optionally TLS) and
 //! [`MemoryStore`] (same semantics, nothing on disk: tests and ephemeral servers).
 //!
 //! **Leases.** Several server replicas may share one store; exactly one runs a session's
@@ -23,8 +25,10 @@
 
 mod codec;
 mod memory;
+mod postgres;
 mod sqlite;
 
+pub use self::postgres::{DEFAULT_POOL_SIZE, PostgresStore};
 pub use memory::MemoryStore;
 pub use sqlite::{DB_FILE, GroupCommitStats, SCHEMA_VERSION, SqliteStore};
 

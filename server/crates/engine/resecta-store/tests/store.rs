@@ -1,6 +1,13 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Behaviour of every `SessionStore` backend (one generic function per behaviour, instantiated for
-//! SQLite and memory), then SQLite's durability: reopen, corruption, schema checks, kill -9.
+//! SQLite, memory and PostgreSQL), leases on two handles of one store, then SQLite's durability
+//! (reopen, corruption, schema checks, kill -9) and PostgreSQL's (reopen, schema, passwords, TLS).
+//!
+//! The PostgreSQL tests need `RESECTA_TEST_PG`, the URL of a server where the user may
+//! `CREATE DATABASE` (`scripts/pg_cluster.sh start DIR` makes one); each test creates a database
+//! of its own and drops it. Without the variable they print `SKIPPED: RESECTA_TEST_PG not set`
+//! and pass, except when `CI` is set: then they fail. The TLS tests also need
+//! `RESECTA_TEST_PG_CA`, the CA of the server's certificate (pg_cluster.sh's, for "localhost").
 
 use std::collections::BTreeSet;
 use std::io::{BufRead, BufReader, Write};
@@ -8,8 +15,8 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 
 use resecta_store::{
-    Blob, DB_FILE, LogRecord, MemoryStore, SessionRecord, SessionStore, SqliteStore, StoreError,
-    StoreOptions, StoreUsage,
+    Blob, Claim, DB_FILE, Lease, LogRecord, MemoryStore, PostgresStore, Replica, SCHEMA_VERSION,
+    SessionRecord, SessionStore, SqliteStore, StoreError, StoreOptions, StoreUsage,
 };
 use tempfile::TempDir;
 
@@ -347,6 +354,169 @@ fn object_safe(s: &dyn SessionStore) {
     assert!(format!("{s:?}").contains("Store"));
 }
 
+// ---- leases: two handles on one store, as two replicas ----------------------------------------
+
+fn replica(name: &str) -> Replica {
+    Replica {
+        id: name.to_owned(),
+        grpc: format!("{name}.internal:50051"),
+        http: format!("https://{name}.internal:8443"),
+    }
+}
+
+fn held_by(c: Claim) -> Lease {
+    match c {
+        Claim::Held(lease) => lease,
+        Claim::Granted { token } => panic!("expected Held, got Granted {{ token: {token} }}"),
+    }
+}
+
+fn lease_grant_and_held<S: SessionStore>(a: &S, b: &S) {
+    let (ra, rb) = (replica("a"), replica("b"));
+    a.create_session(&rec("L", 1)).unwrap();
+    assert_eq!(a.lease("L").unwrap(), None);
+    assert_eq!(
+        a.claim("L", &ra, 60_000).unwrap(),
+        Claim::Granted { token: 1 }
+    );
+    for s in [a, b] {
+        let lease = s.lease("L").unwrap().unwrap();
+        assert_eq!((&lease.holder, lease.token), (&ra, 1));
+        assert!((50_000..=60_000).contains(&lease.remaining_ms), "{lease:?}");
+    }
+    let held = held_by(b.claim("L", &rb, 60_000).unwrap());
+    assert_eq!((&held.holder, held.token), (&ra, 1));
+    assert!((50_000..=60_000).contains(&held.remaining_ms), "{held:?}");
+    // The holder's claim renews with the same token; so does another handle of the same replica.
+    for s in [a, b] {
+        assert_eq!(
+            s.claim("L", &ra, 60_000).unwrap(),
+            Claim::Granted { token: 1 }
+        );
+    }
+    // Unknown sessions.
+    let ghost = a.claim("ghost", &ra, 60_000).unwrap_err();
+    assert!(
+        matches!(&ghost, StoreError::NotFound { id } if id == "ghost"),
+        "{ghost}"
+    );
+    assert!(matches!(a.lease("ghost"), Err(StoreError::NotFound { .. })));
+    assert!(!a.release("ghost", "a").unwrap());
+    assert_eq!(a.renew("a", &strings(["ghost"]), 1000).unwrap(), ["ghost"]);
+}
+
+/// The paused old owner: its lease expires, another replica takes the session over, and the old
+/// owner's late writes are refused with `Fenced`, leaving the log as the new owner wrote it.
+fn lease_expiry_fences_the_old_holder<S: SessionStore>(a: &S, b: &S) {
+    let (ra, rb) = (replica("a"), replica("b"));
+    a.create_session(&rec("L", 1)).unwrap();
+    assert_eq!(a.claim("L", &ra, 150).unwrap(), Claim::Granted { token: 1 });
+    assert_eq!(a.append("L", 0, &strings(["a1"])).unwrap(), 1);
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(b.lease("L").unwrap(), None, "expired");
+    assert_eq!(
+        b.claim("L", &rb, 60_000).unwrap(),
+        Claim::Granted { token: 2 }
+    );
+    assert_eq!(b.append("L", 1, &strings(["b2"])).unwrap(), 2);
+    let blob = Blob {
+        meta_json: "{}".into(),
+        data: vec![1; 100],
+    };
+    let fenced = |r: Result<(), StoreError>| match r {
+        Err(StoreError::Fenced { id }) => assert_eq!(id, "L"),
+        other => panic!("expected Fenced, got {other:?}"),
+    };
+    fenced(a.append("L", 1, &strings(["late"])).map(drop));
+    fenced(a.append("L", 2, &strings(["late"])).map(drop));
+    fenced(a.append("L", 2, &[]).map(drop));
+    fenced(a.put_blob("L", "labelmap", &blob));
+    fenced(a.delete_blob("L", "labelmap").map(drop));
+    fenced(a.delete_session("L").map(drop));
+    let log: Vec<String> = b.log("L", 0).unwrap().into_iter().map(|r| r.json).collect();
+    assert_eq!(log, ["a1", "b2"]);
+    assert_eq!(b.blob("L", "labelmap").unwrap(), None);
+    assert!(b.session("L").unwrap().is_some());
+    let held = held_by(a.claim("L", &ra, 60_000).unwrap());
+    assert_eq!((&held.holder, held.token), (&rb, 2));
+    // The old holder learns it lost the lease; the new one renews.
+    assert_eq!(a.renew("a", &strings(["L"]), 60_000).unwrap(), ["L"]);
+    assert!(b.renew("b", &strings(["L"]), 60_000).unwrap().is_empty());
+    b.put_blob("L", "labelmap", &blob).unwrap();
+    assert_eq!(b.append("L", 2, &strings(["b3"])).unwrap(), 3);
+}
+
+fn lease_renew<S: SessionStore>(a: &S, b: &S) {
+    let (ra, rb) = (replica("a"), replica("b"));
+    for id in ["L", "M", "N"] {
+        a.create_session(&rec(id, 1)).unwrap();
+    }
+    assert_eq!(a.claim("L", &ra, 150).unwrap(), Claim::Granted { token: 1 });
+    assert_eq!(a.claim("M", &ra, 150).unwrap(), Claim::Granted { token: 1 });
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert_eq!(a.lease("L").unwrap(), None);
+    // Expired but not taken over: renewal keeps them; N was never claimed by this handle.
+    assert_eq!(
+        a.renew("a", &strings(["L", "M", "N"]), 60_000).unwrap(),
+        ["N"]
+    );
+    for id in ["L", "M"] {
+        let held = held_by(b.claim(id, &rb, 60_000).unwrap());
+        assert_eq!((&held.holder, held.token), (&ra, 1));
+        assert!(held.remaining_ms > 50_000, "{held:?}");
+    }
+    // The same holder claiming again after expiry keeps its token.
+    assert_eq!(a.claim("M", &ra, 150).unwrap(), Claim::Granted { token: 1 });
+    // Another replica id cannot renew a's lease, and the handle forgets it.
+    assert_eq!(a.renew("b", &strings(["L"]), 60_000).unwrap(), ["L"]);
+    assert_eq!(a.lease("L").unwrap().unwrap().holder, ra);
+}
+
+fn lease_release<S: SessionStore>(a: &S, b: &S) {
+    let (ra, rb) = (replica("a"), replica("b"));
+    a.create_session(&rec("L", 1)).unwrap();
+    assert_eq!(
+        a.claim("L", &ra, 60_000).unwrap(),
+        Claim::Granted { token: 1 }
+    );
+    held_by(b.claim("L", &rb, 60_000).unwrap());
+    assert!(!b.release("L", "b").unwrap(), "b does not hold it");
+    assert!(a.release("L", "a").unwrap());
+    assert!(!a.release("L", "a").unwrap(), "released already");
+    assert_eq!(b.lease("L").unwrap(), None);
+    // Another replica's claim succeeds at once, with a larger token.
+    assert_eq!(
+        b.claim("L", &rb, 60_000).unwrap(),
+        Claim::Granted { token: 2 }
+    );
+    let held = held_by(a.claim("L", &ra, 60_000).unwrap());
+    assert_eq!((&held.holder, held.token), (&rb, 2));
+}
+
+fn lease_delete_cascades<S: SessionStore>(a: &S, b: &S) {
+    let (ra, rb) = (replica("a"), replica("b"));
+    a.create_session(&rec("L", 1)).unwrap();
+    assert_eq!(
+        a.claim("L", &ra, 60_000).unwrap(),
+        Claim::Granted { token: 1 }
+    );
+    assert_eq!(a.append("L", 0, &strings(["x"])).unwrap(), 1);
+    assert!(a.delete_session("L").unwrap());
+    assert!(matches!(b.lease("L"), Err(StoreError::NotFound { .. })));
+    assert!(matches!(
+        b.claim("L", &rb, 60_000),
+        Err(StoreError::NotFound { .. })
+    ));
+    // A new session of the same id starts without a lease.
+    b.create_session(&rec("L", 2)).unwrap();
+    assert_eq!(a.lease("L").unwrap(), None);
+    assert_eq!(
+        b.claim("L", &rb, 60_000).unwrap(),
+        Claim::Granted { token: 1 }
+    );
+    assert_eq!(a.usage().unwrap().sessions, 1);
+}
+
 fn small_limits() -> StoreOptions {
     StoreOptions {
         max_blob_bytes: 1000,
@@ -356,79 +526,164 @@ fn small_limits() -> StoreOptions {
 }
 
 macro_rules! backend_tests {
-    ($backend:ident, $make:expr) => {
+    ($backend:ident, $make:expr, $pair:expr) => {
         mod $backend {
             use super::*;
             #[test]
             fn lifecycle() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::lifecycle(&s);
             }
             #[test]
             fn duplicate_id() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::duplicate_id(&s);
             }
             #[test]
             fn unknown_session() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::unknown_session(&s);
             }
             #[test]
             fn limits() {
-                let (s, _dir) = $make(small_limits());
+                let Some((s, _dir)) = $make(small_limits()) else {
+                    return;
+                };
                 super::limits(&s);
             }
             #[test]
             fn blobs() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::blobs(&s);
             }
             #[test]
             fn append_and_conflict() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::append_and_conflict(&s);
             }
             #[test]
             fn concurrent_appends() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::concurrent_appends(&s);
             }
             #[test]
             fn idle() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::idle(&s);
             }
             #[test]
             fn delete_cascades() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::delete_cascades(&s);
             }
             #[test]
             fn usage_counts() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::usage_counts(&s);
             }
             #[test]
             fn object_safe() {
-                let (s, _dir) = $make(StoreOptions::default());
+                let Some((s, _dir)) = $make(StoreOptions::default()) else {
+                    return;
+                };
                 super::object_safe(&s);
+            }
+            #[test]
+            fn lease_grant_and_held() {
+                let Some((a, b, _dir)) = $pair() else {
+                    return;
+                };
+                super::lease_grant_and_held(&a, &b);
+            }
+            #[test]
+            fn lease_expiry_fences_the_old_holder() {
+                let Some((a, b, _dir)) = $pair() else {
+                    return;
+                };
+                super::lease_expiry_fences_the_old_holder(&a, &b);
+            }
+            #[test]
+            fn lease_renew() {
+                let Some((a, b, _dir)) = $pair() else {
+                    return;
+                };
+                super::lease_renew(&a, &b);
+            }
+            #[test]
+            fn lease_release() {
+                let Some((a, b, _dir)) = $pair() else {
+                    return;
+                };
+                super::lease_release(&a, &b);
+            }
+            #[test]
+            fn lease_delete_cascades() {
+                let Some((a, b, _dir)) = $pair() else {
+                    return;
+                };
+                super::lease_delete_cascades(&a, &b);
             }
         }
     };
 }
 
-fn sqlite(opts: StoreOptions) -> (SqliteStore, TempDir) {
+fn sqlite(opts: StoreOptions) -> Option<(SqliteStore, TempDir)> {
     let dir = tempfile::tempdir().unwrap();
-    (SqliteStore::open(dir.path(), opts).unwrap(), dir)
+    Some((SqliteStore::open(dir.path(), opts).unwrap(), dir))
 }
 
-fn memory(opts: StoreOptions) -> (MemoryStore, ()) {
-    (MemoryStore::new(opts), ())
+/// Two stores on one directory, as two replicas sharing a disk would open it.
+fn sqlite_pair() -> Option<(SqliteStore, SqliteStore, TempDir)> {
+    let dir = tempfile::tempdir().unwrap();
+    let a = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap();
+    let b = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap();
+    Some((a, b, dir))
 }
 
-backend_tests!(on_sqlite, sqlite);
-backend_tests!(on_memory, memory);
+fn memory(opts: StoreOptions) -> Option<(MemoryStore, ())> {
+    Some((MemoryStore::new(opts), ()))
+}
+
+fn memory_pair() -> Option<(MemoryStore, MemoryStore, ())> {
+    let a = MemoryStore::new(StoreOptions::default());
+    let b = a.share();
+    Some((a, b, ()))
+}
+
+fn postgres(opts: StoreOptions) -> Option<(PostgresStore, pg::Db)> {
+    let db = pg::Db::new()?;
+    Some((PostgresStore::open(&db.url, None, opts).unwrap(), db))
+}
+
+/// Two stores (two pools) on one database, as two replicas open it.
+fn postgres_pair() -> Option<(PostgresStore, PostgresStore, pg::Db)> {
+    let db = pg::Db::new()?;
+    let a = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
+    let b = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
+    Some((a, b, db))
+}
+
+backend_tests!(on_sqlite, sqlite, sqlite_pair);
+backend_tests!(on_memory, memory, memory_pair);
+backend_tests!(on_postgres, postgres, postgres_pair);
 
 // ---- SQLite durability ------------------------------------------------------------------------
 
@@ -591,16 +846,15 @@ fn sqlite_foreign_or_newer_schema_is_refused() {
     drop(SqliteStore::open(newer.path(), StoreOptions::default()).unwrap());
     {
         let c = rusqlite::Connection::open(newer.path().join(DB_FILE)).unwrap();
-        c.pragma_update(None, "user_version", 2).unwrap();
+        c.pragma_update(None, "user_version", SCHEMA_VERSION + 1)
+            .unwrap();
     }
     let err = SqliteStore::open(newer.path(), StoreOptions::default()).unwrap_err();
     assert!(
         matches!(
             err,
-            StoreError::SchemaTooNew {
-                found: 2,
-                supported: 1
-            }
+            StoreError::SchemaTooNew { found, supported }
+                if found == SCHEMA_VERSION + 1 && supported == SCHEMA_VERSION
         ),
         "{err}"
     );
@@ -824,7 +1078,7 @@ fn sqlite_group_commit_shares_commits_and_keeps_appends_apart() {
     const OWN: usize = 10;
     const RACERS: usize = 10;
     const ROUNDS: u64 = 20;
-    let (s, dir) = sqlite(StoreOptions::default());
+    let (s, dir) = sqlite(StoreOptions::default()).unwrap();
     for i in 0..OWN {
         s.create_session(&rec(&format!("own{i}"), 1)).unwrap();
     }
@@ -901,4 +1155,451 @@ fn sqlite_group_commit_shares_commits_and_keeps_appends_apart() {
         s.append("ghost", 0, &strings(["y"])),
         Err(StoreError::NotFound { .. })
     ));
+}
+
+// ---- PostgreSQL ---------------------------------------------------------------------------------
+
+mod pg {
+    use std::sync::atomic::{AtomicU32, Ordering};
+
+    /// `RESECTA_TEST_PG`, or `None` after printing why the test is skipped (failing in CI).
+    pub fn url() -> Option<String> {
+        match std::env::var("RESECTA_TEST_PG") {
+            Ok(url) if !url.is_empty() => Some(url),
+            _ => {
+                assert!(
+                    std::env::var_os("CI").is_none(),
+                    "RESECTA_TEST_PG not set: CI must run the PostgreSQL tests \
+                     (scripts/pg_cluster.sh start DIR)"
+                );
+                eprintln!("SKIPPED: RESECTA_TEST_PG not set");
+                None
+            }
+        }
+    }
+
+    /// `url` without the parameters only PostgresStore knows (the admin connection is plain).
+    fn plain(url: &str) -> String {
+        let (base, query) = url.split_once('?').unwrap_or((url, ""));
+        let kept: Vec<&str> = query
+            .split('&')
+            .filter(|p| {
+                !p.is_empty() && !p.starts_with("sslmode=") && !p.starts_with("sslrootcert=")
+            })
+            .collect();
+        if kept.is_empty() {
+            base.to_owned()
+        } else {
+            format!("{base}?{}", kept.join("&"))
+        }
+    }
+
+    /// `url` naming database `db` instead of its own.
+    pub fn with_db(url: &str, db: &str) -> String {
+        let (base, query) = url
+            .split_once('?')
+            .map_or((url, None), |(b, q)| (b, Some(q)));
+        let scheme_end = base.find("://").map_or(0, |i| i + 3);
+        let authority_end = base[scheme_end..]
+            .find('/')
+            .map_or(base.len(), |i| scheme_end + i);
+        let mut out = format!("{}/{db}", &base[..authority_end]);
+        if let Some(q) = query {
+            out = format!("{out}?{q}");
+        }
+        out
+    }
+
+    /// `url` with `host` (and the same port) instead of its host.
+    pub fn with_host(url: &str, host: &str) -> String {
+        let scheme_end = url.find("://").unwrap() + 3;
+        let at = url[scheme_end..]
+            .find('@')
+            .map_or(scheme_end, |i| scheme_end + i + 1);
+        let colon = url[at..].find(':').map(|i| at + i).unwrap();
+        format!("{}{host}{}", &url[..at], &url[colon..])
+    }
+
+    pub fn admin(url: &str) -> postgres::Client {
+        postgres::Client::connect(&plain(url), postgres::NoTls).unwrap()
+    }
+
+    /// A fresh database, dropped (with any connection left to it) at the end of the test.
+    pub struct Db {
+        server: String,
+        pub name: String,
+        pub url: String,
+    }
+
+    impl Db {
+        pub fn new() -> Option<Self> {
+            Self::owned_by(None)
+        }
+
+        pub fn owned_by(owner: Option<&str>) -> Option<Self> {
+            static N: AtomicU32 = AtomicU32::new(0);
+            let server = url()?;
+            let nanos = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap()
+                .subsec_nanos();
+            let name = format!(
+                "resecta_t_{}_{}_{nanos}",
+                std::process::id(),
+                N.fetch_add(1, Ordering::Relaxed)
+            );
+            let owner = owner.map_or(String::new(), |o| format!(" OWNER {o}"));
+            admin(&server)
+                .batch_execute(&format!(
+                    "CREATE DATABASE {name} ENCODING 'UTF8' TEMPLATE template0{owner}"
+                ))
+                .unwrap();
+            let url = with_db(&server, &name);
+            Some(Self { server, name, url })
+        }
+
+        pub fn admin(&self) -> postgres::Client {
+            admin(&self.url)
+        }
+    }
+
+    impl Drop for Db {
+        fn drop(&mut self) {
+            let dropped = postgres::Client::connect(&plain(&self.server), postgres::NoTls)
+                .and_then(|mut c| {
+                    c.batch_execute(&format!(
+                        "DROP DATABASE IF EXISTS {} WITH (FORCE)",
+                        self.name
+                    ))
+                });
+            if let Err(e) = dropped {
+                eprintln!("could not drop test database {}: {e}", self.name);
+            }
+        }
+    }
+}
+
+#[test]
+fn pg_reopen_restores_everything() {
+    let Some(db) = pg::Db::new() else { return };
+    let keys = ["labelmap", "models"];
+    let before = {
+        let s = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
+        for (i, id) in ["s1", "s2", "s3"].iter().enumerate() {
+            let mut r = rec(id, 1000 - i as i64);
+            r.display_name = format!("Ünïcode näme {i} 🫀");
+            s.create_session(&r).unwrap();
+            s.touch(id, 5000 + i as i64).unwrap();
+            for batch in 0..=i {
+                let len = s.log_len(id).unwrap();
+                let recs: Vec<String> = (0..3)
+                    .map(|k| format!(r#"{{"op":"move","batch":{batch},"k":{k}}}"#))
+                    .collect();
+                s.append(id, len, &recs).unwrap();
+            }
+        }
+        let map = Blob {
+            meta_json: r#"{"dims":[64,64,32]}"#.into(),
+            data: label_map(64, 64, 32),
+        };
+        s.put_blob("s1", "labelmap", &map).unwrap();
+        s.claim("s2", &replica("a"), 60_000).unwrap();
+        s.delete_session("s3").unwrap();
+        let snap = snapshot(&s, &keys);
+        assert_eq!(snap.len(), 2);
+        (snap, s.usage().unwrap())
+    };
+    let s = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
+    assert_eq!((snapshot(&s, &keys), s.usage().unwrap()), before);
+    assert_eq!(s.sessions().unwrap()[0].last_access_ms, 5001);
+    assert_eq!(s.log_len("s2").unwrap(), 6);
+    assert_eq!(s.append("s2", 6, &strings(["{}"])).unwrap(), 7);
+    assert_eq!(s.lease("s2").unwrap().unwrap().holder, replica("a"));
+}
+
+/// Two pools on one database race appends to one session: every position is won once.
+#[test]
+fn pg_two_stores_race_appends() {
+    let Some((a, b, _db)) = postgres_pair() else {
+        return;
+    };
+    a.create_session(&rec("race", 1)).unwrap();
+    const EACH: u64 = 30;
+    let won: Vec<Vec<u64>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = [&a, &b, &a, &b]
+            .into_iter()
+            .enumerate()
+            .map(|(t, s)| {
+                scope.spawn(move || {
+                    let mut positions = Vec::new();
+                    while (positions.len() as u64) < EACH {
+                        let len = s.log_len("race").unwrap();
+                        match s.append("race", len, &[format!("t{t}")]) {
+                            Ok(n) => positions.push(n),
+                            Err(StoreError::Conflict { .. }) => {}
+                            Err(e) => panic!("{e}"),
+                        }
+                    }
+                    positions
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let mut all: Vec<u64> = won.concat();
+    all.sort_unstable();
+    assert_eq!(all, (1..=4 * EACH).collect::<Vec<_>>());
+    assert_eq!(b.log("race", 0).unwrap().len() as u64, 4 * EACH);
+}
+
+#[test]
+fn pg_newer_or_foreign_schema_is_refused() {
+    let Some(db) = pg::Db::new() else { return };
+    drop(PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap());
+    // Opening again (migrating nothing) works; a newer version is refused.
+    drop(PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap());
+    db.admin()
+        .batch_execute("UPDATE resecta_schema SET version = 99")
+        .unwrap();
+    let err = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            StoreError::SchemaTooNew { found: 99, supported } if supported == PostgresStore::SCHEMA_VERSION
+        ),
+        "{err}"
+    );
+    assert!(err.to_string().contains("newer"), "{err}");
+
+    let Some(foreign) = pg::Db::new() else { return };
+    foreign
+        .admin()
+        .batch_execute("CREATE TABLE log (t text)")
+        .unwrap();
+    let err = PostgresStore::open(&foreign.url, None, StoreOptions::default()).unwrap_err();
+    assert!(
+        matches!(&err, StoreError::Corrupt { detail } if detail.contains("not a resecta store")),
+        "{err}"
+    );
+}
+
+/// Replicas opening a new database at once: one creates the schema, the others find it.
+#[test]
+fn pg_concurrent_opens_migrate_once() {
+    let Some(db) = pg::Db::new() else { return };
+    let stores: Vec<PostgresStore> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..4)
+            .map(|_| scope.spawn(|| PostgresStore::open(&db.url, None, StoreOptions::default())))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().unwrap().unwrap())
+            .collect()
+    });
+    stores[0].create_session(&rec("x", 1)).unwrap();
+    assert_eq!(stores[3].sessions().unwrap().len(), 1);
+    let versions: i64 = db
+        .admin()
+        .query_one("SELECT count(*) FROM resecta_schema", &[])
+        .unwrap()
+        .get(0);
+    assert_eq!(versions, 1);
+}
+
+#[test]
+fn pg_text_with_nul_is_invalid() {
+    let Some((s, _db)) = postgres(StoreOptions::default()) else {
+        return;
+    };
+    let mut r = rec("n", 1);
+    r.display_name = "a\0b".into();
+    assert!(matches!(
+        s.create_session(&r),
+        Err(StoreError::Invalid { .. })
+    ));
+    s.create_session(&rec("n", 1)).unwrap();
+    let err = s.append("n", 0, &strings(["x\0y"])).unwrap_err();
+    assert!(
+        matches!(
+            err,
+            StoreError::Invalid {
+                what: "log record",
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert_eq!(s.log_len("n").unwrap(), 0);
+}
+
+const PW_ROLE: &str = "resecta_pw";
+const PW_RIGHT: &str = "correct-horse-battery";
+
+#[test]
+fn pg_wrong_password_is_named_not_echoed() {
+    let Some(server) = pg::url() else { return };
+    pg::admin(&server)
+        .batch_execute(&format!(
+            "DO $$ BEGIN
+               IF NOT EXISTS (SELECT FROM pg_roles WHERE rolname = '{PW_ROLE}') THEN
+                 CREATE ROLE {PW_ROLE} LOGIN;
+               END IF;
+             END $$;
+             ALTER ROLE {PW_ROLE} PASSWORD '{PW_RIGHT}'"
+        ))
+        .unwrap();
+    let Some(db) = pg::Db::owned_by(Some(PW_ROLE)) else {
+        return;
+    };
+    let user_url = db.url.replacen("://", &format!("://{PW_ROLE}@"), 1);
+    let user_url = match user_url.split_once('@') {
+        // Drop the server URL's own user, if it named one.
+        Some((head, rest)) if rest.contains('@') => {
+            format!("{head}@{}", rest.split_once('@').unwrap().1)
+        }
+        _ => user_url,
+    };
+    let wrong = "Wr0ng-S3cret-Pa55word";
+    // Given separately, and in the URL.
+    let in_url = user_url.replacen(&format!("{PW_ROLE}@"), &format!("{PW_ROLE}:{wrong}@"), 1);
+    for (url, pw) in [(&user_url, Some(wrong.to_owned())), (&in_url, None)] {
+        match PostgresStore::open(url, pw, StoreOptions::default()) {
+            Ok(_) => {
+                assert!(
+                    std::env::var_os("CI").is_none(),
+                    "the server took a wrong password for {PW_ROLE}: its pg_hba.conf must ask \
+                     {PW_ROLE} for one (scripts/pg_cluster.sh does)"
+                );
+                eprintln!("SKIPPED: the server does not ask {PW_ROLE} for a password");
+                return;
+            }
+            Err(err) => {
+                let (msg, dbg) = (err.to_string(), format!("{err:?}"));
+                assert!(msg.contains("password authentication failed"), "{msg}");
+                assert!(msg.contains(&db.name), "names the database: {msg}");
+                assert!(
+                    !msg.contains(wrong) && !dbg.contains(wrong),
+                    "{msg} / {dbg}"
+                );
+            }
+        }
+    }
+    // The right one, given separately, overrides a wrong one in the URL.
+    let s = PostgresStore::open(&in_url, Some(PW_RIGHT.into()), StoreOptions::default()).unwrap();
+    s.create_session(&rec("ok", 1)).unwrap();
+    let dbg = format!("{s:?}");
+    assert!(!dbg.contains(PW_RIGHT) && !dbg.contains(wrong), "{dbg}");
+    assert!(!s.target().contains(PW_RIGHT) && !s.target().contains(wrong));
+}
+
+/// A port nothing listens on.
+fn closed_port() -> u16 {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().port()
+}
+
+fn fixture_ca() -> String {
+    format!("{}/tests/data/other-ca.pem", env!("CARGO_MANIFEST_DIR"))
+}
+
+/// Needs no server: what an unreachable database and bad TLS settings say.
+#[test]
+fn pg_unreachable_or_misconfigured_says_why_without_the_password() {
+    let port = closed_port();
+    let secret = "S3cret-In-The-Url";
+    let url = format!(
+        "postgres://alice:{secret}@127.0.0.1:{port}/plans?sslmode=verify-full&sslrootcert={}",
+        fixture_ca()
+    );
+    let err = PostgresStore::open(&url, None, StoreOptions::default()).unwrap_err();
+    let msg = err.to_string();
+    assert!(matches!(err, StoreError::Backend(_)), "{err:?}");
+    assert!(
+        msg.contains(&format!(
+            "postgres://alice@127.0.0.1:{port}/plans (sslmode=verify-full)"
+        )),
+        "{msg}"
+    );
+    assert!(msg.contains("error connecting to server"), "{msg}");
+    assert!(
+        !msg.contains(secret) && !format!("{err:?}").contains(secret),
+        "{msg}"
+    );
+    let err = PostgresStore::open(&url, Some("Other-Secret-1".into()), StoreOptions::default())
+        .unwrap_err();
+    assert!(!format!("{err} {err:?}").contains("Other-Secret-1"));
+
+    let bad = |url: &str, want: &str| {
+        let err = PostgresStore::open(url, None, StoreOptions::default()).unwrap_err();
+        assert!(matches!(err, StoreError::Invalid { .. }), "{err:?}");
+        assert!(err.to_string().contains(want), "{err}");
+        assert!(!err.to_string().contains(secret), "{err}");
+    };
+    let base = format!("postgres://alice:{secret}@127.0.0.1:{port}/plans");
+    bad(&format!("{base}?sslmode=verify-full"), "needs sslrootcert");
+    bad(&format!("{base}?sslmode=verify-ca"), "needs sslrootcert");
+    bad(&format!("{base}?sslmode=sometimes"), "sslmode");
+    bad(
+        &format!("{base}?sslmode=require&sslrootcert=/nonexistent.pem"),
+        "/nonexistent.pem",
+    );
+    bad(&format!("{base}?nonsense=1"), "nonsense");
+    bad("host=localhost user=alice", "postgres://");
+}
+
+/// TLS against pg_cluster.sh's server, whose certificate (by RESECTA_TEST_PG_CA) names
+/// "localhost" only.
+#[test]
+fn pg_tls_modes() {
+    let Some(db) = pg::Db::new() else { return };
+    let Some(ca) = std::env::var("RESECTA_TEST_PG_CA")
+        .ok()
+        .filter(|c| !c.is_empty())
+    else {
+        eprintln!("SKIPPED: RESECTA_TEST_PG_CA not set");
+        return;
+    };
+    let url = |host: &str, params: &str| {
+        let u = pg::with_host(&db.url, host);
+        let sep = if u.contains('?') { '&' } else { '?' };
+        format!("{u}{sep}{params}")
+    };
+    let open = |url: String| PostgresStore::open(&url, None, StoreOptions::default());
+    let encrypted = |url: String| open(url).unwrap().encrypted().unwrap();
+    assert!(!encrypted(url("127.0.0.1", "sslmode=disable")));
+    assert!(encrypted(url("127.0.0.1", "sslmode=prefer")));
+    assert!(encrypted(url("127.0.0.1", "sslmode=require")));
+    // The chain is good; the name 127.0.0.1 is not in the certificate.
+    assert!(encrypted(url(
+        "127.0.0.1",
+        &format!("sslmode=verify-ca&sslrootcert={ca}")
+    )));
+    assert!(encrypted(url(
+        "localhost",
+        &format!("sslmode=verify-full&sslrootcert={ca}")
+    )));
+    let s = open(url(
+        "localhost",
+        &format!("sslmode=verify-full&sslrootcert={ca}"),
+    ))
+    .unwrap();
+    s.create_session(&rec("tls", 1)).unwrap();
+    assert_eq!(s.append("tls", 0, &strings(["x"])).unwrap(), 1);
+    let err = open(url(
+        "127.0.0.1",
+        &format!("sslmode=verify-full&sslrootcert={ca}"),
+    ))
+    .unwrap_err();
+    assert!(err.to_string().contains("TLS"), "{err}");
+    assert!(err.to_string().contains("not valid for name"), "{err}");
+    // Another CA: the chain does not verify, whatever the mode that checks it.
+    let other = fixture_ca();
+    for mode in ["verify-full", "verify-ca", "require"] {
+        let err = open(url(
+            "localhost",
+            &format!("sslmode={mode}&sslrootcert={other}"),
+        ))
+        .unwrap_err();
+        assert!(err.to_string().contains("UnknownIssuer"), "{mode}: {err}");
+    }
 }
