@@ -15,6 +15,8 @@ df -h . >&2 || true
 # Chromium runs the browser client's end-to-end tests (Playwright drives it, software WebGL).
 need_apt=()
 for p in mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri chromium; do dpkg -s "$p" >/dev/null 2>&1 || need_apt+=("$p"); done
+# PostgreSQL's server binaries for the PostgreSQL store's tests (scripts/pg_cluster.sh).
+ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || command -v initdb >/dev/null || need_apt+=(postgresql)
 if ((${#need_apt[@]})); then
   sudo_=""; [ "$(id -u)" = 0 ] || sudo_=sudo
   export DEBIAN_FRONTEND=noninteractive
@@ -38,6 +40,12 @@ step "format, lints, layering"
 cargo fmt --all -- --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
 .venv/bin/python scripts/check_layers.py
+
+step "throwaway PostgreSQL for the store's tests (scripts/pg_cluster.sh)"
+pg_dir=$(mktemp -d "${TMPDIR:-/tmp}/resecta-pg.XXXXXX")
+trap 'scripts/pg_cluster.sh stop "$pg_dir" || true' EXIT
+# Exports RESECTA_TEST_PG (and RESECTA_TEST_PG_CA when openssl made the cluster a certificate).
+eval "$(scripts/pg_cluster.sh start "$pg_dir")"
 
 step "rust tests (nextest)"
 export WGPU_BACKEND=vulkan
