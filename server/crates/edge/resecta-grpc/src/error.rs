@@ -14,7 +14,7 @@ use std::collections::HashSet;
 use std::sync::OnceLock;
 
 use prost::Message;
-use resecta_api::v1::ErrorInfo;
+use resecta_api::v1::{ErrorInfo, ReplicaAddress};
 use resecta_api::{ERROR_INFO_TYPE_URL, FILE_DESCRIPTOR_SET};
 use resecta_auth::AccessError;
 use resecta_face::{FaceError, WireError, bounded_message};
@@ -54,6 +54,7 @@ fn info(code: &str, field: &str) -> ErrorInfo {
         code: code.to_owned(),
         field: field.to_owned(),
         current_plan_version: None,
+        replica: None,
     }
 }
 
@@ -68,6 +69,7 @@ pub fn session_status(e: &SessionError) -> Status {
         ErrorKind::ResourceExhausted => Code::ResourceExhausted,
         ErrorKind::Cancelled => Code::Cancelled,
         ErrorKind::Internal => Code::Internal,
+        ErrorKind::Elsewhere => Code::Unavailable,
     };
     if code == Code::Internal {
         tracing::error!(error = %e, "internal error");
@@ -75,6 +77,13 @@ pub fn session_status(e: &SessionError) -> Status {
     let mut detail = info(e.code(), "");
     if let SessionError::StaleVersion { current, .. } = e {
         detail.current_plan_version = Some(*current);
+    } else if let SessionError::Elsewhere(Some(at)) = e {
+        detail.replica = Some(ReplicaAddress {
+            id: at.id.clone(),
+            grpc_address: at.grpc.clone(),
+            http_url: at.http.clone(),
+            lease_remaining_ms: at.lease_remaining_ms,
+        });
     }
     status(code, e.to_string(), detail)
 }

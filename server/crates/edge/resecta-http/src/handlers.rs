@@ -28,6 +28,15 @@ pub async fn healthz() -> &'static str {
     "ok\n"
 }
 
+/// Readiness: 503 while the server drains or its store does not answer.
+pub async fn readyz(State(app): State<App>) -> Answer<&'static str> {
+    app.service
+        .ready()
+        .await
+        .map_err(|e| Problem::new(StatusCode::SERVICE_UNAVAILABLE, "NOT_READY", e.to_string()))?;
+    Ok("ready\n")
+}
+
 pub async fn metrics(State(app): State<App>) -> Answer<Response> {
     let render = app
         .metrics

@@ -10,7 +10,7 @@
 //!
 //! [`router`] builds the whole face; the server process binds it (plain or TLS). Every `/v1/`
 //! route but `GET /v1/info` and `GET /v1/openapi.json` passes the [`AccessPolicy`] (bearer token
-//! and `resecta-api-version`); `/healthz` and `/metrics` are open. Every response carries an
+//! and `resecta-api-version`); `/healthz`, `/readyz` and `/metrics` are open. Every response carries an
 //! `x-request-id` (the client's, or a fresh UUID), and every request is traced (method, matched
 //! route, status, latency, request id) and counted in `resecta_http_requests_total{route,status}`.
 //! Bodies, display names and file names are never logged.
@@ -18,7 +18,7 @@
 //! | route | RPC | body / query → answer |
 //! |---|---|---|
 //! | `GET /`, `GET /app.js`, … | — | the browser client ([`resecta_web`]: every file of its bundle) |
-//! | `GET /healthz`, `GET /metrics` | — | liveness; Prometheus text (when [`HttpOptions::metrics`]) |
+//! | `GET /healthz`, `GET /readyz`, `GET /metrics` | — | liveness; readiness (503 while draining or when the store does not answer); Prometheus text (when [`HttpOptions::metrics`]) |
 //! | `GET /v1/openapi.json` | — | the OpenAPI document |
 //! | `GET /v1/info` | `GetServerInfo` | → `GetServerInfoResponse` |
 //! | `POST /v1/sessions` | `CreateSession` | `CreateSessionRequest` → 201 `CreateSessionResponse` |
@@ -198,6 +198,7 @@ fn table() -> Vec<Route> {
     const S: &str = "/v1/sessions/{id}";
     vec![
         route(Get, "/healthz", None, h::healthz),
+        route(Get, "/readyz", None, h::readyz),
         route(Get, METRICS_PATH, None, h::metrics),
         route(Get, "/v1/openapi.json", None, h::openapi),
         route(Get, "/v1/info", Some("GetServerInfo"), h::info),

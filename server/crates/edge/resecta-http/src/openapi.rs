@@ -190,7 +190,18 @@ fn problem_schema() -> Value {
             "status": {"type": "integer"},
             "detail": {"type": "string", "description": "What is wrong, naming the offending quantity (never patient data)."},
             "code": {"type": "string", "description": "Stable code, the same as the gRPC face's `ErrorInfo.code` (proto/README.md); HTTP only: PAYLOAD_TOO_LARGE, NO_ROUTE, METHOD_NOT_ALLOWED."},
-            "current_version": {"type": "integer", "description": "The current plan version (`STALE_VERSION` only)."}
+            "current_version": {"type": "integer", "description": "The current plan version (`STALE_VERSION` only)."},
+            "replica": {
+                "type": "object",
+                "description": "The replica that holds the session (`SESSION_ELSEWHERE`, status 421, only): repeat the request at `http_url`.",
+                "required": ["id", "grpc_address", "http_url", "lease_remaining_ms"],
+                "properties": {
+                    "id": {"type": "string"},
+                    "grpc_address": {"type": "string"},
+                    "http_url": {"type": "string"},
+                    "lease_remaining_ms": {"type": "integer"}
+                }
+            }
         }
     })
 }
@@ -401,6 +412,10 @@ fn rpc_operation(
 fn plain_operation(path: &str) -> Value {
     let (summary, media) = match path {
         "/healthz" => ("Liveness (no token).", "text/plain"),
+        "/readyz" => (
+            "Readiness (no token): 503 while the server drains or its store does not answer.",
+            "text/plain",
+        ),
         "/metrics" => ("Prometheus metrics (no token).", "text/plain"),
         _ => ("This document (no token).", "application/json"),
     };

@@ -36,6 +36,9 @@ pub struct Problem {
     pub code: &'static str,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub current_version: Option<u64>,
+    /// The replica holding the session (`SESSION_ELSEWHERE` only).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub replica: Option<Box<ReplicaProblem>>,
     /// Adds `WWW-Authenticate: Bearer` (401 answers).
     #[serde(skip)]
     pub challenge: bool,
@@ -54,6 +57,7 @@ impl Problem {
             detail: bounded_message(detail.into()),
             code,
             current_version: None,
+            replica: None,
             challenge: false,
         }
     }
@@ -78,6 +82,15 @@ impl Problem {
     }
 }
 
+/// Where the replica holding a session is reached (the gRPC face's `ReplicaAddress`).
+#[derive(Debug, Clone, Serialize)]
+pub struct ReplicaProblem {
+    pub id: String,
+    pub grpc_address: String,
+    pub http_url: String,
+    pub lease_remaining_ms: u64,
+}
+
 /// The HTTP status of each operation-layer error kind (docs/server.md, "Errors").
 fn status_of(kind: ErrorKind) -> StatusCode {
     match kind {
@@ -91,6 +104,7 @@ fn status_of(kind: ErrorKind) -> StatusCode {
             StatusCode::from_u16(CLIENT_CLOSED).unwrap_or(StatusCode::BAD_REQUEST)
         }
         ErrorKind::Internal => StatusCode::INTERNAL_SERVER_ERROR,
+        ErrorKind::Elsewhere => StatusCode::MISDIRECTED_REQUEST,
     }
 }
 
@@ -107,6 +121,13 @@ impl From<SessionError> for Problem {
         let mut p = Self::new(status, e.code(), e.to_string());
         if let SessionError::StaleVersion { current, .. } = e {
             p.current_version = Some(current);
+        } else if let SessionError::Elsewhere(Some(at)) = e {
+            p.replica = Some(Box::new(ReplicaProblem {
+                id: at.id,
+                grpc_address: at.grpc,
+                http_url: at.http,
+                lease_remaining_ms: at.lease_remaining_ms,
+            }));
         }
         p
     }

@@ -7,7 +7,8 @@ use std::time::Duration;
 
 use resecta_auth::AccessPolicy;
 use resecta_conn::ConnLimits;
-use resecta_session::ServiceConfig;
+use resecta_session::{ReplicaConfig, ServiceConfig};
+use resecta_store::Replica;
 use serde::Deserialize;
 
 use crate::compute::GpuMode;
@@ -29,9 +30,43 @@ pub struct ServeArgs {
     /// HTTP listen address [default: 127.0.0.1:8080].
     #[arg(long, env = "RESECTA_HTTP")]
     pub http: Option<SocketAddr>,
-    /// Directory of the durable session store (SQLite); sessions live in memory without it.
+    /// Directory of the durable session store (SQLite); sessions live in memory without it
+    /// (`--store` wins over it).
     #[arg(long, env = "RESECTA_DATA_DIR")]
     pub data_dir: Option<PathBuf>,
+    /// The session store: `memory`, `sqlite:DIR`, or `postgres://USER@HOST:PORT/DB` (with
+    /// `?sslmode=require|verify-ca|verify-full&sslrootcert=CA.pem` for TLS) shared by replicas
+    /// [default: --data-dir's SQLite, else memory; TOML `store`].
+    #[arg(long, env = "RESECTA_STORE", hide_env_values = true)]
+    pub store: Option<String>,
+    /// File holding the database password (overrides one in the URL) [TOML
+    /// `store_password_file`]; `RESECTA_STORE_PASSWORD` gives it directly.
+    #[arg(long, env = "RESECTA_STORE_PASSWORD_FILE")]
+    pub store_password_file: Option<PathBuf>,
+    /// The database password (prefer the file).
+    #[arg(
+        long,
+        env = "RESECTA_STORE_PASSWORD",
+        hide_env_values = true,
+        conflicts_with = "store_password_file"
+    )]
+    pub store_password: Option<String>,
+    /// This replica's name among several sharing a store [default: the host name]; a
+    /// per-process suffix makes its id. Setting it (or a PostgreSQL store) holds sessions
+    /// under leases, one replica at a time.
+    #[arg(long, env = "RESECTA_REPLICA_ID")]
+    pub replica_id: Option<String>,
+    /// `HOST:PORT` at which clients reach this replica's gRPC face [default: the host name
+    /// and the gRPC port, or the listen address when it is not a wildcard].
+    #[arg(long, env = "RESECTA_ADVERTISE_GRPC")]
+    pub advertise_grpc: Option<String>,
+    /// Base URL at which clients reach this replica's HTTP face [default as for gRPC].
+    #[arg(long, env = "RESECTA_ADVERTISE_HTTP")]
+    pub advertise_http: Option<String>,
+    /// Milliseconds a replica's lease on a session lasts without renewal (renewed every third
+    /// of it): a dead replica's sessions move after at most this long [default: 3000].
+    #[arg(long, env = "RESECTA_LEASE_MS")]
+    pub lease_ms: Option<u64>,
     /// Bearer token clients must send (at least 16 characters).
     #[arg(
         long,
@@ -83,6 +118,12 @@ struct FileConfig {
     grpc: Option<SocketAddr>,
     http: Option<SocketAddr>,
     data_dir: Option<PathBuf>,
+    store: Option<String>,
+    store_password_file: Option<PathBuf>,
+    replica_id: Option<String>,
+    advertise_grpc: Option<String>,
+    advertise_http: Option<String>,
+    lease_ms: Option<u64>,
     token_file: Option<PathBuf>,
     insecure: Option<bool>,
     demo: Option<bool>,
@@ -166,12 +207,112 @@ pub struct TlsFiles {
     pub key: PathBuf,
 }
 
+/// The session store a server uses.
+#[derive(Clone, PartialEq, Eq)]
+pub enum StoreSpec {
+    Memory,
+    Sqlite(PathBuf),
+    /// A PostgreSQL URL and the password given apart from it.
+    Postgres {
+        url: String,
+        password: Option<String>,
+    },
+}
+
+// The URL may carry a password: Debug never shows it.
+impl std::fmt::Debug for StoreSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Memory => f.write_str("Memory"),
+            Self::Sqlite(dir) => f.debug_tuple("Sqlite").field(dir).finish(),
+            Self::Postgres { .. } => f.write_str("Postgres { .. }"),
+        }
+    }
+}
+
+impl StoreSpec {
+    fn parse(s: &str, password: Option<String>) -> Result<Self, ServerError> {
+        if s == "memory" {
+            Ok(Self::Memory)
+        } else if let Some(dir) = s.strip_prefix("sqlite:") {
+            if dir.is_empty() {
+                return Err(ServerError::Config(
+                    "store sqlite: needs a directory".into(),
+                ));
+            }
+            Ok(Self::Sqlite(PathBuf::from(dir)))
+        } else if s.starts_with("postgres://") || s.starts_with("postgresql://") {
+            Ok(Self::Postgres {
+                url: s.to_owned(),
+                password,
+            })
+        } else {
+            Err(ServerError::Config(
+                "store must be `memory`, `sqlite:DIR` or a postgres:// URL".into(),
+            ))
+        }
+    }
+
+    /// Whether several replicas may share it.
+    pub fn is_shared(&self) -> bool {
+        matches!(self, Self::Postgres { .. })
+    }
+
+    /// Whether sessions outlive the process.
+    pub fn is_durable(&self) -> bool {
+        !matches!(self, Self::Memory)
+    }
+}
+
+/// How this server runs as one replica of several sharing a store.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReplicaSettings {
+    /// Its name; a per-process suffix makes its id.
+    pub name: String,
+    pub advertise_grpc: Option<String>,
+    pub advertise_http: Option<String>,
+    pub lease: Duration,
+}
+
+impl ReplicaSettings {
+    /// This replica once its faces are bound at `grpc` and `http`: addresses not advertised
+    /// explicitly are the bound ones, with the host name in place of a wildcard address.
+    pub fn replica(&self, grpc: SocketAddr, http: SocketAddr, tls: bool) -> ReplicaConfig {
+        let host = host_name();
+        let reach = |a: SocketAddr| {
+            if a.ip().is_unspecified() {
+                format!("{host}:{}", a.port())
+            } else {
+                a.to_string()
+            }
+        };
+        let scheme = if tls { "https" } else { "http" };
+        ReplicaConfig {
+            replica: Replica {
+                id: format!(
+                    "{}-{}",
+                    self.name,
+                    &uuid::Uuid::new_v4().simple().to_string()[..8]
+                ),
+                grpc: self.advertise_grpc.clone().unwrap_or_else(|| reach(grpc)),
+                http: self
+                    .advertise_http
+                    .clone()
+                    .unwrap_or_else(|| format!("{scheme}://{}", reach(http))),
+            },
+            lease: self.lease,
+        }
+    }
+}
+
 /// A resolved, validated server configuration.
 #[derive(Debug, Clone)]
 pub struct ServerConfig {
     pub grpc: SocketAddr,
     pub http: SocketAddr,
-    pub data_dir: Option<PathBuf>,
+    pub store: StoreSpec,
+    /// Set when several replicas share the store (a PostgreSQL store, or `--replica-id`).
+    pub replica: Option<ReplicaSettings>,
     pub access: AccessPolicy,
     pub tls: Option<TlsFiles>,
     pub demo: bool,
@@ -192,6 +333,35 @@ fn read_small(path: &Path, what: &str) -> Result<String, ServerError> {
         return Err(bad(format!("{len} bytes is larger than {MAX_CONFIG_FILE}")));
     }
     std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))
+}
+
+/// Shortest and longest session lease.
+const MIN_LEASE: Duration = Duration::from_millis(300);
+const MAX_LEASE: Duration = Duration::from_secs(600);
+
+/// This machine's name (a pod's name in Kubernetes), or `localhost`.
+fn host_name() -> String {
+    std::env::var("HOSTNAME")
+        .ok()
+        .or_else(|| std::fs::read_to_string("/etc/hostname").ok())
+        .map(|h| h.trim().to_owned())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "localhost".into())
+}
+
+/// Replica names appear in ids, logs and errors: 1 to 64 letters, digits and `-_.`.
+fn check_replica_name(name: &str) -> Result<(), ServerError> {
+    let ok = (1..=64).contains(&name.len())
+        && name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'-' | b'_' | b'.'));
+    if ok {
+        Ok(())
+    } else {
+        Err(ServerError::Config(
+            "replica id must be 1 to 64 letters, digits or -_.".into(),
+        ))
+    }
 }
 
 fn parse_addr(s: &str) -> Result<SocketAddr, ServerError> {
@@ -289,10 +459,53 @@ impl ServerConfig {
         if tls.is_some() {
             service.capabilities.push("tls".into());
         }
+        let password = match (
+            &args.store_password,
+            args.store_password_file
+                .as_ref()
+                .or(file.store_password_file.as_ref()),
+        ) {
+            (Some(p), _) => Some(p.clone()),
+            (None, Some(f)) => Some(read_small(f, "store password file")?.trim_end().to_owned()),
+            (None, None) => None,
+        };
+        let store = match args.store.as_ref().or(file.store.as_ref()) {
+            Some(s) => StoreSpec::parse(s, password)?,
+            None => match args.data_dir.clone().or(file.data_dir) {
+                Some(dir) => StoreSpec::Sqlite(dir),
+                None => StoreSpec::Memory,
+            },
+        };
+        let replica_name = args.replica_id.clone().or(file.replica_id);
+        let replica = if store.is_shared() || replica_name.is_some() {
+            let lease = Duration::from_millis(args.lease_ms.or(file.lease_ms).unwrap_or(
+                u64::try_from(ReplicaConfig::DEFAULT_LEASE.as_millis()).unwrap_or(3000),
+            ));
+            if !(MIN_LEASE..=MAX_LEASE).contains(&lease) {
+                return Err(ServerError::Config(format!(
+                    "lease of {} ms is outside {}..={} ms",
+                    lease.as_millis(),
+                    MIN_LEASE.as_millis(),
+                    MAX_LEASE.as_millis()
+                )));
+            }
+            let name = replica_name.unwrap_or_else(host_name);
+            check_replica_name(&name)?;
+            service.capabilities.push("replicas".into());
+            Some(ReplicaSettings {
+                name,
+                advertise_grpc: args.advertise_grpc.clone().or(file.advertise_grpc),
+                advertise_http: args.advertise_http.clone().or(file.advertise_http),
+                lease,
+            })
+        } else {
+            None
+        };
         Ok(Self {
             grpc,
             http,
-            data_dir: args.data_dir.clone().or(file.data_dir),
+            store,
+            replica,
             access,
             tls,
             demo: args.demo || file.demo.unwrap_or(false),
@@ -320,7 +533,7 @@ mod tests {
         assert_eq!(c.grpc.to_string(), DEFAULT_GRPC);
         assert_eq!(c.http.to_string(), DEFAULT_HTTP);
         assert!(!c.access.requires_token());
-        assert!(c.data_dir.is_none() && c.tls.is_none());
+        assert!(c.store == StoreSpec::Memory && c.tls.is_none());
     }
 
     #[test]

@@ -20,14 +20,16 @@ use std::time::Duration;
 use axum_server::accept::DefaultAcceptor;
 use resecta_conn::{Admission, AdmitOn, ConnAcceptor, ConnIncoming, ConnLayer, ConnLimits};
 use resecta_session::Service;
-use resecta_store::{MemoryStore, SessionStore, SqliteStore, StoreOptions};
+use resecta_store::{MemoryStore, PostgresStore, SessionStore, SqliteStore, StoreOptions};
 use serde::Serialize;
 use tokio::sync::watch;
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
 use tower_http::trace::TraceLayer;
 
 pub use compute::{GpuMode, configure_compute};
-pub use config::{DEFAULT_GRPC, DEFAULT_HTTP, ServeArgs, ServerConfig, TlsFiles};
+pub use config::{
+    DEFAULT_GRPC, DEFAULT_HTTP, ReplicaSettings, ServeArgs, ServerConfig, StoreSpec, TlsFiles,
+};
 pub use demo::{DEMO_SESSION_NAME, seed_demo};
 pub use error::ServerError;
 pub use telemetry::{init_tracing, metrics_handle};
@@ -58,14 +60,19 @@ fn page_url(http: SocketAddr, tls: bool) -> String {
 
 /// The session store the configuration names.
 pub fn open_store(config: &ServerConfig) -> Result<Arc<dyn SessionStore>, ServerError> {
-    Ok(match &config.data_dir {
-        Some(dir) => {
+    Ok(match &config.store {
+        StoreSpec::Sqlite(dir) => {
             std::fs::create_dir_all(dir).map_err(|e| {
                 ServerError::Config(format!("data directory {}: {e}", dir.display()))
             })?;
             Arc::new(SqliteStore::open(dir, StoreOptions::default())?)
         }
-        None => Arc::new(MemoryStore::new(StoreOptions::default())),
+        StoreSpec::Postgres { url, password } => Arc::new(PostgresStore::open(
+            url,
+            password.clone(),
+            StoreOptions::default(),
+        )?),
+        StoreSpec::Memory => Arc::new(MemoryStore::new(StoreOptions::default())),
     })
 }
 
@@ -86,12 +93,6 @@ pub async fn run(
     shutdown: impl Future<Output = ()> + Send + 'static,
     on_bound: impl FnOnce(Bound),
 ) -> Result<(), ServerError> {
-    let mut service_config = config.service.clone();
-    configure_compute(config.gpu, &mut service_config)?;
-    let store = open_store(&config)?;
-    let service = Arc::new(Service::new(store, service_config));
-    // Stored sessions come back while the faces start: most recently used first.
-    service.restore_in_background();
     let tls = match &config.tls {
         Some(files) => Some(telemetry::load_tls(files).await?),
         None => None,
@@ -109,6 +110,23 @@ pub async fn run(
         tls: tls.is_some(),
         page: page_url(http_at, tls.is_some()),
     };
+
+    let mut service_config = config.service.clone();
+    configure_compute(config.gpu, &mut service_config)?;
+    service_config.replica = config
+        .replica
+        .as_ref()
+        .map(|r| r.replica(bound.grpc, bound.http, bound.tls));
+    // The PostgreSQL driver runs its own runtime per connection: opened off this one.
+    let opened = {
+        let config = config.clone();
+        tokio::task::spawn_blocking(move || open_store(&config))
+            .await
+            .map_err(|e| ServerError::Config(format!("opening the store: {e}")))??
+    };
+    let service = Arc::new(Service::new(opened, service_config));
+    // Stored sessions come back while the faces start: most recently used first.
+    service.restore_in_background();
 
     // Connections of both faces: admitted by an authenticated request (any request without a
     // token), timed out and capped together.
@@ -224,8 +242,12 @@ pub async fn run(
         }
     };
 
-    // Upkeep: idle expiry and the metrics exporter's histograms.
+    // Upkeep: idle expiry and the metrics exporter's histograms; session leases (replicas),
+    // renewed until they are released after the faces have drained.
     let upkeep = tokio::spawn(upkeep(Arc::clone(&service), stop_rx.clone()));
+    let leases = service
+        .replica()
+        .map(|r| tokio::spawn(keep_leases(Arc::clone(&service), r.lease / 3)));
     if config.demo {
         let s = Arc::clone(&service);
         tokio::spawn(async move {
@@ -235,14 +257,19 @@ pub async fn run(
             }
         });
     }
+    if let Some(r) = service.replica() {
+        tracing::info!(replica = %r.replica.id, grpc = %r.replica.grpc, http = %r.replica.http,
+            lease_ms = r.lease.as_millis() as u64, "replica of a shared store");
+    }
     tracing::info!(grpc = %bound.grpc, http = %bound.http, tls = bound.tls, page = %bound.page,
-        auth = config.access.requires_token(), durable = config.data_dir.is_some(),
+        auth = config.access.requires_token(), durable = config.store.is_durable(),
         handshake_timeout_s = limits.handshake_timeout.as_secs_f64(),
         idle_timeout_s = limits.idle_timeout.as_secs_f64(), "listening");
     on_bound(bound);
 
     shutdown.await;
     tracing::info!("shutting down");
+    service.begin_drain();
     // Streams end now (UNAVAILABLE / an `error` event), new connections are refused, and
     // in-flight unary calls get up to SHUTDOWN_GRACE to finish; then the faces are dropped.
     let _ = stop_tx.send(true);
@@ -250,6 +277,14 @@ pub async fn run(
     let grpc = drain("gRPC", grpc).await?;
     let http = drain("HTTP", http).await?;
     upkeep.abort();
+    if let Some(leases) = leases {
+        // Calls have ended: other replicas may take the sessions over at once.
+        match service.release_leases().await {
+            Ok(n) => tracing::info!(sessions = n, "session leases released"),
+            Err(e) => tracing::warn!(error = %e, "releasing session leases"),
+        }
+        leases.abort();
+    }
     if let Some(grpc) = grpc {
         grpc.map_err(|e| serve_error("gRPC")(e.to_string()))?;
     }
@@ -303,6 +338,20 @@ async fn drain<T>(
                 "calls still open after the shutdown grace period were dropped"
             );
             Ok(None)
+        }
+    }
+}
+
+/// Renews this replica's session leases every `period` (a third of the lease) until aborted.
+async fn keep_leases(service: Arc<Service>, period: Duration) {
+    let mut tick = tokio::time::interval(period);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tick.tick().await;
+        match service.renew_leases().await {
+            Ok(0) => {}
+            Ok(n) => tracing::warn!(sessions = n, "session leases lost to other replicas"),
+            Err(e) => tracing::warn!(error = %e, "renewing session leases"),
         }
     }
 }

@@ -16,6 +16,18 @@ pub use crate::sessions::MAX_DISPLAY_NAME;
 /// The API generation clients must speak.
 pub const API_VERSION: &str = "resecta.v1";
 
+/// Where clients reach the replica that holds a session (replicated servers).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ReplicaAddress {
+    pub id: String,
+    /// `host:port` of its gRPC face.
+    pub grpc: String,
+    /// Base URL of its HTTP face.
+    pub http: String,
+    /// Until its lease expires unless renewed.
+    pub lease_remaining_ms: u64,
+}
+
 #[derive(Debug, Clone)]
 pub struct ServerInfo {
     pub version: &'static str,

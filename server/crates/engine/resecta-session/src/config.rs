@@ -9,6 +9,19 @@ use resecta_recon::PoissonSolver;
 use crate::api::ComputeInfo;
 use crate::watch::RingBounds;
 
+/// One replica of several sharing a store: who it is, and how long its session leases last
+/// without renewal (renewed every third of it).
+#[derive(Debug, Clone)]
+pub struct ReplicaConfig {
+    pub replica: resecta_store::Replica,
+    pub lease: Duration,
+}
+
+impl ReplicaConfig {
+    /// The default lease: a dead replica's sessions move after at most this long.
+    pub const DEFAULT_LEASE: Duration = Duration::from_secs(3);
+}
+
 /// Limits and tuning of a [`Service`](crate::Service).
 #[derive(Debug, Clone)]
 pub struct ServiceConfig {
@@ -51,6 +64,9 @@ pub struct ServiceConfig {
     /// Solves the Poisson systems of reconstructions and point clouds (the CPU's by default);
     /// a device failure reruns that reconstruction on the CPU.
     pub poisson_solver: PoissonSolver,
+    /// Set when several replicas share the store: sessions are then held under leases
+    /// (`ownership`), one replica at a time.
+    pub replica: Option<ReplicaConfig>,
 }
 
 impl Default for ServiceConfig {
@@ -76,6 +92,7 @@ impl Default for ServiceConfig {
             compute_engine: ComputeEngine::cpu(),
             compute: ComputeInfo::default(),
             poisson_solver: PoissonSolver::cpu(),
+            replica: None,
         }
     }
 }

@@ -114,7 +114,7 @@ impl Service {
                 let shown = s.hub.reset(version, planner.plan(), planner.states());
                 loaded.planner = Some(planner);
                 shown?;
-                return Err(e);
+                return Err(self.store_failed(&s.id, e).await);
             }
         };
         debug_assert_eq!(new_version, version + 1, "one record appended");
@@ -158,12 +158,16 @@ impl Service {
         let reserved = self.budget.reserve(Use::Plan, after)?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
-        let (planner, new_version) = blocking(move || {
+        let stored = blocking(move || {
             let planner = Planner::with_engine(anatomy, plan, engine)?;
             let v = store.append(&key, version, &[record])?;
             Ok((planner, v))
         })
-        .await?;
+        .await;
+        let (planner, new_version) = match stored {
+            Ok(r) => r,
+            Err(e) => return Err(self.store_failed(&s.id, e).await),
+        };
         reserved.settle(&s.id, Charge::Plan, after)?;
         s.hub.reset(new_version, planner.plan(), planner.states())?;
         loaded.planner = Some(planner);

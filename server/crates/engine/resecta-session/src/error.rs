@@ -8,6 +8,8 @@ use std::fmt;
 use resecta_plan::PlanError;
 use resecta_store::StoreError;
 
+use crate::api::ReplicaAddress;
+
 /// What went wrong, as the edges need it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -25,6 +27,8 @@ pub enum ErrorKind {
     Cancelled,
     /// Storage or another internal failure; the request may be retried.
     Internal,
+    /// Another replica of a replicated server holds the session: repeat the call there.
+    Elsewhere,
 }
 
 /// Which quota a request would exceed.
@@ -147,6 +151,9 @@ pub enum SessionError {
     Plan(PlanError),
     #[error("storage: {}", store_message(.0))]
     Store(StoreError),
+    /// Another replica holds the session's lease (its address when known).
+    #[error("{}", elsewhere_message(.0.as_ref()))]
+    Elsewhere(Option<ReplicaAddress>),
     #[error("internal: {0}")]
     Internal(String),
 }
@@ -218,6 +225,16 @@ fn json_message(m: &str) -> String {
     }
 }
 
+fn elsewhere_message(at: Option<&ReplicaAddress>) -> String {
+    match at {
+        Some(r) => format!(
+            "the session is held by replica {} (gRPC {}, HTTP {}); repeat the call there",
+            r.id, r.grpc, r.http
+        ),
+        None => "the session is now held by another replica; repeat the call".into(),
+    }
+}
+
 /// A storage error's message with ids cut to an [`IdPrefix`].
 fn store_message(e: &StoreError) -> String {
     match e {
@@ -231,6 +248,10 @@ fn store_message(e: &StoreError) -> String {
         | StoreError::Corrupt { .. }
         | StoreError::SchemaTooNew { .. }
         | StoreError::Backend(_) => e.to_string(),
+        StoreError::Fenced { id } => format!(
+            "session {} is held by another replica: this replica's lease on it has ended",
+            IdPrefix::of(id)
+        ),
     }
 }
 
@@ -270,6 +291,7 @@ impl SessionError {
             Self::Plan(e) => plan_class(e).0,
             Self::Store(e) => store_class(e).0,
             Self::Internal(_) => ErrorKind::Internal,
+            Self::Elsewhere(_) => ErrorKind::Elsewhere,
         }
     }
 
@@ -293,6 +315,7 @@ impl SessionError {
             Self::Plan(e) => plan_class(e).1,
             Self::Store(e) => store_class(e).1,
             Self::Internal(_) => "INTERNAL",
+            Self::Elsewhere(_) => "SESSION_ELSEWHERE",
         }
     }
 
@@ -348,6 +371,7 @@ fn store_class(e: &StoreError) -> (ErrorKind, &'static str) {
         StoreError::Corrupt { .. } | StoreError::SchemaTooNew { .. } | StoreError::Backend(_) => {
             (ErrorKind::Internal, "STORAGE")
         }
+        StoreError::Fenced { .. } => (ErrorKind::Elsewhere, "SESSION_ELSEWHERE"),
     }
 }
 

@@ -12,6 +12,7 @@ mod edits;
 mod error;
 mod labelmap;
 mod log;
+mod ownership;
 mod pools;
 mod recon;
 mod record;
@@ -24,7 +25,7 @@ mod volumes;
 mod watch;
 
 pub use budget::UploadMemory;
-pub use config::ServiceConfig;
+pub use config::{ReplicaConfig, ServiceConfig};
 pub use error::{
     ErrorKind, ID_PREFIX_CHARS, IdPrefix, Missing, Quota, Result, SessionError, is_id_char,
     redact_quoted,

@@ -402,7 +402,9 @@ impl Service {
         let blob = log::encode_models(&models)?;
         let store = Arc::clone(&self.store);
         let key = s.id.clone();
-        blocking(move || log::store_models(&*store, &key, &blob)).await?;
+        if let Err(e) = blocking(move || log::store_models(&*store, &key, &blob)).await {
+            return Err(self.store_failed(&s.id, e).await);
+        }
         self.budget
             .set(&s.id, Charge::Models, models_bytes(&models))?;
         let infos = models.iter().map(|m| m.info.clone()).collect();

@@ -90,6 +90,11 @@ impl<T> Registry<T> {
         Ok(table.len())
     }
 
+    /// The ids of the sessions held.
+    pub(crate) fn ids(&self) -> Result<Vec<String>> {
+        Ok(self.table()?.keys().cloned().collect())
+    }
+
     /// Stops holding `id`.
     pub(crate) fn remove(&self, id: &str) -> Result<Option<Arc<T>>> {
         Ok(self.table()?.remove(id))

@@ -21,7 +21,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 
 use resecta_geom::RoleMap;
 use resecta_io::mesh::{MeshFormat, WriteOptions, mesh_to_bytes};
@@ -59,6 +59,8 @@ pub struct Service {
     pub(crate) budget: Arc<Budget>,
     /// Sessions with a volume recomputation scheduled (editing now or just paused).
     pub(crate) volumes_scheduled: AtomicUsize,
+    /// Set once the server drains before a stop.
+    pub(crate) draining: AtomicBool,
 }
 
 impl Service {
@@ -70,7 +72,26 @@ impl Service {
             budget: Budget::new(config.max_memory_bytes),
             config,
             volumes_scheduled: AtomicUsize::new(0),
+            draining: AtomicBool::new(false),
         }
+    }
+
+    /// Marks the server as draining: [`Self::ready`] fails from now on.
+    pub fn begin_drain(&self) {
+        self.draining.store(true, Ordering::Release);
+    }
+
+    /// Whether the server takes work: not draining, and its store answers.
+    pub async fn ready(&self) -> Result<()> {
+        if self.draining.load(Ordering::Acquire) {
+            return Err(SessionError::Precondition(
+                Missing::Other,
+                "the server is draining".into(),
+            ));
+        }
+        let store = Arc::clone(&self.store);
+        blocking(move || Ok(store.session("readyz")?)).await?;
+        Ok(())
     }
 
     /// Bytes a session's replay ring may hold.
@@ -234,6 +255,10 @@ impl Service {
     }
 
     async fn restore_all(&self) -> Result<usize> {
+        if self.config.replica.is_some() {
+            // Replicas restore a session when a call claims it.
+            return Ok(0);
+        }
         let store = Arc::clone(&self.store);
         let mut records = blocking(move || Ok(store.sessions()?)).await?;
         records.sort_by(|a, b| {
@@ -363,14 +388,18 @@ impl Service {
         let stored = Arc::clone(&labels);
         let roles = summary.roles.clone();
         let kept = summary.clone();
-        let (plan, version) = blocking(move || {
+        let stored = blocking(move || {
             let t = std::time::Instant::now();
             let (plan, version) =
                 log::store_label_map(&*store, &key, version, &stored, &roles, &kept)?;
             tracing::debug!(session = %key, ms = t.elapsed().as_secs_f64() * 1e3, "label map stored");
             Ok((plan, version))
         })
-        .await?;
+        .await;
+        let (plan, version) = match stored {
+            Ok(r) => r,
+            Err(e) => return Err(self.store_failed(&s.id, e).await),
+        };
         reserved.settle(&s.id, Charge::LabelMap, need)?;
         // The plan starts anew (empty), and the models are gone.
         self.budget.set(&s.id, Charge::Plan, 0)?;

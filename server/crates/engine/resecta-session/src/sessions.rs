@@ -64,23 +64,28 @@ impl Service {
             last_edit: Mutex::new(std::time::Instant::now()),
             deleted: Arc::new(AtomicBool::new(false)),
             damaged: AtomicBool::new(false),
+            lost: AtomicBool::new(false),
         })
     }
 
     /// The session `id`, from memory or the store, without recording an access.
+    /// On a replicated server, a session not held here is claimed first
+    /// ([`SessionError::Elsewhere`] while another replica holds it).
     pub(crate) async fn session_unrecorded(&self, id: &str) -> Result<Arc<Session>> {
         let found = self.registry.get(id)?;
-        Ok(match found {
-            Some(s) => s,
-            None => {
-                let store = Arc::clone(&self.store);
-                let key = id.to_owned();
-                let rec = blocking(move || Ok(store.session(&key)?)).await?;
-                let rec = rec.ok_or_else(|| SessionError::UnknownSession(id.into()))?;
-                let fresh = self.new_session(&rec, false);
-                self.registry.get_or_insert(id, fresh)?
+        if let Some(s) = found {
+            if !s.lost.load(Ordering::Acquire) {
+                return Ok(s);
             }
-        })
+            self.evict(id, None)?;
+        }
+        let store = Arc::clone(&self.store);
+        let key = id.to_owned();
+        let rec = blocking(move || Ok(store.session(&key)?)).await?;
+        let rec = rec.ok_or_else(|| SessionError::UnknownSession(id.into()))?;
+        self.claim(id).await?;
+        let fresh = self.new_session(&rec, false);
+        self.registry.get_or_insert(id, fresh)
     }
 
     /// The session `id`, from memory or the store; records the access.
@@ -126,6 +131,7 @@ impl Service {
             Ok(())
         })
         .await?;
+        self.claim(&rec.id).await?;
         let session = self.new_session(&rec, true);
         let loaded = self.registry.insert(&rec.id, Arc::clone(&session))?;
         metrics::gauge!("resecta_sessions_loaded").set(loaded as f64);
@@ -162,6 +168,13 @@ impl Service {
     }
 
     pub async fn delete_session(&self, id: &str) -> Result<()> {
+        if self.config.replica.is_some() {
+            // Only the holder deletes: its memory goes with the stored session.
+            match self.session_unrecorded(id).await {
+                Ok(_) | Err(SessionError::UnknownSession(_)) => {}
+                Err(e) => return Err(e),
+            }
+        }
         let store = Arc::clone(&self.store);
         let registry = Arc::clone(&self.registry);
         let key = id.to_owned();
@@ -192,8 +205,12 @@ impl Service {
         let mut n = 0;
         for id in idle {
             if self.registry.still_idle(&id, before)? {
-                self.delete_session(&id).await?;
-                n += 1;
+                match self.delete_session(&id).await {
+                    Ok(()) => n += 1,
+                    // Another replica holds it (and expires it), or deleted it meanwhile.
+                    Err(SessionError::Elsewhere(_) | SessionError::UnknownSession(_)) => {}
+                    Err(e) => return Err(e),
+                }
             }
         }
         Ok(n)

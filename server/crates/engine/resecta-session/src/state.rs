@@ -120,6 +120,9 @@ pub(crate) struct Session {
     pub(crate) deleted: Arc<AtomicBool>,
     /// Set when the stored session cannot be restored.
     pub(crate) damaged: AtomicBool,
+    /// Set when this replica's lease on the session has ended (replicated servers): the next
+    /// call drops it and claims the lease anew.
+    pub(crate) lost: AtomicBool,
 }
 
 impl Loaded {

@@ -14,7 +14,7 @@ use resecta_delta::{
 use resecta_plan::{Change, Plan, Resection, ResectionState, Verdict, VolumeReport};
 use tokio::sync::watch;
 
-use crate::api::{Surface, SurfaceKind, SurfaceUpdate, WatchBody, WatchEvent};
+use crate::api::{ReplicaAddress, Surface, SurfaceKind, SurfaceUpdate, WatchBody, WatchEvent};
 use crate::budget::Reservation;
 use crate::error::{Result, SessionError};
 
@@ -49,6 +49,8 @@ pub struct Hub {
     state: Mutex<HubState>,
     notify: watch::Sender<u64>,
     encode: EncodeOptions,
+    /// Set when the session moved to another replica: its streams end with `Elsewhere`.
+    moved: Mutex<Option<Option<ReplicaAddress>>>,
 }
 
 fn frame_of(s: &ResectionState) -> SurfaceFrame {
@@ -99,6 +101,7 @@ impl Hub {
             }),
             notify,
             encode,
+            moved: Mutex::new(None),
         }
     }
 
@@ -281,6 +284,7 @@ impl Hub {
             rx: self.notify.subscribe(),
             cursor: since,
             pending: VecDeque::new(),
+            ended: false,
             _memory: memory,
         }
     }
@@ -294,6 +298,21 @@ impl Hub {
     pub fn close(&self) {
         self.notify.send_replace(u64::MAX);
     }
+
+    /// Ends every stream with [`SessionError::Elsewhere`]: another replica holds the session
+    /// now (at `at`, when known).
+    pub fn close_moved(&self, at: Option<ReplicaAddress>) {
+        if let Ok(mut m) = self.moved.lock() {
+            *m = Some(at);
+        }
+        self.close();
+    }
+
+    /// Why streams end: `Elsewhere` if the session moved, else `None` (deleted, stopping).
+    fn end(&self) -> Option<SessionError> {
+        let moved = self.moved.lock().ok()?.clone()?;
+        Some(SessionError::Elsewhere(moved))
+    }
 }
 
 /// One client's view of a session's events.
@@ -304,6 +323,8 @@ pub struct WatchStream {
     /// Last sequence number delivered (`None`: a snapshot is due).
     cursor: Option<u64>,
     pending: VecDeque<Arc<WatchEvent>>,
+    /// The stream has ended (after its last event or error).
+    ended: bool,
     _memory: Option<Reservation>,
 }
 
@@ -321,8 +342,8 @@ impl WatchStream {
                 self.cursor = Some(e.seq);
                 return Some(Ok(e));
             }
-            if *self.rx.borrow_and_update() == u64::MAX {
-                return None;
+            if *self.rx.borrow_and_update() == u64::MAX || self.ended {
+                return self.finish();
             }
             let Some(cursor) = self.cursor else {
                 return Some(self.hub.snapshot().map(|s| {
@@ -338,10 +359,18 @@ impl WatchStream {
                 }
                 Ok(Since::Items(_)) => {
                     if self.rx.changed().await.is_err() {
-                        return None;
+                        return self.finish();
                     }
                 }
             }
         }
+    }
+
+    /// The end of the stream: once, the reason the session moved, if it did.
+    fn finish(&mut self) -> Option<Result<Arc<WatchEvent>>> {
+        if std::mem::replace(&mut self.ended, true) {
+            return None;
+        }
+        self.hub.end().map(Err)
     }
 }

@@ -934,6 +934,23 @@ impl SessionStore for FlakyStore {
     fn usage(&self) -> Result<resecta_store::StoreUsage, StoreError> {
         self.inner.usage()
     }
+    fn claim(
+        &self,
+        id: &str,
+        replica: &resecta_store::Replica,
+        ttl_ms: u64,
+    ) -> Result<resecta_store::Claim, StoreError> {
+        self.inner.claim(id, replica, ttl_ms)
+    }
+    fn renew(&self, replica: &str, ids: &[String], ttl_ms: u64) -> Result<Vec<String>, StoreError> {
+        self.inner.renew(replica, ids, ttl_ms)
+    }
+    fn release(&self, id: &str, replica: &str) -> Result<bool, StoreError> {
+        self.inner.release(id, replica)
+    }
+    fn lease(&self, id: &str) -> Result<Option<resecta_store::Lease>, StoreError> {
+        self.inner.lease(id)
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
