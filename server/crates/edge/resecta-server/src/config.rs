@@ -51,9 +51,10 @@ pub struct ServeArgs {
         conflicts_with = "store_password_file"
     )]
     pub store_password: Option<String>,
-    /// This replica's name among several sharing a store [default: the host name]; a
-    /// per-process suffix makes its id. Setting it (or a PostgreSQL store) holds sessions
-    /// under leases, one replica at a time.
+    /// This replica's name among several sharing a store, unique among those running
+    /// [default: the host name]; a restarted replica of the same name takes its sessions back
+    /// at once. Setting it (or a PostgreSQL store) holds sessions under leases, one replica at
+    /// a time.
     #[arg(long, env = "RESECTA_REPLICA_ID")]
     pub replica_id: Option<String>,
     /// `HOST:PORT` at which clients reach this replica's gRPC face [default: the host name
@@ -267,7 +268,9 @@ impl StoreSpec {
 /// How this server runs as one replica of several sharing a store.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ReplicaSettings {
-    /// Its name; a per-process suffix makes its id.
+    /// Its name; a per-process suffix makes its id (`NAME@SUFFIX`). Names must be unique
+    /// among the replicas running: a replica takes over at once the sessions that an earlier
+    /// process of its name held.
     pub name: String,
     pub advertise_grpc: Option<String>,
     pub advertise_http: Option<String>,
@@ -290,7 +293,7 @@ impl ReplicaSettings {
         ReplicaConfig {
             replica: Replica {
                 id: format!(
-                    "{}-{}",
+                    "{}@{}",
                     self.name,
                     &uuid::Uuid::new_v4().simple().to_string()[..8]
                 ),

@@ -162,3 +162,22 @@ async fn sessions_spread_over_replicas_and_deletion_needs_the_holder() {
     let e = b.get_session(&ids[0]).await.unwrap_err();
     assert_eq!(e.kind(), ErrorKind::NotFound);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_replica_takes_its_sessions_back_at_once() {
+    let shared = MemoryStore::new(StoreOptions::default());
+    let first = replica("a@1", shared.share());
+    let id = loaded_session(&first, "Restarted").await;
+    first.edit(&id, 0, init_op()).await.unwrap();
+    let other = replica("b@1", shared.share());
+    assert_eq!(holder(&other.get_session(&id).await.unwrap_err()), "a@1");
+    // The same name in a new process (the old one crashed): no wait for the lease.
+    let second = replica("a@2", shared.share());
+    assert_eq!(second.get_session(&id).await.unwrap().plan_version, 2);
+    // Had the first process only paused, its writes are fenced now.
+    assert_eq!(
+        holder(&first.edit(&id, 2, drag(-8.0)).await.unwrap_err()),
+        "a@2"
+    );
+    assert_eq!(second.get_session(&id).await.unwrap().plan_version, 2);
+}

@@ -97,6 +97,24 @@ pub struct Replica {
     pub http: String,
 }
 
+impl Replica {
+    /// The replica's name: its id up to the last `@` (ids are `NAME@PROCESS`). Names are
+    /// unique among live replicas, so a lease held under this name by another process was
+    /// held by an earlier, gone process of this replica.
+    pub fn name(&self) -> &str {
+        replica_name(&self.id)
+    }
+
+    /// Whether a lease held by `holder` is this replica's own or an earlier process's of it.
+    pub fn succeeds(&self, holder: &Replica) -> bool {
+        holder.id == self.id || holder.name() == self.name()
+    }
+}
+
+fn replica_name(id: &str) -> &str {
+    id.rsplit_once('@').map_or(id, |(name, _)| name)
+}
+
 /// A session's unexpired lease.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Lease {
@@ -203,9 +221,10 @@ pub trait SessionStore: Send + Sync + std::fmt::Debug {
     // ---- leases (module docs) -----------------------------------------------------------------
 
     /// Takes session `id`'s lease for `replica` for `ttl_ms`: granted when there is no lease,
-    /// when it has expired or was released, or when `replica.id` holds it already (then it is
-    /// renewed with the same token); a new holder's token is larger than every earlier one of
-    /// the session. Once granted, this handle's writes to the session (`append`, `put_blob`,
+    /// when it has expired or was released, when `replica.id` holds it already (then it is
+    /// renewed with the same token), or when an earlier process of the same replica name holds
+    /// it ([`Replica::succeeds`]: a restarted replica takes its sessions back at once); a new
+    /// holder's token is larger than every earlier one of the session. Once granted, this handle's writes to the session (`append`, `put_blob`,
     /// `delete_blob`, `delete_session`) fail with [`StoreError::Fenced`] if another holder has
     /// claimed it since. `Held` when another replica's lease is unexpired.
     fn claim(&self, id: &str, replica: &Replica, ttl_ms: u64) -> Result<Claim, StoreError>;

@@ -263,7 +263,7 @@ impl SessionStore for MemoryStore {
         let mut map = self.lock();
         let s = get_mut(&mut map, id)?;
         if let Some((holder, left)) = live_holder(s, now)
-            && holder.id != replica.id
+            && !replica.succeeds(holder)
         {
             return Ok(Claim::Held(Lease {
                 holder: holder.clone(),

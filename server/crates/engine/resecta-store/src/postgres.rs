@@ -1154,7 +1154,7 @@ impl SessionStore for PostgresStore {
         let claim = self.write(|tx| {
             lock_session(tx, id)?;
             let token = match lease_row(tx, id)? {
-                Some((holder, token, true, remaining_ms)) if holder.id != replica.id => {
+                Some((holder, token, true, remaining_ms)) if !replica.succeeds(&holder) => {
                     return Ok(Claim::Held(Lease {
                         holder,
                         token,

@@ -724,7 +724,7 @@ impl SessionStore for SqliteStore {
         let now = now_ms();
         let row = lease_row(&tx, id)?;
         let token = match &row {
-            Some((holder, token, expires)) if *expires > now && holder.id != replica.id => {
+            Some((holder, token, expires)) if *expires > now && !replica.succeeds(holder) => {
                 return Ok(Claim::Held(Lease {
                     holder: holder.clone(),
                     token: *token,
