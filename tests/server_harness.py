@@ -1,4 +1,5 @@
 """A real `resecta serve` process for end-to-end tests, and the gRPC stubs generated from proto/."""
+import hashlib
 import json
 import os
 import select
@@ -6,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+import uuid
 from pathlib import Path
 
 import grpc
@@ -45,13 +47,41 @@ class Messages:
         raise AttributeError(name)
 
 
+E2E_STORE = os.environ.get("RESECTA_E2E_STORE")
+"""A PostgreSQL server URL (its `postgres` database) to run every test server's store on instead
+of SQLite or memory: the end-to-end suite's PostgreSQL pass (scripts/test.sh)."""
+
+
+def postgres_store(key: str) -> str:
+    """A database of `E2E_STORE`'s server for `key` (created when new), as a store URL: the same
+    `key` (a data directory) gives the same database, as a restart on one directory would."""
+    name = "e2e_" + hashlib.sha1(key.encode()).hexdigest()[:16]
+    exists = subprocess.run(["psql", E2E_STORE, "-tAc", f"SELECT 1 FROM pg_database WHERE datname = '{name}'"],
+                            capture_output=True, text=True, check=True).stdout.strip()
+    if exists != "1":
+        subprocess.run(["psql", E2E_STORE, "-qc", f"CREATE DATABASE {name}"], capture_output=True,
+                       text=True, check=True)
+    return E2E_STORE.rsplit("/", 1)[0] + "/" + name
+
+
+def store_args(data_dir) -> list[str]:
+    """The store flags of a test server: `data_dir`'s SQLite (memory without one), or on the
+    PostgreSQL pass a database standing for `data_dir` (a fresh one without)."""
+    if E2E_STORE:
+        key = str(Path(data_dir).resolve()) if data_dir is not None else uuid.uuid4().hex
+        # One replica name per store: a restart takes its sessions back at once, as a restarted
+        # single server does (a new name would wait for the dead process' leases to expire).
+        name = "e2e-" + hashlib.sha1(key.encode()).hexdigest()[:12]
+        return ["--store", postgres_store(key), "--replica-id", name]
+    return [] if data_dir is None else ["--data-dir", str(data_dir)]
+
+
 class Server:
     """`resecta serve` on free loopback ports; stopped (SIGTERM) or killed (SIGKILL) by the test."""
 
     def __init__(self, *args, env=None, data_dir=None):
-        self.args = ["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", *args]
-        if data_dir is not None:
-            self.args += ["--data-dir", str(data_dir)]
+        self.args = ["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", *args,
+                     *store_args(data_dir)]
         self.env = {**os.environ, "RUST_LOG": "warn", **(env or {})}
         self.proc = subprocess.Popen([resecta_bin(), *self.args], stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, env=self.env, text=True)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import requests
 
-from server_harness import (Server, fibonacci_sphere, generate_stubs, phantom, server,  # noqa: F401 (fixtures)
+from server_harness import (E2E_STORE, Server, fibonacci_sphere, generate_stubs, phantom, server,  # noqa: F401 (fixtures)
                             tls_files, wait_for)
 from conftest import ROOT
 
@@ -92,7 +92,9 @@ def test_server_info_health_and_session_lifecycle(server, stubs):
     # encoder neither compresses nor quantises, and loopback needs no token (and `gpu` when the
     # suite runs with RESECTA_GPU=required). Both faces agree.
     gpu = ["gpu"] if os.environ.get("RESECTA_GPU") == "required" else []
-    assert sorted(info.capabilities) == sorted(["mcsd", "psr", "watch-deltas", *gpu]), info.capabilities
+    # On the PostgreSQL pass every server is a replica of a shared store.
+    replicas = ["replicas"] if E2E_STORE else []
+    assert sorted(info.capabilities) == sorted(["mcsd", "psr", "watch-deltas", *gpu, *replicas]), info.capabilities
     http_info = requests.get(f"{server.http_url}/v1/info", timeout=10).json()
     assert sorted(http_info["capabilities"]) == sorted(info.capabilities)
     assert requests.get(f"{server.http_url}/healthz", timeout=10).status_code == 200
