@@ -1,9 +1,13 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! Append of one ~300-byte edit record (fsync included on SQLite) and put/get of a 512×512×300 u8
-//! label map (78.6 MB, one ellipsoid label) at zstd levels 1 and 3, on both backends.
+//! label map (78.6 MB, one ellipsoid label) at zstd levels 1 and 3, on SQLite and memory; the
+//! append also on PostgreSQL when `RESECTA_TEST_PG` names a database the store may use (its
+//! tables are created there if missing; the bench's session is `bench-append-<pid>`).
 
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
-use resecta_store::{Blob, MemoryStore, SessionRecord, SessionStore, SqliteStore, StoreOptions};
+use resecta_store::{
+    Blob, MemoryStore, PostgresStore, SessionRecord, SessionStore, SqliteStore, StoreOptions,
+};
 
 fn session(id: &str) -> SessionRecord {
     SessionRecord {
@@ -39,15 +43,26 @@ fn bench_append(c: &mut Criterion) {
     let dir = tempfile::tempdir().unwrap();
     let sqlite = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap();
     let memory = MemoryStore::new(StoreOptions::default());
-    let stores: [(&str, &dyn SessionStore); 2] = [("sqlite", &sqlite), ("memory", &memory)];
+    let pg = std::env::var("RESECTA_TEST_PG")
+        .ok()
+        .filter(|u| !u.is_empty())
+        .map(|url| PostgresStore::open(&url, None, StoreOptions::default()).unwrap());
+    let mut stores: Vec<(&str, &dyn SessionStore)> = vec![("sqlite", &sqlite), ("memory", &memory)];
+    if let Some(pg) = &pg {
+        stores.push(("postgres", pg));
+    }
+    let id = format!("bench-append-{}", std::process::id());
     let mut group = c.benchmark_group("append_one_300B");
     group.throughput(Throughput::Elements(1));
     for (name, store) in stores {
-        store.create_session(&session("s")).unwrap();
+        store.create_session(&session(&id)).unwrap();
         let mut len = 0;
         group.bench_function(BenchmarkId::from_parameter(name), |b| {
-            b.iter(|| len = store.append("s", len, &[edit_record(len + 1)]).unwrap())
+            b.iter(|| len = store.append(&id, len, &[edit_record(len + 1)]).unwrap())
         });
+        if name == "postgres" {
+            store.delete_session(&id).unwrap();
+        }
     }
     group.finish();
 }
