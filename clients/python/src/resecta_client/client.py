@@ -6,7 +6,8 @@ from __future__ import annotations
 import json
 import os
 import threading
-from collections.abc import Callable, Iterable, Iterator, Mapping
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +18,7 @@ from . import wire
 from ._gen import label_map_pb2, reconstruction_pb2, resection_pb2
 from ._gen import planning_service_pb2 as pb
 from ._gen import planning_service_pb2_grpc as pb_grpc
-from .errors import Cancelled, ServerUnavailable, from_rpc_error
+from .errors import Cancelled, ResectaError, ServerUnavailable, SessionElsewhere, from_rpc_error
 from .geometry import Axes, decompose, label_bytes
 from .scene import LiveScene, SceneUpdate
 from .types import (
@@ -79,6 +80,83 @@ def _read_pem(ca_cert: str | os.PathLike[str] | bytes | None) -> bytes | None:
     return Path(ca_cert).read_bytes()
 
 
+_NOT_CONNECTED = ("failed to connect", "connection refused", "dns resolution failed", "no route to host")
+
+
+def _not_connected(e: grpc.RpcError) -> bool:
+    """Whether a failed call's connection could not be made: the server never saw the call."""
+    if not isinstance(e, grpc.Call) or e.code() != grpc.StatusCode.UNAVAILABLE:
+        return False
+    text = (e.details() or "").lower()
+    return any(s in text for s in _NOT_CONNECTED)
+
+
+class _Tries:
+    """The tries of one call (or one stream's reconnections) across the replicas: where to send
+    the next one, and whether a failure may be repeated (`Client`'s rules)."""
+
+    def __init__(self, client: Client, session: str | None) -> None:
+        self.client, self.session = client, session
+        self.address = client.route(session)
+        self.start: float | None = None  # the first failure
+        self.hops = 0
+        self.step = 0
+        self.down: set[str] = set()  # found unreachable in this round
+
+    def succeeded(self) -> None:
+        """The call was answered at `address`: the session (or the home) is there."""
+        if self.client.route(self.session) != self.address:
+            self.client._set_route(self.session, self.address)
+        self.start, self.hops, self.step, self.down = None, 0, 0, set()
+
+    def again(self, e: grpc.RpcError | None, err: ResectaError, *, read_only: bool) -> bool:
+        """After a failed try: whether to try again (at `address`, after any backoff)."""
+        if self.start is None:
+            self.start = time.monotonic()
+        if isinstance(err, SessionElsewhere):
+            target = err.replica.grpc_address if err.replica is not None else ""
+            if target and target != self.address and target not in self.down:
+                self.hops += 1
+                if self.session is not None:
+                    self.client._set_route(self.session, target)
+                if self.hops <= self.client.MAX_HOPS:
+                    self.address = target
+                    return True
+                return self._wait(target)
+            # No address (the session just moved: repeat), or a holder just found unreachable
+            # (its lease runs on): wait and ask the replica that answered again.
+            return self._wait(self.address)
+        if err.status != grpc.StatusCode.UNAVAILABLE:
+            return False
+        if not (read_only or (e is not None and _not_connected(e))):
+            return False  # cut mid-call: it may have been applied
+        known = self.client._known()
+        if len(known) < 2:
+            return False  # nowhere else to go: fail fast, as a single server does
+        self.down.add(self.address)
+        others = [a for a in known if a not in self.down]
+        if others:
+            return self._go(others[0])
+        self.down = set()  # every address failed: wait, then a new round from the route
+        return self._wait(self.client.route(self.session))
+
+    def _go(self, address: str) -> bool:
+        if time.monotonic() - (self.start or 0.0) > self.client.failover_timeout:
+            return False
+        self.address = address
+        return True
+
+    def _wait(self, address: str) -> bool:
+        delay = min(0.05 * 2**self.step, 0.5)
+        self.step += 1
+        if time.monotonic() + delay - (self.start or 0.0) > self.client.failover_timeout:
+            return False
+        time.sleep(delay)
+        self.address = address
+        return True
+
+
+
 class Client:
     """A connection to a resecta planning server over gRPC.
 
@@ -90,8 +168,31 @@ class Client:
     first `server_info` (made lazily before the first other call). Use as a context manager or
     call `close`. Thread-safe: one client may serve several threads.
 
+    **Replicated servers** (docs/deployment.md). `address` is the Service (or one replica);
+    `replicas` are other gRPC addresses of the same server (replicas, or the Service again) to
+    try when the current one cannot be reached. The client keeps a route per session (session id
+    → the address of the replica holding it) and one channel per address. A call naming a
+    session goes to its route; when that replica answers `SessionElsewhere` with the holder's
+    address the client moves the route there and repeats the call (a few hops at most, then with
+    a short backoff). When a replica cannot be reached (the connection cannot be made), or a
+    redirect names one just found unreachable (a dead holder whose lease has not expired yet),
+    it tries the other known addresses with a short backoff for up to `failover_timeout`
+    seconds, then raises `ServerUnavailable` (or `SessionElsewhere`). With no other address
+    known, an unreachable server fails at once, as before.
+
+    Only calls the server certainly did not apply are repeated: any call refused with
+    SESSION_ELSEWHERE, any call whose connection could not be made, and read-only calls
+    (reads, exports, watches) always. An edit, plan import, upload or delete whose connection
+    broke after it was sent is raised as `ServerUnavailable`: it may or may not have been
+    applied, so re-read the session (`Session.info()` or a watch: the plan version tells)
+    before sending it again. `on_session_moved(session_id, address)` (optional) is called
+    from the calling thread whenever a session's route changes; `routes()` lists them.
+
     `api_version` is for tests of the server's version check; leave it alone.
     """
+
+    MAX_HOPS = 4
+    """Redirects followed at once in one call; further ones wait a backoff step each."""
 
     def __init__(
         self,
@@ -102,8 +203,16 @@ class Client:
         ca_cert: str | os.PathLike[str] | bytes | None = None,
         timeout: float = 30.0,
         api_version: str = API_VERSION,
+        replicas: Sequence[str] = (),
+        failover_timeout: float = 15.0,
+        on_session_moved: Callable[[str, str], None] | None = None,
     ) -> None:
+        if isinstance(replicas, str):
+            replicas = [a for a in (x.strip() for x in replicas.split(",")) if a]
         self.address = address
+        self.replicas: tuple[str, ...] = tuple(a for a in dict.fromkeys(replicas) if a != address)
+        self.failover_timeout = failover_timeout
+        self.on_session_moved = on_session_moved
         self.timeout = timeout
         self.tls = tls or ca_cert is not None
         self._root_certs = _read_pem(ca_cert)
@@ -115,20 +224,72 @@ class Client:
         self._retired: list[grpc.Channel] = []  # channels replaced by a larger receive limit
         self._info: ServerInfo | None = None
         self._receive = DEFAULT_RECEIVE_BYTES
-        self._channel = self._open(self._receive)
-        self._stub = pb_grpc.PlanningServiceStub(self._channel)
+        self._channels: dict[str, tuple[grpc.Channel, pb_grpc.PlanningServiceStub]] = {}
+        self._routes: dict[str, str] = {}  # session id -> the address of the replica holding it
+        self._learned: list[str] = []  # addresses named by redirects
+        self._home = address  # where calls naming no session go: the last address that answered
+        self._closed = False
 
     # --- plumbing ---------------------------------------------------------------------------
 
-    def _open(self, receive_bytes: int) -> grpc.Channel:
+    def _open(self, receive_bytes: int, address: str | None = None) -> grpc.Channel:
         options = [
             ("grpc.max_receive_message_length", receive_bytes),
             ("grpc.max_send_message_length", max(receive_bytes, CHUNK_BYTES + (1 << 20))),
         ]
+        target = self.address if address is None else address
         if self.tls:
             creds = grpc.ssl_channel_credentials(root_certificates=self._root_certs)
-            return grpc.secure_channel(self.address, creds, options=options)
-        return grpc.insecure_channel(self.address, options=options)
+            return grpc.secure_channel(target, creds, options=options)
+        return grpc.insecure_channel(target, options=options)
+
+    def _stub_at(self, address: str) -> pb_grpc.PlanningServiceStub:
+        """The stub of the channel to `address` (opened on first use, with the receive limit)."""
+        with self._lock:
+            if self._closed:
+                raise ValueError("the client is closed")
+            held = self._channels.get(address)
+            if held is None:
+                channel = self._open(self._receive, address)
+                held = self._channels[address] = (channel, pb_grpc.PlanningServiceStub(channel))
+            return held[1]
+
+    @property
+    def _stub(self) -> pb_grpc.PlanningServiceStub:
+        return self._stub_at(self._home)
+
+    def _known(self) -> list[str]:
+        """Every address this client knows of, the configured ones first."""
+        with self._lock:
+            return list(dict.fromkeys([self.address, *self.replicas, *self._learned, *self._routes.values()]))
+
+    def route(self, session_id: str | None) -> str:
+        """The address calls naming `session_id` go to now (its holder, as far as known)."""
+        with self._lock:
+            if session_id is not None and session_id in self._routes:
+                return self._routes[session_id]
+            return self._home
+
+    def routes(self) -> dict[str, str]:
+        """Session id → the replica address this client follows it to (sessions it called)."""
+        with self._lock:
+            return dict(self._routes)
+
+    def _set_route(self, session_id: str | None, address: str) -> None:
+        moved = False
+        with self._lock:
+            if address not in (self.address, *self.replicas) and address not in self._learned:
+                self._learned.append(address)
+            if session_id is None:
+                self._home = address
+            else:
+                moved = self._routes.get(session_id, self._home) != address
+                self._routes[session_id] = address
+        if moved and self.on_session_moved is not None:
+            try:
+                self.on_session_moved(session_id, address)  # type: ignore[arg-type]
+            except Exception:  # a listener's bug must not fail the call
+                pass
 
     def _ready(self) -> pb_grpc.PlanningServiceStub:
         """The stub, after the receive limit has been raised to the server's."""
@@ -138,23 +299,51 @@ class Client:
                     self.server_info()
         return self._stub
 
-    def _call(self, method: str, request: Any, *, timeout: float | None = None) -> Any:
-        """A unary call with the client's metadata; gRPC errors become `ResectaError`s."""
-        stub = self._ready()
-        try:
-            return getattr(stub, method)(
-                request, metadata=self._metadata, timeout=self.timeout if timeout is None else timeout
-            )
-        except grpc.RpcError as e:
-            raise from_rpc_error(e) from None
+    def _call(
+        self,
+        method: str,
+        request: Any,
+        *,
+        timeout: float | None = None,
+        session: str | None = None,
+        read_only: bool = False,
+        boot: bool = True,
+    ) -> Any:
+        """A unary call with the client's metadata, sent to `session`'s route and repeated
+        elsewhere when the server certainly did not apply it (see the class); gRPC errors
+        become `ResectaError`s."""
+        if boot:
+            self._ready()
+        tries = _Tries(self, session)
+        wait = self.timeout if timeout is None else timeout
+        while True:
+            try:
+                stub = self._stub_at(tries.address)
+                r = getattr(stub, method)(request, metadata=self._metadata, timeout=wait)
+            except grpc.RpcError as e:
+                err = from_rpc_error(e)
+                if tries.again(e, err, read_only=read_only):
+                    continue
+                raise err from None
+            tries.succeeded()
+            return r
 
-    def _stream(self, method: str, request: Any, *, timeout: float | None = None) -> Any:
-        """A server-streaming call (an iterator that is also a `grpc.Call`)."""
-        return getattr(self._ready(), method)(request, metadata=self._metadata, timeout=timeout)
+    def _stream(
+        self, method: str, request: Any, *, timeout: float | None = None, address: str | None = None
+    ) -> Any:
+        """A server-streaming call (an iterator that is also a `grpc.Call`) at `address` (the
+        home address by default)."""
+        self._ready()
+        stub = self._stub if address is None else self._stub_at(address)
+        return getattr(stub, method)(request, metadata=self._metadata, timeout=timeout)
 
     def close(self) -> None:
-        """Closes the channel (open streams end with `Cancelled`)."""
-        for channel in (*self._retired, self._channel):
+        """Closes the channels (open streams end with `Cancelled`)."""
+        with self._lock:
+            self._closed = True
+            channels = [*self._retired, *(c for c, _ in self._channels.values())]
+            self._retired, self._channels = [], {}
+        for channel in channels:
             channel.close()
 
     def __enter__(self) -> Client:
@@ -168,37 +357,36 @@ class Client:
     def server_info(self) -> ServerInfo:
         """The server's version, API version, capabilities and limits (a fresh call). Raises
         `ServerUnavailable` when the server cannot be reached, `AuthError` on a bad token."""
-        try:
-            r = self._stub.GetServerInfo(
-                pb.GetServerInfoRequest(), metadata=self._metadata, timeout=self.timeout
-            )
-        except grpc.RpcError as e:
-            raise from_rpc_error(e) from None
+        r = self._call("GetServerInfo", pb.GetServerInfoRequest(), read_only=True, boot=False)
         info = ServerInfo.from_pb(r)
         with self._lock:
             self._info = info
             wanted = info.limits.max_message_bytes
             if wanted > self._receive:
-                # Calls in flight on the old channel finish there; it closes with the client.
-                self._retired.append(self._channel)
-                self._receive, self._channel = wanted, self._open(wanted)
-                self._stub = pb_grpc.PlanningServiceStub(self._channel)
+                # Calls in flight on the old channels finish there; they close with the client.
+                self._retired += [c for c, _ in self._channels.values()]
+                self._receive, self._channels = wanted, {}
         return info
 
     def create_session(self, display_name: str = "") -> Session:
         """A new empty session. Do not put patient identifiers in `display_name` on a shared
         server. Raises `QuotaExceeded` beyond the server's session quota."""
         r = self._call("CreateSession", pb.CreateSessionRequest(display_name=display_name))
+        with self._lock:  # the replica that made it holds it
+            self._routes.setdefault(r.session.id, self._home)
         return Session(self, SessionInfo.from_pb(r.session))
 
     def list_sessions(self) -> list[SessionInfo]:
         """Every session, most recently used first."""
-        return [SessionInfo.from_pb(s) for s in self._call("ListSessions", pb.ListSessionsRequest()).sessions]
+        r = self._call("ListSessions", pb.ListSessionsRequest(), read_only=True)
+        return [SessionInfo.from_pb(s) for s in r.sessions]
 
     def get_session(self, session_id: str) -> SessionInfo:
         """One session's metadata (`SessionNotFound` for an unknown or expired id)."""
         return SessionInfo.from_pb(
-            self._call("GetSession", pb.GetSessionRequest(session_id=session_id)).session
+            self._call(
+                "GetSession", pb.GetSessionRequest(session_id=session_id), session=session_id, read_only=True
+            ).session
         )
 
     def session(self, session_id: str) -> Session:
@@ -207,7 +395,9 @@ class Client:
 
     def delete_session(self, session_id: str) -> None:
         """Deletes a session with its label map, models and plan."""
-        self._call("DeleteSession", pb.DeleteSessionRequest(session_id=session_id))
+        self._call("DeleteSession", pb.DeleteSessionRequest(session_id=session_id), session=session_id)
+        with self._lock:
+            self._routes.pop(session_id, None)
 
     # --- point clouds -------------------------------------------------------------------------
 
@@ -257,7 +447,9 @@ class Client:
             allow_quantized=allow_quantized,
         )
         wait = max(self.timeout, 300.0) if timeout is None else timeout
-        return PointCloudSurface.from_pb(self._call("ReconstructPoints", request, timeout=wait))
+        return PointCloudSurface.from_pb(
+            self._call("ReconstructPoints", request, timeout=wait, read_only=True)  # keeps nothing
+        )
 
 
 class Session:
@@ -275,6 +467,7 @@ class Session:
         self._lock = threading.Lock()
         self._info = info
         self._version = info.plan_version
+        self._read: dict[str, Any] = {"session": self.id, "read_only": True}
 
     def __repr__(self) -> str:
         return f"Session(id={self.id!r}, plan_version={self.plan_version})"
@@ -314,13 +507,22 @@ class Session:
             for k in range(0, len(view), CHUNK_BYTES):
                 yield pb.UploadLabelMapRequest(data=bytes(view[k : k + CHUNK_BYTES]))
 
-        stub = self.client._ready()
-        try:
-            r = stub.UploadLabelMap(
-                chunks(), metadata=self.client._metadata, timeout=max(self.client.timeout, 600)
-            )
-        except grpc.RpcError as e:
-            raise from_rpc_error(e) from None
+        # Repeated (from the first chunk) only when refused with SESSION_ELSEWHERE or not
+        # connected: the server accepted none of it.
+        self.client._ready()
+        tries = _Tries(self.client, self.id)
+        while True:
+            try:
+                r = self.client._stub_at(tries.address).UploadLabelMap(
+                    chunks(), metadata=self.client._metadata, timeout=max(self.client.timeout, 600)
+                )
+            except grpc.RpcError as e:
+                err = from_rpc_error(e)
+                if tries.again(e, err, read_only=False):
+                    continue
+                raise err from None
+            tries.succeeded()
+            break
         self.info()
         return LabelMapSummary.from_pb(r.label_map)
 
@@ -401,7 +603,8 @@ class Session:
         request = pb.ReconstructRequest(
             session_id=self.id, method=Method.parse(method).to_pb(), options=options
         )
-        call = self.client._stream("Reconstruct", request, timeout=timeout)
+        tries = _Tries(self.client, self.id)
+        call = self.client._stream("Reconstruct", request, timeout=timeout, address=tries.address)
         done = threading.Event()
         if cancel is not None:
 
@@ -414,8 +617,30 @@ class Session:
             threading.Thread(target=canceller, name="resecta-reconstruct-cancel", daemon=True).start()
         models: list[ModelInfo] = []
         done_event = reconstruction_pb2.ReconstructDone()
+        pending: grpc.RpcError | None = None
+        while True:  # reopened at the holder when refused before any event (SESSION_ELSEWHERE)
+            try:
+                first = next(call, None)
+            except grpc.RpcError as e:
+                if not (cancel is not None and cancel.is_set()) and tries.again(
+                    e, from_rpc_error(e), read_only=False
+                ):
+                    call = self.client._stream("Reconstruct", request, timeout=timeout, address=tries.address)
+                    continue
+                first, pending = None, e
+            else:
+                tries.succeeded()
+            break
+
+        def events() -> Iterator[Any]:
+            if pending is not None:
+                raise pending
+            if first is not None:
+                yield first
+                yield from call
+
         try:
-            for event in call:
+            for event in events():
                 kind = event.WhichOneof("event")
                 if kind == "progress" and progress is not None:
                     progress(event.progress.fraction, event.progress.stage)
@@ -444,7 +669,9 @@ class Session:
     def _edit(self, base_version: int | None, **op: Any) -> EditResult:
         base = self.plan_version if base_version is None else base_version
         r = EditResult.from_pb(
-            self.client._call("Edit", pb.EditRequest(session_id=self.id, base_version=base, **op))
+            self.client._call(
+                "Edit", pb.EditRequest(session_id=self.id, base_version=base, **op), session=self.id
+            )
         )
         self._saw(r.plan_version)
         return r
@@ -677,12 +904,14 @@ class Session:
 
     def volumes(self, *, timeout: float | None = None) -> Volumes:
         """Resected and remnant volumes of the current plan."""
-        r = self.client._call("GetVolumes", pb.GetVolumesRequest(session_id=self.id), timeout=timeout)
+        r = self.client._call(
+            "GetVolumes", pb.GetVolumesRequest(session_id=self.id), timeout=timeout, **self._read
+        )
         return Volumes.from_pb(r.volumes, r.plan_version)
 
     def export_plan(self) -> str:
         """The current plan as `resecta-plan/1` JSON text."""
-        r = self.client._call("ExportPlan", pb.ExportPlanRequest(session_id=self.id))
+        r = self.client._call("ExportPlan", pb.ExportPlanRequest(session_id=self.id), **self._read)
         self._saw(r.plan_version)
         return str(r.plan_json)
 
@@ -692,7 +921,9 @@ class Session:
         text = plan if isinstance(plan, str) else json.dumps(plan)
         base = self.plan_version if base_version is None else base_version
         r = self.client._call(
-            "ImportPlan", pb.ImportPlanRequest(session_id=self.id, plan_json=text, base_version=base)
+            "ImportPlan",
+            pb.ImportPlanRequest(session_id=self.id, plan_json=text, base_version=base),
+            session=self.id,
         )
         self._saw(r.plan_version)
         return int(r.plan_version)
@@ -709,15 +940,20 @@ class Session:
         `format` (``"vtp"``, ``"vtk"``, ``"stl"``, ``"ply"``, ``"obj"``; RAS coordinates)."""
         which = {"resection": name} if resection else {"model": name}
         request = pb.ExportModelRequest(session_id=self.id, format=ModelFormat.parse(format).to_pb(), **which)
-        out = bytearray()
-        try:
-            for chunk in self.client._stream(
-                "ExportModel", request, timeout=timeout or max(self.client.timeout, 120)
-            ):
-                out += chunk.data
-        except grpc.RpcError as e:
-            raise from_rpc_error(e) from None
-        return bytes(out)
+        tries = _Tries(self.client, self.id)
+        while True:  # read-only: repeated from the start wherever it broke
+            out = bytearray()
+            try:
+                wait = timeout or max(self.client.timeout, 120)
+                for chunk in self.client._stream("ExportModel", request, timeout=wait, address=tries.address):
+                    out += chunk.data
+            except grpc.RpcError as e:
+                err = from_rpc_error(e)
+                if tries.again(e, err, read_only=True):
+                    continue
+                raise err from None
+            tries.succeeded()
+            return bytes(out)
 
     def slices(
         self,
@@ -734,7 +970,7 @@ class Session:
         request = pb.GetSlicesRequest(
             session_id=self.id, axial=axial, coronal=coronal, sagittal=sagittal, **which
         )
-        return Slices.from_pb(self.client._call("GetSlices", request))
+        return Slices.from_pb(self.client._call("GetSlices", request, **self._read))
 
     def label_slice(
         self, axis: str | SliceAxis, position_mm: float, *, pixel_mm: float | None = None
@@ -748,18 +984,20 @@ class Session:
             position_mm=position_mm,
             pixel_mm=pixel_mm,
         )
-        return LabelSlice.from_pb(self.client._call("GetLabelSlice", request))
+        return LabelSlice.from_pb(self.client._call("GetLabelSlice", request, **self._read))
 
     def resectogram(self, name: str, width: int = 200, height: int = 200) -> Resectogram:
         """Resection `name` unrolled to its (u, v) square at `width`×`height` pixels (each
         1..=`max_resectogram_side`): margin classes, portal territories, cut vessels, worst point."""
         request = pb.GetResectogramRequest(session_id=self.id, resection=name, width=width, height=height)
-        return Resectogram.from_pb(self.client._call("GetResectogram", request))
+        return Resectogram.from_pb(self.client._call("GetResectogram", request, **self._read))
 
     def risk_map(self, *, timeout: float | None = None) -> RiskMap:
         """The plan's risk per voxel of the functional liver with the portal territories
         (`FailedPrecondition` without vessels or while a cut is incomplete); needs `zstandard`."""
-        r = self.client._call("GetRiskMap", pb.GetRiskMapRequest(session_id=self.id), timeout=timeout)
+        r = self.client._call(
+            "GetRiskMap", pb.GetRiskMapRequest(session_id=self.id), timeout=timeout, **self._read
+        )
         return RiskMap.from_pb(r)
 
     # --- watch --------------------------------------------------------------------------------
@@ -792,9 +1030,13 @@ class Watch:
     It starts with a snapshot, or, with `since_seq` and the `scene` built so far, with the
     events after that sequence number (the server sends a snapshot instead when it no longer
     has them). When the connection drops (UNAVAILABLE) it reconnects up to `reconnect` times in
-    a row with ``since_seq = scene.seq``; when a delta does not fit the scene it asks for a
-    fresh snapshot, and a snapshot that does not decode raises `wire.WireError`. `stop()` ends the iteration from any thread (the blocked `next` returns
-    with StopIteration). Plan versions seen advance the session's `plan_version`. Compressed
+    a row with ``since_seq = scene.seq``; on a replicated server, when the stream ends because
+    the session moved (SESSION_ELSEWHERE) or its replica died, it reopens at the new holder
+    (trying the client's other addresses for up to `Client.failover_timeout` meanwhile), resuming
+    after ``scene.seq``: the new replica sends a fresh snapshot, which the iteration yields;
+    when a delta does not fit the scene it asks for a fresh snapshot, and a snapshot that does
+    not decode raises `wire.WireError`. `stop()` ends the iteration from any thread (the blocked
+    `next` returns with StopIteration). Plan versions seen advance the session's `plan_version`. Compressed
     payloads are asked for when the `zstandard` package is importable (`allow_zstd`), quantised
     ones only with `allow_quantized`.
     """
@@ -818,6 +1060,8 @@ class Watch:
         self._lock = threading.Lock()
         self._stopped = threading.Event()
         self._call: Any = None
+        self._tries: _Tries | None = None  # where the stream is, and its failovers
+        self._fresh = False  # no message yet on the stream opened last
         self.reconnects = 0
         """How many times the stream was reopened after a dropped connection."""
 
@@ -850,7 +1094,10 @@ class Watch:
             allow_zstd=self._zstd,
             allow_quantized=self._quantized,
         )
-        call = self.session.client._stream("Watch", request)
+        if self._tries is None:
+            self._tries = _Tries(self.session.client, self.session.id)
+        self._fresh = True
+        call = self.session.client._stream("Watch", request, address=self._tries.address)
         with self._lock:
             if self._stopped.is_set():
                 call.cancel()
@@ -878,14 +1125,23 @@ class Watch:
                 if self._stopped.is_set():
                     raise StopIteration from None
                 err = from_rpc_error(e)
-                if isinstance(err, ServerUnavailable) and failures < self._reconnect:
-                    failures += 1
-                    self.reconnects += 1
+                if isinstance(err, ServerUnavailable):
+                    # The session moved (SESSION_ELSEWHERE) or its replica went away: reopen
+                    # at the holder (other replicas while it is unreachable), resuming.
                     self._since = self.scene.seq
-                    self._stopped.wait(min(0.2 * 2**failures, 2.0))  # stop() cuts the wait short
-                    continue
+                    if self._tries is not None and self._tries.again(e, err, read_only=True):
+                        self.reconnects += 1
+                        continue
+                    if failures < self._reconnect:
+                        failures += 1
+                        self.reconnects += 1
+                        self._stopped.wait(min(0.2 * 2**failures, 2.0))  # stop() cuts the wait short
+                        continue
                 raise err from None
             failures = 0
+            if self._fresh and self._tries is not None:
+                self._fresh = False
+                self._tries.succeeded()
             try:
                 update = self.scene.apply(msg)
             except wire.WireError:

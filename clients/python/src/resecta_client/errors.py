@@ -9,6 +9,8 @@ status code.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import grpc
 
 from ._gen import error_pb2
@@ -60,6 +62,30 @@ class ServerUnavailable(ResectaError):
     """The server cannot be reached, or is shutting down (UNAVAILABLE)."""
 
 
+@dataclass(frozen=True)
+class Replica:
+    """One replica of a replicated server, as a SESSION_ELSEWHERE error names it: its `id`,
+    its gRPC address (``host:port``), its HTTP face's base URL, and the milliseconds left on its
+    lease on the session (None when the server did not say)."""
+
+    id: str
+    grpc_address: str
+    http_url: str
+    lease_remaining_ms: int | None = None
+
+
+class SessionElsewhere(ServerUnavailable):
+    """The session is held by another replica of a replicated server (UNAVAILABLE,
+    SESSION_ELSEWHERE): the call was refused, not applied, and may be repeated at
+    `replica.grpc_address`. `replica` is None when the answering replica does not know where
+    the session is (it just moved): repeat the call. `Client` follows these by itself; it
+    raises this only when it could not reach the holder within its `failover_timeout`."""
+
+    def __init__(self, message: str, *, replica: Replica | None = None, **kw: object) -> None:
+        super().__init__(message, **kw)  # type: ignore[arg-type]
+        self.replica = replica
+
+
 class StaleVersion(ResectaError):
     """An edit against an old plan version (ABORTED, STALE_VERSION): never rebased by the server.
     `current_version` is the session's plan version now; re-read the state and decide again."""
@@ -108,6 +134,7 @@ _BY_CODE: dict[str, type[ResectaError]] = {
     "MODEL_NOT_FOUND": NotFound,
     "STALE_VERSION": StaleVersion,
     "UNSUPPORTED": Unsupported,
+    "SESSION_ELSEWHERE": SessionElsewhere,
 }
 _BY_STATUS: dict[grpc.StatusCode, type[ResectaError]] = {
     grpc.StatusCode.UNAUTHENTICATED: AuthError,
@@ -196,4 +223,10 @@ def from_rpc_error(err: grpc.RpcError) -> ResectaError:
     if cls is StaleVersion:
         current = info.current_plan_version if info and info.HasField("current_plan_version") else None
         return StaleVersion(message, current_version=current, **kw)
+    if cls is SessionElsewhere:
+        replica = None
+        if info is not None and info.HasField("replica"):
+            r = info.replica
+            replica = Replica(r.id, r.grpc_address, r.http_url, int(r.lease_remaining_ms))
+        return SessionElsewhere(message, replica=replica, **kw)
     return cls(message, **kw)  # type: ignore[arg-type]

@@ -25,13 +25,15 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x16resecta/v1/error.proto\x12\nresecta.v1\"d\n\tErrorInfo\x12\x0c\n\x04\x63ode\x18\x01 \x01(\t\x12\r\n\x05\x66ield\x18\x02 \x01(\t\x12!\n\x14\x63urrent_plan_version\x18\x03 \x01(\x04H\x00\x88\x01\x01\x42\x17\n\x15_current_plan_versionb\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n\x16resecta/v1/error.proto\x12\nresecta.v1\"\xa2\x01\n\tErrorInfo\x12\x0c\n\x04\x63ode\x18\x01 \x01(\t\x12\r\n\x05\x66ield\x18\x02 \x01(\t\x12!\n\x14\x63urrent_plan_version\x18\x03 \x01(\x04H\x00\x88\x01\x01\x12\x30\n\x07replica\x18\x04 \x01(\x0b\x32\x1a.resecta.v1.ReplicaAddressH\x01\x88\x01\x01\x42\x17\n\x15_current_plan_versionB\n\n\x08_replica\"`\n\x0eReplicaAddress\x12\n\n\x02id\x18\x01 \x01(\t\x12\x14\n\x0cgrpc_address\x18\x02 \x01(\t\x12\x10\n\x08http_url\x18\x03 \x01(\t\x12\x1a\n\x12lease_remaining_ms\x18\x04 \x01(\x04\x62\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
 _builder.BuildTopDescriptorsAndMessages(DESCRIPTOR, 'resecta.v1.error_pb2', _globals)
 if not _descriptor._USE_C_DESCRIPTORS:
   DESCRIPTOR._loaded_options = None
-  _globals['_ERRORINFO']._serialized_start=38
-  _globals['_ERRORINFO']._serialized_end=138
+  _globals['_ERRORINFO']._serialized_start=39
+  _globals['_ERRORINFO']._serialized_end=201
+  _globals['_REPLICAADDRESS']._serialized_start=203
+  _globals['_REPLICAADDRESS']._serialized_end=299
 # @@protoc_insertion_point(module_scope)
