@@ -34,6 +34,7 @@ SETTINGS_ADDRESS = "Resecta/ServerAddress"
 SETTINGS_TOKEN = "Resecta/Token"
 SETTINGS_TLS = "Resecta/UseTls"
 SETTINGS_CA_FILE = "Resecta/CaFile"
+SETTINGS_REPLICAS = "Resecta/Replicas"
 DEFAULT_ADDRESS = "127.0.0.1:50051"
 #: Markups lists made by "Place" carry it; the end-point selector lists only them.
 END_POINT_ATTRIBUTE = "Resecta.EndPoint"
@@ -146,6 +147,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
         settings = qt.QSettings()
         self.ui.serverAddressLineEdit.text = settings.value(SETTINGS_ADDRESS, DEFAULT_ADDRESS)
+        self.ui.serverReplicasLineEdit.text = settings.value(SETTINGS_REPLICAS, "")
         self.ui.tokenLineEdit.text = settings.value(SETTINGS_TOKEN, "")
         self.ui.tlsCheckBox.checked = str(settings.value(SETTINGS_TLS, "false")).lower() == "true"
         self.ui.caFilePathLineEdit.currentPath = settings.value(SETTINGS_CA_FILE, "")
@@ -287,6 +289,7 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
 
     def onConnect(self) -> None:
         address = self.ui.serverAddressLineEdit.text.strip() or DEFAULT_ADDRESS
+        replicas = self.ui.serverReplicasLineEdit.text.strip()
         token = self.ui.tokenLineEdit.text.strip()
         tls = self.ui.tlsCheckBox.checked
         caFile = self.ui.caFilePathLineEdit.currentPath
@@ -297,11 +300,14 @@ class ResectaWidget(ScriptedLoadableModuleWidget, VTKObservationMixin):
                 return
             settings = qt.QSettings()
             settings.setValue(SETTINGS_ADDRESS, address)
+            settings.setValue(SETTINGS_REPLICAS, replicas)
             settings.setValue(SETTINGS_TOKEN, token)
             settings.setValue(SETTINGS_TLS, "true" if tls else "false")
             settings.setValue(SETTINGS_CA_FILE, caFile)
             self.ui.connectionStatusLabel.text = _("Connecting to {address}…").format(address=address)
-            self.logic.connect(address, token or None, tls, caFile or None, on_done=self._connected)
+            # Retries and fail-overs run on the Logic's worker and watch threads, never here.
+            self.logic.connect(address, token or None, tls, caFile or None, on_done=self._connected,
+                               replicas=replicas)
 
     def _confirmInstall(self, packages) -> bool:
         return slicer.util.confirmOkCancelDisplay(

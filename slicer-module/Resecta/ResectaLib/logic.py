@@ -18,7 +18,8 @@ Callbacks (all optional, all on the main thread): `status(text)`, `error(excepti
 `resections()` (resections added or removed), `volumes(VolumeTable)`, `metrics(rows)` (each
 resection's kind and Sec. 7.4 metrics, `volumetry.MetricRow`s), `margin(MarginIndicator)`,
 `session()` (the server session was opened or forgotten), `resectogram(Resectogram)` (the
-resectogram shown was refreshed).
+resectogram shown was refreshed), `session_moved(session_id, address)` (a replicated server's
+session is now served by the replica at `address`; the client follows it by itself).
 
 The vascular risk (`risk.py`): cut vessels follow every volume report; `show_risk` fetches the
 risk map once; `follow_resectogram` shows a resection's resectogram and refetches it after each
@@ -29,7 +30,7 @@ from __future__ import annotations
 
 import threading
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import vtk
@@ -41,6 +42,13 @@ from .gridsync import GridSync
 from .sceneupdate import WatchApplier
 
 PREVIEW_NODE_NAME = "Resecta preview contour"
+
+
+def parse_addresses(text: str | Sequence[str]) -> list[str]:
+    """The addresses in `text` (comma-, space- or newline-separated, or already a list), in
+    order, without blanks or repeats: ``"a:1, b:2"`` → ``["a:1", "b:2"]``."""
+    items = text.replace(",", " ").split() if isinstance(text, str) else [str(a).strip() for a in text]
+    return list(dict.fromkeys(a for a in items if a))
 
 
 class PlanningLogic:
@@ -64,6 +72,7 @@ class PlanningLogic:
         self.model_infos: dict[str, Any] = {}
         self.label_map_summary = None
         self.errors: list[BaseException] = []
+        self.moves: list[tuple[str, str]] = []  # (session id, replica address), as reported
         self._callbacks: dict[str, Callable] = {}
         self._cancel = threading.Event()
         self._building = False
@@ -150,14 +159,26 @@ class PlanningLogic:
     # --- connection and session ---------------------------------------------------------------
 
     def connect(self, address: str, token: str | None = None, tls: bool = False,
-                ca_file: str | None = None, on_done: Callable | None = None) -> None:
-        """Connects (on the worker) and checks the server; `on_done(server_info)`."""
+                ca_file: str | None = None, on_done: Callable | None = None,
+                replicas: str | Sequence[str] = ()) -> None:
+        """Connects (on the worker) and checks the server; `on_done(server_info)`.
+
+        `replicas`: the other gRPC addresses of a replicated server (a list, or one text with
+        them comma-separated, `parse_addresses`), tried when the current one cannot be reached.
+        The client follows a session to the replica holding it by itself, retrying on the
+        worker and the watch thread (never on the main thread); each move is reported by the
+        `status` callback ("Session moved to replica …") and `session_moved(id, address)`."""
         factory = self._client_factory
         if factory is None:
             from resecta_client import Client as factory  # installed on first use in Slicer
+        others = [a for a in parse_addresses(replicas) if a != address]
+
+        def moved(session_id: str, at: str) -> None:  # on a worker or the watch thread
+            self.dispatcher.call_soon(lambda: self._session_moved(session_id, at))
 
         def work():
-            client = factory(address, token, tls=tls, ca_cert=ca_file or None)
+            client = factory(address, token, tls=tls, ca_cert=ca_file or None, replicas=others,
+                             on_session_moved=moved)
             try:
                 info = client.server_info()
             except BaseException:
@@ -171,6 +192,12 @@ class PlanningLogic:
             self._status(f"Connected to resecta {self.server_info.server_version} at {address}")
 
         self.call(work, done, lambda r: on_done(r[1]) if on_done else None)
+
+    def _session_moved(self, session_id: str, address: str) -> None:
+        self.moves.append((session_id, address))
+        if session_id == self.session_id or self.session is None:
+            self._status(f"Session moved to replica {address}")
+        self._emit("session_moved", session_id, address)
 
     def open_session(self, session_id: str, on_done: Callable | None = None) -> None:
         """Follows an existing server session (e.g. after a scene reload)."""
