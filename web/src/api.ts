@@ -263,7 +263,49 @@ export interface Problem {
   detail?: string;
   code?: string;
   current_version?: string;
+  replica?: ReplicaAddress; // SESSION_ELSEWHERE (421) only
 }
+
+/** Where a replicated server's replica is reached (a 421 `SESSION_ELSEWHERE` names the holder). */
+export interface ReplicaAddress {
+  id?: string;
+  grpc_address?: string;
+  http_url?: string;
+  lease_remaining_ms?: number;
+}
+
+/** Called once when the session is held by another replica (421 with its `http_url`): the page
+ * cannot call that origin (same-origin CSP, no CORS), so it moves there. `pageUrl` is the other
+ * replica's page opening the session (`<http_url>/#session=<id>`). */
+export type OnElsewhere = (pageUrl: string, replica: ReplicaAddress, sessionId: string | null) => void;
+
+/** The other replica's page that opens `sessionId` (`#session=<id>`, read by the page at start). */
+export function replicaPageUrl(httpUrl: string, sessionId: string | null): string {
+  const base = `${httpUrl.replace(/\/+$/, "")}/`;
+  return sessionId ? `${base}#session=${encodeURIComponent(sessionId)}` : base;
+}
+
+/** The session of a page's `#session=<id>` fragment (`location.hash`), or null. */
+export function sessionFromHash(hash: string): string | null {
+  const id = new URLSearchParams(hash.replace(/^#/, "")).get("session");
+  return id || null;
+}
+
+/** The holder's HTTP base URL when `e` is a 421 SESSION_ELSEWHERE naming one, else null. */
+export function elsewhereUrl(e: unknown): string | null {
+  if (!(e instanceof ApiError) || e.status !== 421) return null;
+  return e.problem.replica?.http_url || null;
+}
+
+/** The session named by an API path (`/v1/sessions/<id>/...`), or null. */
+function sessionOf(path: string): string | null {
+  const m = /^\/v1\/sessions\/([^/?]+)/.exec(path);
+  return m ? decodeURIComponent(m[1]!) : null;
+}
+
+/** 421 SESSION_ELSEWHERE without a replica (the session is moving): tries, and the wait before each. */
+const ELSEWHERE_RETRIES = 8;
+const ELSEWHERE_DELAY_MS = 250;
 
 /** An HTTP error answer (or a stream's `error` event), with its problem when it sent one. */
 export class ApiError extends Error {
@@ -291,6 +333,9 @@ export type AskToken = (retry: boolean) => Promise<string | null>;
 
 export class Api {
   private asking: Promise<string | null> | null = null;
+  private moving = false;
+  /** Set by the page: how it moves to the replica holding the session (see `OnElsewhere`). */
+  onElsewhere: OnElsewhere | null = null;
 
   /** `base`: the server's origin ("" on the page: same origin); `tokens`: where the token is
    * kept (the tab's sessionStorage). */
@@ -321,6 +366,7 @@ export class Api {
     onProgress: (sent: number, total: number) => void,
   ): Promise<{ labelMap?: LabelMapSummary }> {
     const url = `${this.base}/v1/sessions/${enc(id)}/label-map?file=${enc(JSON.stringify(header))}`;
+    let misdirected = 0;
     for (let retry = false; ; retry = true) {
       const { headers, token } = this.headers({ "content-type": "application/octet-stream" });
       const xhr = new XMLHttpRequest();
@@ -335,6 +381,7 @@ export class Api {
       await loaded;
       if (xhr.status >= 200 && xhr.status < 300) return JSON.parse(xhr.responseText) as { labelMap?: LabelMapSummary };
       const problem = problemOf(xhr.status, xhr.statusText, xhr.responseText);
+      if (xhr.status === 421 && (await this.misdirected(problem, id, ++misdirected))) continue;
       if (xhr.status !== 401) throw new ApiError(xhr.status, problem);
       await this.renewToken(token, retry, problem);
     }
@@ -392,9 +439,11 @@ export class Api {
   }
 
   /** Follows a session's watch stream until `close()`: whole snapshots (parts joined), deltas
-   * and volumes, in order. Reconnects after a network error, a server shutdown (503) or the
-   * stream's end, resuming after the last event seen; `resync()` drops that and asks for a
-   * fresh snapshot (after a delta that did not apply). */
+   * and volumes, in order. Reconnects after a network error, a server shutdown (503), a 421
+   * without a replica (the session is moving) or the stream's end, resuming after the last
+   * event seen; `resync()` drops that and asks for a fresh snapshot (after a delta that did not
+   * apply). A 421 naming the replica that holds the session (as the answer or as the stream's
+   * error event) ends the stream (`failed`) after `onElsewhere` was called: the page moves. */
   watch(id: string, on: WatchHandlers): WatchStream {
     let lastSeq: string | null = null;
     let abort = new AbortController();
@@ -429,7 +478,14 @@ export class Api {
         } catch (e) {
           if (closed) return;
           if (abort.signal.aborted) abort = new AbortController(); // resync
-          else if (e instanceof ApiError && e.status !== 503) {
+          else if (e instanceof ApiError && e.status === 421) {
+            if (elsewhereUrl(e)) {
+              this.elsewhere(e.problem, id);
+              on.status("failed", e);
+              return;
+            }
+            on.status("reconnecting", e); // no replica named: the session is moving, ask again
+          } else if (e instanceof ApiError && e.status !== 503) {
             on.status("failed", e);
             return;
           } else on.status("reconnecting", e);
@@ -457,7 +513,9 @@ export class Api {
     return (await res.json()) as T;
   }
 
-  /** `fetch` with the token; on a 401 asks for the token (once at a time) and tries again. */
+  /** `fetch` with the token; on a 401 asks for the token (once at a time) and tries again; on a
+   * 421 SESSION_ELSEWHERE moves the page to the replica named (`onElsewhere`) and throws, or,
+   * without one, tries again after a short wait. */
   private async fetch(
     method: string,
     path: string,
@@ -465,6 +523,7 @@ export class Api {
     extra: Record<string, string>,
     signal?: AbortSignal,
   ): Promise<Response> {
+    let misdirected = 0;
     for (let retry = false; ; retry = true) {
       const { headers, token } = this.headers(extra);
       const init: RequestInit = { method, headers };
@@ -473,9 +532,31 @@ export class Api {
       const res = await fetch(this.base + path, init);
       if (res.ok) return res;
       const problem = problemOf(res.status, res.statusText, await res.text().catch(() => ""));
+      if (res.status === 421 && (await this.misdirected(problem, sessionOf(path), ++misdirected))) continue;
       if (res.status !== 401) throw new ApiError(res.status, problem);
       await this.renewToken(token, retry, problem);
     }
+  }
+
+  /** After a 421 (the `n`th in a row): true to try again (no replica named: the session is
+   * moving; after a short wait, a few times), false to throw it, after handing a named replica
+   * to `onElsewhere`. */
+  private async misdirected(problem: Problem, sessionId: string | null, n: number): Promise<boolean> {
+    if (problem.replica?.http_url) {
+      this.elsewhere(problem, sessionId);
+      return false;
+    }
+    if (n > ELSEWHERE_RETRIES) return false;
+    await sleep(ELSEWHERE_DELAY_MS * n);
+    return true;
+  }
+
+  /** Hands the replica holding the session to `onElsewhere`, once. */
+  private elsewhere(problem: Problem, sessionId: string | null): void {
+    const replica = problem.replica;
+    if (!replica?.http_url || this.moving || !this.onElsewhere) return;
+    this.moving = true;
+    this.onElsewhere(replicaPageUrl(replica.http_url, sessionId), replica, sessionId);
   }
 
   /** A request's headers: the API version, the token kept (if any) and `extra`. */

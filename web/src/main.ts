@@ -2,7 +2,7 @@
 // `window.resecta` exposes the state for scripts and tests.
 
 import "./app.css";
-import { Api, ApiError } from "./api";
+import { Api, ApiError, elsewhereUrl, sessionFromHash } from "./api";
 import type { Edit, Vec3 } from "./api";
 import { GridEditor } from "./editor";
 import { Intake } from "./intake";
@@ -296,10 +296,11 @@ document.addEventListener("keydown", (e) => {
   void history(op);
 });
 
-/** The session of `?session=ID`, else the only one, else the one picked from the list. */
+/** The session of `#session=ID` (a replica's redirect) or `?session=ID`, else the only one, else
+ * the one picked from the list. */
 async function chooseSession(): Promise<string> {
   const query = new URLSearchParams(location.search);
-  const given = query.get("session");
+  const given = sessionFromHash(location.hash) ?? query.get("session");
   if (given) return given;
   const { sessions = [] } = await api.listSessions();
   if (sessions.length === 1 && !query.has("sessions")) return sessions[0]!.id; // `?sessions`: the list
@@ -411,10 +412,26 @@ async function main(): Promise<void> {
 
 /** Why the watch stream stopped for good, in words. */
 function streamFailure(e: unknown): string {
+  const moved = elsewhereUrl(e);
+  if (moved) return `This session is now served by another replica (${moved}): opening it there… You may be asked for the token again.`;
   if (e instanceof ApiError && e.status === 401) return "The server refused the token: reload the page to enter it again";
   if (e instanceof ApiError && e.status === 404) return "This session is no longer on the server (deleted or expired)";
   return `The live view stopped: ${message(e)}`;
 }
+
+// A replicated server: another replica holds the session (421). This page cannot call that
+// origin (same-origin CSP, no CORS), so it says so and opens the session there; the token is not
+// carried over (it lives in this origin's sessionStorage): that page asks for it.
+const MOVE_NOTICE_MS = 2500;
+api.onElsewhere = (pageUrl, replica) => {
+  const where = replica.http_url ?? pageUrl;
+  panel.setStatus(
+    `This session is now served by another replica (${where}): opening it there… ` +
+      "You may be asked for the token again (it is kept per address).",
+    "busy",
+  );
+  window.setTimeout(() => location.assign(pageUrl), MOVE_NOTICE_MS);
+};
 
 main().catch((e: unknown) => {
   panel.setStatus(e instanceof ApiError ? e.message : `Error: ${message(e)}`, "error");
