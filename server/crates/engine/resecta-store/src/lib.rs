@@ -230,7 +230,7 @@ pub trait SessionStore: Send + Sync + std::fmt::Debug {
     fn claim(&self, id: &str, replica: &Replica, ttl_ms: u64) -> Result<Claim, StoreError>;
     /// Extends by `ttl_ms` the leases among `ids` that `replica_id` still holds with the
     /// tokens this handle was granted; returns the others (taken over, released or deleted),
-    /// which this handle forgets.
+    /// to which this handle's writes stay fenced (until it claims them again).
     fn renew(
         &self,
         replica_id: &str,

@@ -288,7 +288,7 @@ impl SessionStore for MemoryStore {
     ) -> Result<Vec<String>, StoreError> {
         let until = Instant::now() + Duration::from_millis(ttl_ms);
         let mut map = self.lock();
-        let mut fences = self.fences();
+        let fences = self.fences();
         let mut lost = Vec::new();
         for id in ids {
             let held = map.get_mut(id).and_then(|s| {
@@ -302,10 +302,8 @@ impl SessionStore for MemoryStore {
                         lease.1 = until;
                     }
                 }
-                None => {
-                    fences.remove(id);
-                    lost.push(id.clone());
-                }
+                // The token stays: this handle's writes to a lost session remain fenced.
+                None => lost.push(id.clone()),
             }
         }
         Ok(lost)

@@ -1236,17 +1236,12 @@ impl SessionStore for PostgresStore {
             .map(|r| col(r, 0))
             .collect::<Result<_, _>>()?
         };
-        let mut fences = self.fences();
         let mut lost = Vec::new();
         for id in ids {
             if renewed.contains(id) {
                 continue;
             }
-            // Forget the token asked about, not one a claim granted meanwhile.
-            let asked = held.iter().find(|(h, _)| h == id).map(|(_, t)| *t);
-            if asked.is_some() && fences.get(id).copied() == asked {
-                fences.remove(id);
-            }
+            // The token stays: this handle's writes to a lost session remain fenced.
             lost.push(id.clone());
         }
         Ok(lost)

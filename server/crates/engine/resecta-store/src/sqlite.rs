@@ -769,7 +769,7 @@ impl SessionStore for SqliteStore {
         let mut conn = lock(&self.writer);
         let tx = conn.transaction().map_err(db)?;
         let mut lost = Vec::new();
-        let mut fences = self.fences();
+        let fences = self.fences();
         for id in ids {
             let renewed = match fences.get(id) {
                 Some(&token) => {
@@ -784,7 +784,7 @@ impl SessionStore for SqliteStore {
                 None => 0,
             };
             if renewed == 0 {
-                fences.remove(id);
+                // The token stays: this handle's writes to a lost session remain fenced.
                 lost.push(id.clone());
             }
         }

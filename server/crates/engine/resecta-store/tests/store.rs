@@ -467,9 +467,20 @@ fn lease_renew<S: SessionStore>(a: &S, b: &S) {
     }
     // The same holder claiming again after expiry keeps its token.
     assert_eq!(a.claim("M", &ra, 150).unwrap(), Claim::Granted { token: 1 });
-    // Another replica id cannot renew a's lease, and the handle forgets it.
+    // Another replica id cannot renew a's lease.
     assert_eq!(a.renew("b", &strings(["L"]), 60_000).unwrap(), ["L"]);
     assert_eq!(a.lease("L").unwrap().unwrap().holder, ra);
+    // Lost to another holder: reported, and this handle's writes stay fenced after the report
+    // (a write racing the report must not slip through as a mere length conflict).
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(matches!(
+        b.claim("M", &rb, 60_000).unwrap(),
+        Claim::Granted { .. }
+    ));
+    assert_eq!(a.renew("a", &strings(["M"]), 60_000).unwrap(), ["M"]);
+    let e = a.append("M", 0, &strings(["late"])).unwrap_err();
+    assert!(matches!(e, StoreError::Fenced { .. }), "{e}");
+    assert_eq!(b.log_len("M").unwrap(), 0);
 }
 
 fn lease_release<S: SessionStore>(a: &S, b: &S) {
