@@ -52,16 +52,18 @@ E2E_STORE = os.environ.get("RESECTA_E2E_STORE")
 of SQLite or memory: the end-to-end suite's PostgreSQL pass (scripts/test.sh)."""
 
 
-def postgres_store(key: str) -> str:
-    """A database of `E2E_STORE`'s server for `key` (created when new), as a store URL: the same
-    `key` (a data directory) gives the same database, as a restart on one directory would."""
+def postgres_store(key: str, server: str | None = None) -> str:
+    """A database of the PostgreSQL `server` (a URL; default `E2E_STORE`) for `key` (created
+    when new), as a store URL: the same `key` (a data directory) gives the same database, as a
+    restart on one directory would."""
+    server = server or E2E_STORE
     name = "e2e_" + hashlib.sha1(key.encode()).hexdigest()[:16]
-    exists = subprocess.run(["psql", E2E_STORE, "-tAc", f"SELECT 1 FROM pg_database WHERE datname = '{name}'"],
+    exists = subprocess.run(["psql", server, "-tAc", f"SELECT 1 FROM pg_database WHERE datname = '{name}'"],
                             capture_output=True, text=True, check=True).stdout.strip()
     if exists != "1":
-        subprocess.run(["psql", E2E_STORE, "-qc", f"CREATE DATABASE {name}"], capture_output=True,
+        subprocess.run(["psql", server, "-qc", f"CREATE DATABASE {name}"], capture_output=True,
                        text=True, check=True)
-    return E2E_STORE.rsplit("/", 1)[0] + "/" + name
+    return server.rsplit("/", 1)[0] + "/" + name
 
 
 def store_args(data_dir) -> list[str]:
