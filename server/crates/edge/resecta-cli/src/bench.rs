@@ -18,6 +18,9 @@ pub enum Command {
     /// The planning server under load (issue #6): edit → delta latency at watching clients alone
     /// and with many sessions at once, memory per idle session, and a 512×512×300 upload.
     Server(crate::bench_server::ServerArgs),
+    /// Replicas (issue #25): two replicas on one PostgreSQL store beside one server on SQLite,
+    /// edit latency, sessions per server at a fixed edit rate, and fail-over after `kill -9`.
+    Replicas(crate::bench_replicas::ReplicasArgs),
     /// Poisson reconstruction (issue #21): PSR of a phantom liver at several depths on the CPU
     /// and the GPU, times, iterations and the CPU–GPU surface and volume differences.
     Recon(crate::bench_recon::ReconArgs),
@@ -128,6 +131,7 @@ pub fn run(cmd: &Command) -> Result<(), CliError> {
     match cmd {
         Command::Bezier(args) => bezier(args),
         Command::Server(args) => crate::bench_server::run(args),
+        Command::Replicas(args) => crate::bench_replicas::run(args),
         Command::Recon(args) => crate::bench_recon::run(args),
     }
 }

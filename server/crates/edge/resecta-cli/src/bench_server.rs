@@ -98,7 +98,7 @@ pub(crate) struct Latency {
     /// Edit sent → its acknowledgement (the log record durable): watchers are shown an edit
     /// before it is stored, so this can exceed the delta latency above.
     pub(crate) ack_p50_ms: f64,
-    ack_p99_ms: f64,
+    pub(crate) ack_p99_ms: f64,
     /// CPU the server process and the benchmark client used during the scenario (cores, from
     /// /proc: user + system time over wall time); absent where unreadable.
     server_cores: Option<f64>,
@@ -158,6 +158,12 @@ impl ServerProcess {
     pub(crate) fn pid(&self) -> u32 {
         self.child.id()
     }
+
+    /// `kill -9`, and waits for the process to end.
+    pub(crate) fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
 }
 
 impl Drop for ServerProcess {
@@ -186,12 +192,22 @@ pub(crate) fn spawn_server(
     owned: Option<tempfile::TempDir>,
     gpu: GpuMode,
 ) -> Result<(ServerProcess, String), CliError> {
+    let store = [std::ffi::OsString::from("--data-dir"), data_dir.into()];
+    spawn_serve(&store, owned, gpu)
+}
+
+/// Spawns `resecta serve --gpu gpu` with `store_args` (keeping `owned` until it stops) and
+/// returns it with its gRPC address once both faces are bound.
+pub(crate) fn spawn_serve(
+    store_args: &[std::ffi::OsString],
+    owned: Option<tempfile::TempDir>,
+    gpu: GpuMode,
+) -> Result<(ServerProcess, String), CliError> {
     let exe = std::env::current_exe().map_err(|e| CliError::Failed(format!("own path: {e}")))?;
     let mut child = Command::new(exe)
         .args(["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0"])
         .args(["--gpu", &gpu_flag(gpu)])
-        .arg("--data-dir")
-        .arg(data_dir)
+        .args(store_args)
         .env("RUST_LOG", "warn")
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
@@ -468,7 +484,7 @@ struct Planning {
     arrivals: mpsc::UnboundedReceiver<(u64, Instant)>,
 }
 
-const RESECTION: &str = "resection_1";
+pub(crate) const RESECTION: &str = "resection_1";
 
 async fn planning_session(
     channel: &Channel,
@@ -681,7 +697,7 @@ impl Load {
 
 /// One session editing back to back at `resolution`: `edits` edits after a warm-up, or fewer
 /// when `budget` (from the first timed edit) runs out first (at least 3).
-async fn single(
+pub(crate) async fn single(
     channel: &Channel,
     token: Option<&str>,
     map: &LabelMap,
@@ -708,28 +724,36 @@ async fn single(
     Ok(l)
 }
 
-/// `n_sessions` sessions editing at `args.rate` each for `seconds`, their phases spread over a period.
-async fn paced(
-    channel: &Channel,
+/// `n_sessions` sessions editing at `rate` each for `seconds`, their phases spread over a
+/// period; session k on server `channels[k % channels.len()]`.
+pub(crate) async fn paced(
+    channels: &[Channel],
     token: Option<&str>,
     map: &LabelMap,
-    args: &ServerArgs,
+    rate: f64,
     n_sessions: usize,
     seconds: f64,
     pid: Option<u32>,
 ) -> Result<Latency, CliError> {
     let mut sessions = Vec::with_capacity(n_sessions);
-    for _ in 0..n_sessions {
-        sessions.push(planning_session(channel, token, map, [40, 40]).await?);
+    for k in 0..n_sessions {
+        let channel = &channels[k % channels.len()];
+        sessions.push((
+            channel.clone(),
+            planning_session(channel, token, map, [40, 40]).await?,
+        ));
     }
-    let ids: Vec<String> = sessions.iter().map(|s| s.id.clone()).collect();
-    let period = Duration::from_secs_f64(1.0 / args.rate.max(0.1));
-    let count = (seconds * args.rate).ceil() as usize;
+    let ids: Vec<(Channel, String)> = sessions
+        .iter()
+        .map(|(c, s)| (c.clone(), s.id.clone()))
+        .collect();
+    let period = Duration::from_secs_f64(1.0 / rate.max(0.1));
+    let count = (seconds * rate).ceil() as usize;
     let load = Load::start(pid);
     let tasks: Vec<_> = sessions
         .into_iter()
         .enumerate()
-        .map(|(n, mut s)| {
+        .map(|(n, (_, mut s))| {
             tokio::spawn(async move {
                 // Spread the sessions' phases over one period.
                 tokio::time::sleep(period.mul_f64(n as f64 / n_sessions as f64)).await;
@@ -758,7 +782,7 @@ async fn paced(
     };
     let mut l = latency(scenario, [40, 40], n_sessions, all);
     load.finish(&mut l);
-    for id in &ids {
+    for (channel, id) in &ids {
         delete(channel, token, id).await;
     }
     Ok(l)
@@ -885,19 +909,20 @@ const CAPACITY_P99_MS: f64 = 5.0;
 /// Sessions per server at a fixed edit rate: the ramp's steps and the most sessions whose
 /// edit → delta p99 stayed within [`CAPACITY_P99_MS`] (0: not even one).
 #[derive(Debug, Serialize)]
-struct Capacity {
-    rate_per_s: f64,
+pub(crate) struct Capacity {
+    pub(crate) rate_per_s: f64,
     p99_bound_ms: f64,
-    sessions: usize,
+    pub(crate) sessions: usize,
     steps: Vec<Latency>,
 }
 
-/// Doubles the sessions editing at `args.rate` each from 1 to `max` while p99 stays in bound.
-async fn capacity(
-    channel: &Channel,
+/// Doubles the sessions editing at `rate` each (spread over `channels`' servers) from 1 (one
+/// per server) to `max` while p99 stays in bound.
+pub(crate) async fn capacity(
+    channels: &[Channel],
     token: Option<&str>,
     map: &LabelMap,
-    args: &ServerArgs,
+    rate: f64,
     max: usize,
     seconds: f64,
     pid: Option<u32>,
@@ -905,10 +930,10 @@ async fn capacity(
 ) -> Result<Capacity, CliError> {
     let mut steps = Vec::new();
     let mut sessions = 0;
-    let mut n = 1;
+    let mut n = channels.len();
     while n <= max {
-        pb.set_message(format!("capacity: {n} sessions at {} edits/s", args.rate));
-        let l = paced(channel, token, map, args, n, seconds, pid).await?;
+        pb.set_message(format!("capacity: {n} sessions at {rate} edits/s"));
+        let l = paced(channels, token, map, rate, n, seconds, pid).await?;
         let within = l.p99_ms <= CAPACITY_P99_MS;
         steps.push(l);
         if !within {
@@ -918,7 +943,7 @@ async fn capacity(
         n *= 2;
     }
     Ok(Capacity {
-        rate_per_s: args.rate,
+        rate_per_s: rate,
         p99_bound_ms: CAPACITY_P99_MS,
         sessions,
         steps,
@@ -980,7 +1005,8 @@ async fn compare_gpu(args: &ServerArgs, pb: &indicatif::ProgressBar) -> Result<(
         } else {
             (args.max_sessions, budget_s.min(5.0))
         };
-        let capacity = capacity(&channel, token, &map, args, max, seconds, pid, pb).await?;
+        let one = std::slice::from_ref(&channel);
+        let capacity = capacity(one, token, &map, args.rate, max, seconds, pid, pb).await?;
         drop(server);
         backends.push(BackendRuns {
             gpu: gpu_flag(gpu),
@@ -1159,9 +1185,10 @@ async fn run_async(args: &ServerArgs) -> Result<(), CliError> {
         pb.set_message("single session, 200×200");
         let s200 = single(&channel, token, &map, [200, 200], edits, None, pid).await?;
         pb.set_message(format!("1 session at {}/s", args.rate));
-        let alone = paced(&channel, token, &map, args, 1, seconds, pid).await?;
+        let one = std::slice::from_ref(&channel);
+        let alone = paced(one, token, &map, args.rate, 1, seconds, pid).await?;
         pb.set_message(format!("{} sessions at {}/s", args.sessions, args.rate));
-        let multi = paced(&channel, token, &map, args, args.sessions, seconds, pid).await?;
+        let multi = paced(one, token, &map, args.rate, args.sessions, seconds, pid).await?;
         ratio = multi.p99_ms / s40.p99_ms;
         ratio_paced = multi.p99_ms / alone.p99_ms;
         latencies = vec![s40, s200, alone, multi];

@@ -7,6 +7,7 @@ mod bench;
 mod bench_python;
 mod bench_ready;
 mod bench_recon;
+mod bench_replicas;
 mod bench_server;
 mod bezier;
 mod cloud;
