@@ -114,6 +114,7 @@ impl PlanningService for Fake {
                     code: "BAD_CHUNK".into(),
                     field: "header".into(),
                     current_plan_version: None,
+                    replica: None,
                 },
             ));
         };
@@ -155,6 +156,7 @@ impl PlanningService for Fake {
                     code: "STALE_VERSION".into(),
                     field: "base_version".into(),
                     current_plan_version: Some(PLAN_VERSION),
+                    replica: None,
                 },
             ));
         }

@@ -5,7 +5,7 @@
 use prost::Message;
 use resecta_api::v1::{
     ControlGroup, DataType, Delta, EditRequest, ErrorInfo, MoveGroup, RawLabelMapHeader,
-    ResectionSurface, RoleMap, SetControlPoint, Snapshot, Surface, SurfaceKind,
+    ReplicaAddress, ResectionSurface, RoleMap, SetControlPoint, Snapshot, Surface, SurfaceKind,
     UploadLabelMapRequest, Vec3, Verdict, WatchResponse, edit_request, move_group,
     resection_surface, upload_label_map_request, watch_response,
 };
@@ -87,8 +87,20 @@ fn optional_numbers_keep_absent_apart_from_zero() {
         code: "STALE_VERSION".into(),
         field: "base_version".into(),
         current_plan_version: Some(0),
+        replica: None,
     };
     assert_eq!(round_trip(&info).current_plan_version, Some(0));
+    let moved = ErrorInfo {
+        code: "SESSION_ELSEWHERE".into(),
+        replica: Some(ReplicaAddress {
+            id: "a@1".into(),
+            grpc_address: "10.0.0.7:50051".into(),
+            http_url: "http://10.0.0.7:8080".into(),
+            lease_remaining_ms: 0,
+        }),
+        ..Default::default()
+    };
+    assert_eq!(round_trip(&moved), moved);
 }
 
 fn raw_header() -> RawLabelMapHeader {

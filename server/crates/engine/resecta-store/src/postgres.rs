@@ -114,9 +114,21 @@ pub struct PostgresStore {
     /// password.
     target: String,
     opts: StoreOptions,
-    pool: Pool,
+    /// Always `Some` until dropped (see `Drop`).
+    pool: Option<Pool>,
     /// Lease tokens this handle was granted, by session.
     fences: Mutex<HashMap<String, u64>>,
+}
+
+/// Closing a connection of the synchronous driver blocks on its own runtime, which panics on
+/// a thread that drives an async runtime (a server dropping its store at shutdown): the pool
+/// is dropped on a thread of its own.
+impl Drop for PostgresStore {
+    fn drop(&mut self) {
+        if let Some(pool) = self.pool.take() {
+            let _ = std::thread::spawn(move || drop(pool)).join();
+        }
+    }
 }
 
 impl std::fmt::Debug for PostgresStore {
@@ -781,7 +793,7 @@ impl PostgresStore {
         Ok(Self {
             target: target.desc,
             opts,
-            pool,
+            pool: Some(pool),
             fences: Mutex::default(),
         })
     }
@@ -813,6 +825,8 @@ impl PostgresStore {
     ) -> Result<r2d2::PooledConnection<PostgresConnectionManager<MakeRustlsConnect>>, StoreError>
     {
         self.pool
+            .as_ref()
+            .ok_or_else(|| StoreError::Backend(format!("{}: the store is closed", self.target)))?
             .get()
             .map_err(|e| StoreError::Backend(format!("{}: {e}", self.target)))
     }

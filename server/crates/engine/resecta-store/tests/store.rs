@@ -1290,6 +1290,21 @@ mod pg {
     }
 }
 
+/// A server drops its store on a runtime thread at shutdown: the synchronous driver's
+/// connections must not close on it (their close blocks on a runtime of their own).
+#[test]
+fn pg_store_dropped_on_an_async_runtime_thread() {
+    let Some(db) = pg::Db::new() else { return };
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .build()
+        .unwrap();
+    let s = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
+    s.create_session(&rec("r", 1)).unwrap();
+    runtime.block_on(async move { drop(s) });
+    let s = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
+    assert_eq!(s.sessions().unwrap().len(), 1);
+}
+
 #[test]
 fn pg_reopen_restores_everything() {
     let Some(db) = pg::Db::new() else { return };
