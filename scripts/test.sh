@@ -62,3 +62,6 @@ done
 
 step "end-to-end tests again with every server on the GPU path (--gpu required: lavapipe here)"
 RESECTA_GPU=required RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests
+
+step "end-to-end tests again with every server on PostgreSQL (a replica of the throwaway cluster)"
+RESECTA_E2E_STORE="$RESECTA_TEST_PG" RESECTA_BIN="$root/target/debug/resecta" .venv/bin/python -m pytest -q tests

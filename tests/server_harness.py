@@ -82,8 +82,9 @@ class Server:
     """`resecta serve` on free loopback ports; stopped (SIGTERM) or killed (SIGKILL) by the test."""
 
     def __init__(self, *args, env=None, data_dir=None):
-        self.args = ["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", *args,
-                     *store_args(data_dir)]
+        # A test naming its own store keeps it on every pass.
+        store = [] if "--store" in args else store_args(data_dir)
+        self.args = ["serve", "--grpc", "127.0.0.1:0", "--http", "127.0.0.1:0", *args, *store]
         self.env = {**os.environ, "RUST_LOG": "warn", **(env or {})}
         self.proc = subprocess.Popen([resecta_bin(), *self.args], stdout=subprocess.PIPE,
                                      stderr=subprocess.PIPE, env=self.env, text=True)
