@@ -45,6 +45,9 @@ pub struct ReplicasArgs {
     /// The replicas' lease (ms) [default: the server's, 3000].
     #[arg(long)]
     pub lease_ms: Option<u64>,
+    /// Write the capacity plot (`replicas_capacity.svg`/`.png`) here.
+    #[arg(long)]
+    pub plot_dir: Option<std::path::PathBuf>,
     /// Short runs (a smoke test; figures are not meaningful).
     #[arg(long)]
     pub quick: bool,
@@ -162,6 +165,13 @@ async fn run_async(args: &ReplicasArgs) -> Result<(), CliError> {
     let failover = failover(args, &map, failovers, &pb).await?;
     pb.finish_and_clear();
     let report = Report { setups, failover };
+    if let Some(dir) = &args.plot_dir {
+        crate::output::write_figure(
+            &crate::output::files_in(dir)?,
+            "replicas_capacity",
+            &capacity_figure(&report.setups),
+        )?;
+    }
     if args.json {
         return print_json(&report);
     }
@@ -275,6 +285,52 @@ async fn failover(
         runs_ms,
         no_acknowledged_edit_lost: intact,
     })
+}
+
+/// p99 of edit → delta and of edit → acknowledged against the sessions editing at once, per
+/// set-up, with the 5 ms bound.
+fn capacity_figure(setups: &[Setup]) -> resecta_plot::Figure {
+    use resecta_plot::{Colour, Figure, MarkerShape, Series, Style};
+    let mut series = Vec::new();
+    let colours = [Colour::BLUE, Colour::ORANGE];
+    let mut most = 1.0_f64;
+    for (s, &colour) in setups.iter().zip(&colours) {
+        let steps = &s.capacity.steps;
+        most = steps.iter().fold(most, |m, l| m.max(l.sessions as f64));
+        let at = |f: fn(&Latency) -> f64| steps.iter().map(|l| (l.sessions as f64, f(l))).collect();
+        series.push(Series::new(
+            format!("{}: edit → delta p99", s.setup),
+            at(|l| l.p99_ms),
+            Style::Line { colour },
+        ));
+        series.push(Series::new(
+            format!("{}: edit → acknowledged p99", s.setup),
+            at(|l| l.ack_p99_ms),
+            Style::Markers {
+                shape: MarkerShape::Circle,
+                colour,
+            },
+        ));
+    }
+    series.push(Series::new(
+        "5 ms",
+        vec![(1.0, 5.0), (most, 5.0)],
+        Style::Line {
+            colour: Colour::GREY,
+        },
+    ));
+    Figure {
+        title: format!(
+            "Sessions editing at {} edits/s each (40×40, loopback)",
+            setups.first().map_or(30.0, |s| s.capacity.rate_per_s)
+        ),
+        x_label: "sessions editing at once (all servers)".into(),
+        y_label: "p99 latency (ms)".into(),
+        log_x: true,
+        series,
+        width: 900,
+        height: 560,
+    }
 }
 
 fn client(channel: &Channel) -> crate::bench_server::Client {

@@ -89,7 +89,7 @@ pub struct ServerArgs {
 pub(crate) struct Latency {
     pub(crate) scenario: String,
     resolution: [u32; 2],
-    sessions: usize,
+    pub(crate) sessions: usize,
     pub(crate) edits: usize,
     pub(crate) p50_ms: f64,
     pub(crate) p90_ms: f64,
@@ -913,7 +913,7 @@ pub(crate) struct Capacity {
     pub(crate) rate_per_s: f64,
     p99_bound_ms: f64,
     pub(crate) sessions: usize,
-    steps: Vec<Latency>,
+    pub(crate) steps: Vec<Latency>,
 }
 
 /// Doubles the sessions editing at `rate` each (spread over `channels`' servers) from 1 (one
@@ -1120,22 +1120,7 @@ fn plot(dir: &std::path::Path, latencies: &[Latency]) -> Result<(), CliError> {
         width: 900,
         height: 560,
     };
-    std::fs::create_dir_all(dir)
-        .map_err(|e| CliError::Failed(format!("{}: {e}", dir.display())))?;
-    let svg = figure
-        .to_svg()
-        .map_err(|e| CliError::Failed(format!("plot: {e}")))?;
-    let png = figure
-        .to_png()
-        .map_err(|e| CliError::Failed(format!("plot: {e}")))?;
-    for (name, bytes) in [
-        ("edit_latency_cdf.svg", svg.into_bytes()),
-        ("edit_latency_cdf.png", png),
-    ] {
-        let path = dir.join(name);
-        std::fs::write(&path, bytes)
-            .map_err(|e| CliError::Failed(format!("{}: {e}", path.display())))?;
-    }
+    crate::output::write_figure(&crate::output::files_in(dir)?, "edit_latency_cdf", &figure)?;
     Ok(())
 }
 

@@ -216,16 +216,10 @@ pub fn run(args: &EamStudyArgs) -> Result<(), CliError> {
     pb.finish_and_clear();
     let write = crate::output::files_in(&args.out_dir)?;
     let mut files = Vec::new();
-    let fig = error_figure(&study);
-    files.push(write(
-        "eam-error.svg",
-        fig.to_svg()
-            .map_err(|e| CliError::Failed(e.to_string()))?
-            .as_bytes(),
-    )?);
-    files.push(write(
-        "eam-error.png",
-        &fig.to_png().map_err(|e| CliError::Failed(e.to_string()))?,
+    files.extend(crate::output::write_figure(
+        &write,
+        "eam-error",
+        &error_figure(&study),
     )?);
     files.push(write(
         "eam-reconstructions.png",

@@ -59,3 +59,18 @@ pub fn files_in(dir: &Path) -> Result<impl Fn(&str, &[u8]) -> Result<PathBuf, Cl
         Ok(p)
     })
 }
+
+/// Writes `figure` as `STEM.svg` and `STEM.png` with `write` (a [`files_in`] writer).
+pub fn write_figure(
+    write: &impl Fn(&str, &[u8]) -> Result<PathBuf, CliError>,
+    stem: &str,
+    figure: &resecta_plot::Figure,
+) -> Result<[PathBuf; 2], CliError> {
+    let failed = |e: resecta_plot::PlotError| CliError::Failed(format!("plot {stem}: {e}"));
+    let svg = figure.to_svg().map_err(failed)?;
+    let png = figure.to_png().map_err(failed)?;
+    Ok([
+        write(&format!("{stem}.svg"), svg.as_bytes())?,
+        write(&format!("{stem}.png"), &png)?,
+    ])
+}

@@ -569,23 +569,11 @@ pub fn evaluate(args: &EvaluateArgs) -> Result<(), CliError> {
     let json =
         serde_json::to_string_pretty(&run).map_err(|e| CliError::Failed(format!("JSON: {e}")))?;
     let figure = resecta_plot::pareto_figure(&run.study);
-    let files = vec![
+    let mut files = vec![
         write("study.md", run.study.markdown().as_bytes())?,
         write("study.json", json.as_bytes())?,
-        write(
-            "pareto.svg",
-            figure
-                .to_svg()
-                .map_err(|e| CliError::Failed(e.to_string()))?
-                .as_bytes(),
-        )?,
-        write(
-            "pareto.png",
-            &figure
-                .to_png()
-                .map_err(|e| CliError::Failed(e.to_string()))?,
-        )?,
     ];
+    files.extend(crate::output::write_figure(&write, "pareto", &figure)?);
     let name = |i: Option<usize>| run.study.model(i).map(|m| m.record.label.clone());
     let summary = EvaluateSummary {
         models: run.study.models.len(),
