@@ -23,6 +23,25 @@ pub(crate) fn pack(opts: &StoreOptions, data: &[u8]) -> Result<Packed, StoreErro
     Ok(Packed { raw_len, data })
 }
 
+/// [`pack`], refused when the compressed bytes exceed a backend's largest value (`limit`);
+/// with the uncompressed length as a database integer.
+pub(crate) fn pack_within(
+    opts: &StoreOptions,
+    data: &[u8],
+    limit: u64,
+) -> Result<(Packed, i64), StoreError> {
+    let packed = pack(opts, data)?;
+    if packed.data.len() as u64 > limit {
+        return Err(StoreError::TooLarge {
+            what: "compressed blob",
+            size: packed.data.len() as u64,
+            limit,
+        });
+    }
+    let raw_len = crate::to_i64("blob length", packed.raw_len)?;
+    Ok((packed, raw_len))
+}
+
 /// Inflates a stored blob, allocating only the recorded length and only if within the limit.
 pub(crate) fn unpack(
     opts: &StoreOptions,

@@ -264,6 +264,25 @@ fn check_name(what: &'static str, name: &str) -> Result<(), StoreError> {
     }
 }
 
+/// A count or length as a database integer.
+fn to_i64(what: &'static str, v: u64) -> Result<i64, StoreError> {
+    i64::try_from(v).map_err(|_| StoreError::Invalid {
+        what,
+        reason: format!("{v} exceeds {}", i64::MAX),
+    })
+}
+
+/// A database integer read back as a count or length: negative means a damaged store.
+fn to_u64(what: &str, v: i64) -> Result<u64, StoreError> {
+    u64::try_from(v).map_err(|_| StoreError::Corrupt {
+        detail: format!("negative {what} {v}"),
+    })
+}
+
+fn not_found(id: &str) -> StoreError {
+    StoreError::NotFound { id: id.to_owned() }
+}
+
 fn check_record(opts: &StoreOptions, what: &'static str, len: usize) -> Result<(), StoreError> {
     if len > opts.max_record_bytes {
         return Err(StoreError::TooLarge {

@@ -37,10 +37,10 @@ use rustls::{
 };
 use tokio_postgres_rustls::MakeRustlsConnect;
 
-use crate::codec::{pack, unpack};
+use crate::codec::{pack_within, unpack};
 use crate::{
     Blob, Claim, Lease, LogRecord, Replica, SessionRecord, SessionStore, StoreError, StoreOptions,
-    StoreUsage, check_name, check_record, check_records, check_session,
+    StoreUsage, check_name, check_record, check_records, check_session, not_found, to_i64, to_u64,
 };
 
 /// Connections a store keeps at most ([`PostgresStore::open`]): enough for the server's
@@ -547,23 +547,6 @@ fn with_causes(e: &dyn std::error::Error) -> String {
     out
 }
 
-fn to_i64(what: &'static str, v: u64) -> Result<i64, StoreError> {
-    i64::try_from(v).map_err(|_| StoreError::Invalid {
-        what,
-        reason: format!("{v} exceeds {}", i64::MAX),
-    })
-}
-
-fn to_u64(what: &str, v: i64) -> Result<u64, StoreError> {
-    u64::try_from(v).map_err(|_| StoreError::Corrupt {
-        detail: format!("negative {what} {v}"),
-    })
-}
-
-fn not_found(id: &str) -> StoreError {
-    StoreError::NotFound { id: id.to_owned() }
-}
-
 /// PostgreSQL text holds no NUL character.
 fn check_text(what: &'static str, s: &str) -> Result<(), StoreError> {
     if s.contains('\0') {
@@ -990,15 +973,7 @@ impl SessionStore for PostgresStore {
         {
             return Err(not_found(id));
         }
-        let packed = pack(&self.opts, &blob.data)?;
-        if packed.data.len() as u64 > MAX_VALUE {
-            return Err(StoreError::TooLarge {
-                what: "compressed blob",
-                size: packed.data.len() as u64,
-                limit: MAX_VALUE,
-            });
-        }
-        let raw_len = to_i64("blob length", packed.raw_len)?;
+        let (packed, raw_len) = pack_within(&self.opts, &blob.data, MAX_VALUE)?;
         let fence = self.fence(id);
         self.write(|tx| {
             lock_session(tx, id)?;

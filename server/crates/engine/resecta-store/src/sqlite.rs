@@ -19,10 +19,10 @@ use rusqlite::{
     Connection, ErrorCode, OpenFlags, OptionalExtension, Transaction, TransactionBehavior, params,
 };
 
-use crate::codec::{pack, unpack};
+use crate::codec::{pack_within, unpack};
 use crate::{
     Blob, Claim, Lease, LogRecord, Replica, SessionRecord, SessionStore, StoreError, StoreOptions,
-    StoreUsage, check_name, check_record, check_records, check_session,
+    StoreUsage, check_name, check_record, check_records, check_session, not_found, to_i64, to_u64,
 };
 
 /// Database file name inside the data directory.
@@ -141,26 +141,9 @@ fn db(e: rusqlite::Error) -> StoreError {
     }
 }
 
-fn to_i64(what: &'static str, v: u64) -> Result<i64, StoreError> {
-    i64::try_from(v).map_err(|_| StoreError::Invalid {
-        what,
-        reason: format!("{v} exceeds {}", i64::MAX),
-    })
-}
-
-fn to_u64(what: &str, v: i64) -> Result<u64, StoreError> {
-    u64::try_from(v).map_err(|_| StoreError::Corrupt {
-        detail: format!("negative {what} {v}"),
-    })
-}
-
 fn lock(m: &Mutex<Connection>) -> MutexGuard<'_, Connection> {
     // A panic inside a transaction rolls it back on unwind; the connection stays usable.
     m.lock().unwrap_or_else(PoisonError::into_inner)
-}
-
-fn not_found(id: &str) -> StoreError {
-    StoreError::NotFound { id: id.to_owned() }
 }
 
 fn session_exists(conn: &Connection, id: &str) -> Result<bool, StoreError> {
@@ -567,15 +550,7 @@ impl SessionStore for SqliteStore {
         if !session_exists(&lock(&self.reader), id)? {
             return Err(not_found(id));
         }
-        let packed = pack(&self.opts, &blob.data)?;
-        if packed.data.len() as u64 > SQLITE_MAX_VALUE {
-            return Err(StoreError::TooLarge {
-                what: "compressed blob",
-                size: packed.data.len() as u64,
-                limit: SQLITE_MAX_VALUE,
-            });
-        }
-        let raw_len = to_i64("blob length", packed.raw_len)?;
+        let (packed, raw_len) = pack_within(&self.opts, &blob.data, SQLITE_MAX_VALUE)?;
         let mut conn = lock(&self.writer);
         let tx = conn.transaction().map_err(db)?;
         check_fence(&tx, id, self.fence(id))?;
