@@ -126,6 +126,13 @@ impl<T> Registry<T> {
         })
     }
 
+    /// Forgets the session count, so that the next reservation counts the stored sessions
+    /// again: replicas sharing a store each create sessions, and the quota is the store's.
+    pub(crate) fn recount(&self) -> Result<()> {
+        *self.sessions()? = None;
+        Ok(())
+    }
+
     /// Deletes a stored session with `delete` (which says whether it existed) under the count's
     /// lock, and counts it out.
     pub(crate) fn delete_stored(&self, delete: impl FnOnce() -> Result<bool>) -> Result<bool> {

@@ -124,7 +124,12 @@ impl Service {
             last_access_ms: now,
         };
         let stored = rec.clone();
+        let shared = self.config.replica.is_some();
         blocking(move || {
+            if shared {
+                // Other replicas create sessions too: the quota counts the store's.
+                registry.recount()?;
+            }
             let slot = registry.reserve_session(|| Ok(store.usage()?.sessions))?;
             store.create_session(&stored)?;
             slot.commit();

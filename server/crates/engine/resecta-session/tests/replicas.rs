@@ -181,3 +181,23 @@ async fn a_restarted_replica_takes_its_sessions_back_at_once() {
     );
     assert_eq!(second.get_session(&id).await.unwrap().plan_version, 2);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_session_quota_is_the_shared_stores() {
+    let shared = MemoryStore::new(StoreOptions::default());
+    let quota = |name: &str| {
+        let s = replica(name, shared.share());
+        let mut c = s.config().clone();
+        c.max_sessions = 4;
+        Arc::new(Service::new(Arc::new(shared.share()), c))
+    };
+    let (a, b) = (quota("a"), quota("b"));
+    for k in 0..4 {
+        let r = if k % 2 == 0 { &a } else { &b };
+        r.create_session("Quota").await.unwrap();
+    }
+    for r in [&a, &b] {
+        let e = r.create_session("Over").await.unwrap_err();
+        assert_eq!(e.code(), "SESSION_QUOTA", "{e}");
+    }
+}
