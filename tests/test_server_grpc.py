@@ -1,5 +1,6 @@
 """`resecta serve` end to end over gRPC: the real binary, real sockets, generated Python stubs.
 Sessions, upload, reconstruction, edits, watch, bad input, auth, TLS, SIGTERM with open streams and kill -9 recovery."""
+import json
 import os
 import threading
 
@@ -343,14 +344,10 @@ def test_sigterm_ends_open_watch_streams_with_unavailable(stubs):
             s.kill()
 
 
-def test_kill_during_edit_burst_loses_nothing_acknowledged(tmp_path, stubs, phantom):
-    data = tmp_path / "data"
-    s = Server(data_dir=data)
-    pb, stub = client(s, stubs)
-    sid = new_session(pb, stub)
-    stub.UploadLabelMap(iter(raw_upload(pb, sid, phantom)), metadata=md())
-    version = stub.Edit(init_edit(pb, sid), metadata=md()).plan_version
-    acked = {}  # plan version -> dragged point
+def burst_until_killed(server, pb, stub, sid, version):
+    """Drags `sid`'s control point back to back through `stub` and kills `server` (kill -9)
+    after 15 acknowledged edits; returns what was acknowledged: plan version -> point."""
+    acked = {}
     stop = threading.Event()
 
     def burst():
@@ -368,28 +365,42 @@ def test_kill_during_edit_burst_loses_nothing_acknowledged(tmp_path, stubs, phan
     t = threading.Thread(target=burst)
     t.start()
     wait_for(lambda: len(acked) >= 15, timeout=120)
-    s.kill()
+    server.kill()
     stop.set()
     t.join(timeout=60)
-    last = max(acked)
+    return acked
 
+
+def assert_acknowledged_kept(pb, stub, sid, acked):
+    """`sid` as `stub`'s server has it holds every acknowledged edit of a burst; at most the
+    one in flight at the kill went durable without its answer. Returns its plan version."""
+    last = max(acked)
+    sess = stub.GetSession(pb.GetSessionRequest(session_id=sid), metadata=md()).session
+    assert sess.plan_version in (last, last + 1), (sess.plan_version, last)
+    plan = json.loads(stub.ExportPlan(pb.ExportPlanRequest(session_id=sid), metadata=md()).plan_json)
+    (res,) = plan["resections"]
+    got = res["control_points"][1 * 4 + 2]
+    if sess.plan_version == last:
+        assert got == pytest.approx(list(acked[last]))
+    else:
+        assert got[0] == pytest.approx(acked[last][0] + 0.01)
+    # Undo walks back through the acknowledged edits.
+    r = stub.Edit(pb.EditRequest(session_id=sid, undo=pb.Undo()), metadata=md())
+    assert r.plan_version == sess.plan_version + 1
+    return sess.plan_version
+
+
+def test_kill_during_edit_burst_loses_nothing_acknowledged(tmp_path, stubs, phantom):
+    data = tmp_path / "data"
+    s = Server(data_dir=data)
+    pb, stub = client(s, stubs)
+    sid = new_session(pb, stub)
+    stub.UploadLabelMap(iter(raw_upload(pb, sid, phantom)), metadata=md())
+    version = stub.Edit(init_edit(pb, sid), metadata=md()).plan_version
+    acked = burst_until_killed(s, pb, stub, sid, version)
     s2 = Server(data_dir=data)
     try:
-        pb, stub = client(s2, stubs)
-        sess = stub.GetSession(pb.GetSessionRequest(session_id=sid), metadata=md()).session
-        # Everything acknowledged is there; at most the one edit in flight at the kill went
-        # durable without its answer.
-        assert sess.plan_version in (last, last + 1), (sess.plan_version, last)
-        import json
-        plan = json.loads(stub.ExportPlan(pb.ExportPlanRequest(session_id=sid), metadata=md()).plan_json)
-        (res,) = plan["resections"]
-        got = res["control_points"][1 * 4 + 2]
-        if sess.plan_version == last:
-            assert got == pytest.approx(list(acked[last]))
-        else:
-            assert got[0] == pytest.approx(acked[last][0] + 0.01)
-        # Undo walks back through the acknowledged edits.
-        r = stub.Edit(pb.EditRequest(session_id=sid, undo=pb.Undo()), metadata=md())
-        assert r.plan_version == sess.plan_version + 1
+        _, stub2 = client(s2, stubs)
+        assert_acknowledged_kept(pb, stub2, sid, acked)
     finally:
         s2.stop()

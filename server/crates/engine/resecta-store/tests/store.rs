@@ -536,121 +536,49 @@ fn small_limits() -> StoreOptions {
     }
 }
 
+/// One test per behaviour, each on a store `$make` opens with `$opts`.
+macro_rules! on_one_store {
+    ($make:path, $opts:expr; $($behaviour:ident),+) => {$(
+        #[test]
+        fn $behaviour() {
+            let Some((s, _dir)) = $make($opts) else {
+                return;
+            };
+            super::$behaviour(&s);
+        }
+    )+};
+}
+
+/// One test per behaviour, each on two handles `$pair` opens on one store (two replicas).
+macro_rules! on_two_handles {
+    ($pair:path; $($behaviour:ident),+) => {$(
+        #[test]
+        fn $behaviour() {
+            let Some((a, b, _dir)) = $pair() else {
+                return;
+            };
+            super::$behaviour(&a, &b);
+        }
+    )+};
+}
+
 macro_rules! backend_tests {
-    ($backend:ident, $make:expr, $pair:expr) => {
-        mod $backend {
+    ($module:ident, $make:path, $pair:path) => {
+        mod $module {
             use super::*;
-            #[test]
-            fn lifecycle() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::lifecycle(&s);
-            }
-            #[test]
-            fn duplicate_id() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::duplicate_id(&s);
-            }
-            #[test]
-            fn unknown_session() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::unknown_session(&s);
-            }
-            #[test]
-            fn limits() {
-                let Some((s, _dir)) = $make(small_limits()) else {
-                    return;
-                };
-                super::limits(&s);
-            }
-            #[test]
-            fn blobs() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::blobs(&s);
-            }
-            #[test]
-            fn append_and_conflict() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::append_and_conflict(&s);
-            }
-            #[test]
-            fn concurrent_appends() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::concurrent_appends(&s);
-            }
-            #[test]
-            fn idle() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::idle(&s);
-            }
-            #[test]
-            fn delete_cascades() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::delete_cascades(&s);
-            }
-            #[test]
-            fn usage_counts() {
-                let Some((s, _dir)) = $make(StoreOptions::default()) else {
-                    return;
-                };
-                super::usage_counts(&s);
-            }
+
+            on_one_store!($make, StoreOptions::default(); lifecycle, duplicate_id, unknown_session,
+                blobs, append_and_conflict, concurrent_appends, idle, delete_cascades, usage_counts);
+            on_one_store!($make, small_limits(); limits);
+            on_two_handles!($pair; lease_grant_and_held, lease_expiry_fences_the_old_holder,
+                lease_renew, lease_release, lease_delete_cascades);
+
             #[test]
             fn object_safe() {
                 let Some((s, _dir)) = $make(StoreOptions::default()) else {
                     return;
                 };
                 super::object_safe(&s);
-            }
-            #[test]
-            fn lease_grant_and_held() {
-                let Some((a, b, _dir)) = $pair() else {
-                    return;
-                };
-                super::lease_grant_and_held(&a, &b);
-            }
-            #[test]
-            fn lease_expiry_fences_the_old_holder() {
-                let Some((a, b, _dir)) = $pair() else {
-                    return;
-                };
-                super::lease_expiry_fences_the_old_holder(&a, &b);
-            }
-            #[test]
-            fn lease_renew() {
-                let Some((a, b, _dir)) = $pair() else {
-                    return;
-                };
-                super::lease_renew(&a, &b);
-            }
-            #[test]
-            fn lease_release() {
-                let Some((a, b, _dir)) = $pair() else {
-                    return;
-                };
-                super::lease_release(&a, &b);
-            }
-            #[test]
-            fn lease_delete_cascades() {
-                let Some((a, b, _dir)) = $pair() else {
-                    return;
-                };
-                super::lease_delete_cascades(&a, &b);
             }
         }
     };
