@@ -643,12 +643,12 @@ fn snapshot(s: &impl SessionStore, keys: &[&str]) -> Snapshot {
         .collect()
 }
 
-#[test]
-fn sqlite_reopen_restores_everything() {
-    let dir = tempfile::tempdir().unwrap();
+/// What a store held is there again when `open` opens it anew: sessions, access times, logs,
+/// blobs, leases; deletions stay deleted.
+fn reopen_restores_everything<S: SessionStore>(open: impl Fn() -> S) {
     let keys = ["labelmap", "models"];
     let before = {
-        let s = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap();
+        let s = open();
         for (i, id) in ["s1", "s2", "s3"].iter().enumerate() {
             let mut r = rec(id, 1000 - i as i64);
             r.display_name = format!("Ünïcode näme {i} 🫀");
@@ -678,16 +678,25 @@ fn sqlite_reopen_restores_everything() {
             },
         )
         .unwrap();
+        s.claim("s2", &replica("a"), 60_000).unwrap();
         s.delete_session("s3").unwrap();
         let snap = snapshot(&s, &keys);
         assert_eq!(snap.len(), 2);
         (snap, s.usage().unwrap())
     };
-    let s = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap();
+    let s = open();
     assert_eq!((snapshot(&s, &keys), s.usage().unwrap()), before);
     assert_eq!(s.sessions().unwrap()[0].last_access_ms, 5001);
     assert_eq!(s.log_len("s2").unwrap(), 6);
     assert_eq!(s.append("s2", 6, &strings(["{}"])).unwrap(), 7);
+    assert_eq!(s.lease("s2").unwrap().unwrap().holder, replica("a"));
+}
+
+#[test]
+fn sqlite_reopen_restores_everything() {
+    let dir = tempfile::tempdir().unwrap();
+    reopen_restores_everything(|| SqliteStore::open(dir.path(), StoreOptions::default()).unwrap());
+    let s = SqliteStore::open(dir.path(), StoreOptions::default()).unwrap();
     assert!(s.path().ends_with(DB_FILE));
 }
 
@@ -1236,39 +1245,9 @@ fn pg_store_dropped_on_an_async_runtime_thread() {
 #[test]
 fn pg_reopen_restores_everything() {
     let Some(db) = pg::Db::new() else { return };
-    let keys = ["labelmap", "models"];
-    let before = {
-        let s = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
-        for (i, id) in ["s1", "s2", "s3"].iter().enumerate() {
-            let mut r = rec(id, 1000 - i as i64);
-            r.display_name = format!("Ünïcode näme {i} 🫀");
-            s.create_session(&r).unwrap();
-            s.touch(id, 5000 + i as i64).unwrap();
-            for batch in 0..=i {
-                let len = s.log_len(id).unwrap();
-                let recs: Vec<String> = (0..3)
-                    .map(|k| format!(r#"{{"op":"move","batch":{batch},"k":{k}}}"#))
-                    .collect();
-                s.append(id, len, &recs).unwrap();
-            }
-        }
-        let map = Blob {
-            meta_json: r#"{"dims":[64,64,32]}"#.into(),
-            data: label_map(64, 64, 32),
-        };
-        s.put_blob("s1", "labelmap", &map).unwrap();
-        s.claim("s2", &replica("a"), 60_000).unwrap();
-        s.delete_session("s3").unwrap();
-        let snap = snapshot(&s, &keys);
-        assert_eq!(snap.len(), 2);
-        (snap, s.usage().unwrap())
-    };
-    let s = PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap();
-    assert_eq!((snapshot(&s, &keys), s.usage().unwrap()), before);
-    assert_eq!(s.sessions().unwrap()[0].last_access_ms, 5001);
-    assert_eq!(s.log_len("s2").unwrap(), 6);
-    assert_eq!(s.append("s2", 6, &strings(["{}"])).unwrap(), 7);
-    assert_eq!(s.lease("s2").unwrap().unwrap().holder, replica("a"));
+    reopen_restores_everything(|| {
+        PostgresStore::open(&db.url, None, StoreOptions::default()).unwrap()
+    });
 }
 
 /// Two pools on one database race appends to one session: every position is won once.
