@@ -36,8 +36,8 @@ def store():
     return postgres_store(uuid.uuid4().hex, PG)
 
 
-def replica(store, name, lease_ms=LEASE_MS):
-    return Server("--store", store, "--replica-id", name, "--lease-ms", str(lease_ms))
+def replica(store, name, *args, lease_ms=LEASE_MS):
+    return Server("--store", store, "--replica-id", name, "--lease-ms", str(lease_ms), *args)
 
 
 def elsewhere(err):
@@ -122,9 +122,12 @@ def test_a_paused_former_holder_cannot_write(store, stubs, phantom):
         kill_all(a, b)
 
 
-def test_100_sessions_spread_over_two_replicas_and_draining_hands_them_over(store, stubs, phantom):
+def test_100_sessions_spread_over_two_replicas_and_draining_hands_them_over(store, stubs, phantom, tmp_path):
+    # The session quota is the shared store's (64 by default): room for 100.
+    config = tmp_path / "resecta.toml"
+    config.write_text("[limits]\nmax_sessions = 100\n")
     # A long lease: the hand-over on SIGTERM must not wait for it.
-    a, b = replica(store, "a", lease_ms=30_000), replica(store, "b", lease_ms=30_000)
+    a, b = (replica(store, name, "--config", str(config), lease_ms=30_000) for name in ("a", "b"))
     try:
         pb, on_a = client(a, stubs)
         _, on_b = client(b, stubs)
@@ -137,6 +140,10 @@ def test_100_sessions_spread_over_two_replicas_and_draining_hands_them_over(stor
                 stub.UploadLabelMap(iter(raw_upload(pb, sid, phantom)), metadata=md())
                 stub.Edit(init_edit(pb, sid), metadata=md())
         assert len(on_a.ListSessions(pb.ListSessionsRequest(), metadata=md()).sessions) == 100
+        # The quota counts both replicas' sessions.
+        with pytest.raises(grpc.RpcError) as e:
+            new_session(pb, on_b, name="one too many")
+        assert e.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
         for k, sid in enumerate(ids):
             holder, other, other_server = (on_a, on_b, a) if k % 2 == 0 else (on_b, on_a, b)
             holder.GetSession(pb.GetSessionRequest(session_id=sid), metadata=md())
