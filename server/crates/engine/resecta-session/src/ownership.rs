@@ -71,7 +71,7 @@ impl Service {
             s.deleted.store(true, Ordering::Release);
             s.hub.close_moved(at);
             self.budget.release(id)?;
-            tracing::info!(session = %id, "session lease lost: dropped");
+            tracing::info!(session = %id, "session dropped: another replica takes it");
         }
         Ok(())
     }
@@ -121,11 +121,7 @@ impl Service {
         };
         let mut n = 0;
         for id in self.registry.ids()? {
-            if let Some(s) = self.registry.remove(&id)? {
-                s.deleted.store(true, Ordering::Release);
-                s.hub.close_moved(None);
-            }
-            self.budget.release(&id)?;
+            self.evict(&id, None)?;
             let store = Arc::clone(&self.store);
             let mine = r.replica.id.clone();
             if blocking(move || Ok(store.release(&id, &mine)?)).await? {
